@@ -1,0 +1,1 @@
+"""The ``flight-fdi`` command line tool (see ``flight_fdi.cli.main``)."""
