@@ -1,0 +1,12 @@
+"""Flight simulator with the fault catalogue (numpy only; no rclpy).
+
+``simulate(SimConfig(...))`` runs one seeded flight of the seed-000 INS error model with
+injected faults; ``write_bag`` stores it as a rosbag2 bag (see ``flight_fdi.sim.ins``).
+"""
+from .errors import SimError
+from .faults import FaultSpec, parse_fault
+from .ins import SimConfig, SimulatedFlight, propagate, simulate, simulate_to_bag, write_bag
+from .profile import FlightProfile
+
+__all__ = ["FaultSpec", "FlightProfile", "SimConfig", "SimError", "SimulatedFlight", "parse_fault",
+           "propagate", "simulate", "simulate_to_bag", "write_bag"]
