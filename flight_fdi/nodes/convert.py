@@ -1,0 +1,137 @@
+"""Message <-> numpy conversion for the nodes (all ROS message construction lives here).
+
+Stamps are float seconds (``sec + nanosec * 1e-9``; a float64 keeps ~0.1 us resolution for
+stamps up to ~1e9 s, enough for 10-100 Hz data). Matrices are row-major flat lists in messages.
+"""
+from __future__ import annotations
+
+import array
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+AXES = ("x", "y", "z")
+AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
+
+
+# --- time --------------------------------------------------------------------------------------
+
+def stamp_to_s(stamp: Any) -> float:
+    """builtin_interfaces/Time -> float seconds."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def s_to_stamp(t: float):
+    """float seconds -> builtin_interfaces/Time (nanoseconds rounded; t >= 0)."""
+    from builtin_interfaces.msg import Time
+
+    if not math.isfinite(t) or t < 0:
+        raise ValueError(f"cannot convert {t!r} s to a ROS time stamp")
+    ns = int(round(t * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def header(stamp, frame_id: str = ""):
+    from std_msgs.msg import Header
+
+    return Header(stamp=stamp, frame_id=frame_id)
+
+
+# --- inputs ------------------------------------------------------------------------------------
+
+def twist_velocity(msg: Any) -> tuple[float, np.ndarray]:
+    """geometry_msgs/TwistStamped -> (t [s], linear velocity (3,) [m/s])."""
+    lin = msg.twist.linear
+    return stamp_to_s(msg.header.stamp), np.array([lin.x, lin.y, lin.z], dtype=float)
+
+
+def twist_cov_velocity(msg: Any) -> tuple[float, np.ndarray, np.ndarray]:
+    """geometry_msgs/TwistWithCovarianceStamped -> (t [s], linear velocity (3,) [m/s],
+    variance of each linear axis (3,) [m^2/s^2], the diagonal of the 6x6 covariance; not
+    checked here — the caller decides what a valid variance is)."""
+    tw = msg.twist
+    lin = tw.twist.linear
+    cov = tw.covariance
+    var = np.array([cov[0], cov[7], cov[14]], dtype=float)
+    return stamp_to_s(msg.header.stamp), np.array([lin.x, lin.y, lin.z], dtype=float), var
+
+
+def twist_stamped(t: float, v: Sequence[float], frame_id: str = ""):
+    """(t, [vx, vy, vz]) -> geometry_msgs/TwistStamped (for tests, the player and benchmarks)."""
+    from geometry_msgs.msg import TwistStamped
+
+    msg = TwistStamped()
+    msg.header = header(s_to_stamp(t), frame_id)
+    msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z = (float(c) for c in v)
+    return msg
+
+
+def twist_cov_stamped(t: float, v: Sequence[float], var: Sequence[float] | float,
+                      frame_id: str = ""):
+    """(t, [vx, vy, vz], variance per linear axis) -> geometry_msgs/TwistWithCovarianceStamped."""
+    from geometry_msgs.msg import TwistWithCovarianceStamped
+
+    msg = TwistWithCovarianceStamped()
+    msg.header = header(s_to_stamp(t), frame_id)
+    lin = msg.twist.twist.linear
+    lin.x, lin.y, lin.z = (float(c) for c in v)
+    var3 = np.broadcast_to(np.asarray(var, dtype=float), (3,))
+    cov = np.zeros(36)
+    cov[[0, 7, 14]] = var3
+    msg.twist.covariance = cov
+    return msg
+
+
+# --- outputs -----------------------------------------------------------------------------------
+
+def _flat(a: Any) -> array.array:
+    """Row-major float64 values as array('d'): the generated message setters take it as is
+    (a list is checked element by element)."""
+    return array.array("d", np.ascontiguousarray(a, dtype=float).reshape(-1).tobytes())
+
+
+def innovation_msg(stamp, channel: str, row_names: Sequence[str], result: Any):
+    """flight_fdi_msgs/Innovation from the core's UpdateResult (nu, S, beta2, threshold,
+    exceeded, alarm_state); per-row beta^2 = nu_k^2 / S_kk."""
+    from flight_fdi_msgs.msg import Innovation
+
+    nu = np.asarray(result.nu, dtype=float).reshape(-1)
+    S = np.asarray(result.S, dtype=float).reshape(nu.size, nu.size)
+    m = nu.size
+    return Innovation(
+        header=header(stamp), channel=channel, row_names=list(row_names),
+        innovation=_flat(nu), innovation_covariance=_flat(S),
+        beta2=float(result.beta2), gate_threshold=float(result.threshold),
+        gate_exceeded=bool(result.exceeded), alarm_state=int(result.alarm_state),
+        row_beta2=_flat(nu**2 / np.diag(S)), row_excluded=[False] * m, row_failed=[False] * m)
+
+
+def filter_state_msg(stamp, channel: str, state_names: Sequence[str], x: Any, P: Any,
+                     z: Any = (), R: Any = (), H: Any = (), u: Any = (), dt: float = 0.0,
+                     fused: bool = False, gated: bool = False, reset: bool = False):
+    """flight_fdi_msgs/FilterState: x(i/i), P(i/i) and the measurement step that produced them."""
+    from flight_fdi_msgs.msg import FilterState
+
+    return FilterState(
+        header=header(stamp), channel=channel, state_names=list(state_names),
+        x=_flat(x), p=_flat(P), z=_flat(z), r=_flat(R), h=_flat(H), u=_flat(u),
+        dt=float(dt), fused=bool(fused), gated=bool(gated), reset=bool(reset))
+
+
+def model_info_msg(stamp, channel: str, model: Any, gate: Any):
+    """flight_fdi_msgs/ModelInfo from a LinearModel and a GateConfig."""
+    from flight_fdi_msgs.msg import ModelInfo
+
+    B = model.B
+    names = list(model.params)
+    return ModelInfo(
+        header=header(stamp), channel=channel, model_name=model.name,
+        state_names=list(model.state_names), state_units=list(model.state_units),
+        measurement_names=list(model.measurement_names),
+        n=model.n, m=model.m, p=0 if B is None else int(B.shape[1]),
+        a=_flat(model.A), qc=_flat(model.Qc), h=_flat(model.H), r=_flat(model.R),
+        p0=_flat(model.P0), b=[] if B is None else _flat(B), scale=_flat(model.scale),
+        param_names=names, param_values=[float(model.params[k]) for k in names],
+        gate_rule=str(gate.rule), gate_probability=float(gate.probability),
+        alarm_m=int(gate.alarm_m), alarm_n=int(gate.alarm_n), gate_action=str(gate.action))

@@ -1,0 +1,550 @@
+"""In-flight INS fault detection: the forward Kalman filter with the beta^2 gate as a ROS 2 node.
+
+Inputs
+    ``ins_topic`` (default ``/ins/velocity``, geometry_msgs/TwistStamped): INS velocity.
+    ``reference_topic`` (default ``/reference/velocity``, geometry_msgs/TwistWithCovarianceStamped):
+    the reference velocity (GNSS, Doppler ...); its linear covariance diagonal is R when valid.
+    QoS ``input_qos``: ``sensor_data`` (best effort, default) or ``reliable``.
+
+Outputs (one message per channel and reference sample, header stamp = the reference stamp)
+    ``fdi/innovation`` (flight_fdi_msgs/Innovation), ``fdi/state`` (flight_fdi_msgs/FilterState),
+    ``fdi/model`` (flight_fdi_msgs/ModelInfo, once per channel, reliable + transient local),
+    ``/diagnostics`` (diagnostic_msgs/DiagnosticArray every ``diagnostics_period_s``).
+
+Per channel (``channels``: "x" and/or "y") the filter steps at each reference message with
+z = V_INS(t_ref) - V_ref on that axis; V_INS(t_ref) is interpolated from a bounded buffer
+(core ``StreamingAligner``; a reference sample waits until the INS sample after it arrives).
+dt is the difference of reference header stamps.
+
+Bad input never stops the node; every dropped sample is counted by reason and reported in
+``/diagnostics`` (status "<node>: inputs" for message-level counts, "<node>: channel <c>" for
+per-channel counts). Messages are never reordered.
+
+    =============================== ===========================================================
+    count                           what happened
+    =============================== ===========================================================
+    dropped_ins_nonfinite           INS velocity NaN/Inf on a configured axis
+    dropped_ins_duplicate           INS stamp equal to the previous one
+    dropped_ins_out_of_order        INS stamp older than the previous one (by <= time_jump_reset_s)
+    dropped_reference_duplicate     reference stamp equal to the previous one
+    dropped_reference_out_of_order  reference stamp older than the previous one (idem)
+    dropped_ins_gap                 the INS samples around the reference stamp are more than
+                                    ``max_gap_s`` apart (INS dropout): the reference is dropped
+    dropped_ins_too_old             the reference stamp is older than the INS buffer
+    dropped_ins_core_error          the INS buffer refused the sample (CoreError)
+    dropped_ins_timeout             a reference waited more than ``buffer_s`` (of reference
+                                    stamps) for the INS sample after it
+    dropped_time_jump               references waiting when the time line jumped back
+    time_jump_resets                stamps went back by more than ``time_jump_reset_s``
+    (channel) dropped_reference_nonfinite   reference velocity NaN/Inf on the channel's axis
+    (channel) dropped_core_error    the core raised CoreError for this sample
+    (channel) covariance_invalid    zero / negative / NaN reference covariance: the sample is
+                                    used with R = ``reference_variance``
+    (channel) resets                filter restarts (time jump, or a gap > reset_after_gap_s)
+    =============================== ===========================================================
+
+A stamp that goes backwards by more than ``time_jump_reset_s`` (a bag loop, a clock reset) resets
+the filters (and the INS buffer when it is on the old time line) with a warning; the next
+FilterState has ``reset = True`` and ``dt = 0``.
+
+A reference dropout: diagnostics turn WARN once the input is older than ``stale_after_s``
+("/reference/velocity stale for 3.2 s"; "no messages on ... yet" when none ever came). On
+recovery the filter predicts across the gap in one step (one long dt: the model is exact for
+any dt, and the grown covariance lets the filter re-converge without a false alarm) when the gap
+is at most ``reset_after_gap_s``; beyond that it restarts from the prior (warning,
+``reset = True``), because after a very long blind interval the old estimate says little.
+
+Parameters: ``FILTER_PARAMS`` below (documented in ``config/filter.yaml``). Invalid parameters
+stop the node at start-up with a ParameterError naming the parameter.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections import deque
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.exceptions import NameValidationException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.validate_topic_name import validate_topic_name
+
+from ..core.align import StreamingAligner
+from ..core.errors import CoreError
+from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig, KalmanFilter
+from ..core.models import BUILTIN_MODELS, LinearModel, get_model
+from . import convert
+from . import diagnostics as diag
+from .errors import ParameterError
+from .params import ParamSpec, declare_parameters, fail
+
+NODE_NAME = "filter_node"
+PARAMS_FILE_HEADER = """\
+Parameters of filter_node (the in-flight forward Kalman filter with the beta^2 gate).
+Use: ros2 run flight_fdi filter_node --ros-args --params-file config/filter.yaml
+Every parameter is listed at its default; changes need a restart. An invalid value stops the
+node at start-up with a message naming the parameter. use_sim_time (ROS's own) may be added.
+Generated by: python -m flight_fdi.nodes.params flight_fdi.nodes.filter_node"""
+
+#: model parameters of the built-in ``ins_channel`` model that the node exposes
+INS_MODEL_PARAMS = ("tau_a", "tau_w", "sigma_a", "sigma_w_deg_h", "sigma_v0", "sigma_tilt0")
+
+FILTER_PARAMS = (
+    ParamSpec("model", "string", "ins_channel",
+              "Error model: the built-in name ins_channel, or the path of a model YAML file "
+              "(one measurement row, no control input)", non_empty=True),
+    ParamSpec("tau_a", "double", 3600.0, "Accelerometer bias correlation time (ins_channel)",
+              "s", min=0.0, min_exclusive=True),
+    ParamSpec("tau_w", "double", 3600.0, "Gyro drift correlation time (ins_channel)",
+              "s", min=0.0, min_exclusive=True),
+    ParamSpec("sigma_a", "double", 1e-3, "Accelerometer bias stationary std (ins_channel)",
+              "m/s^2", min=0.0, min_exclusive=True),
+    ParamSpec("sigma_w_deg_h", "double", 0.01, "Gyro drift stationary std (ins_channel)",
+              "deg/h", min=0.0, min_exclusive=True),
+    ParamSpec("sigma_v0", "double", 0.1, "Initial velocity error std (ins_channel)",
+              "m/s", min=0.0, min_exclusive=True),
+    ParamSpec("sigma_tilt0", "double", 1e-4, "Initial tilt std (ins_channel)",
+              "rad", min=0.0, min_exclusive=True),
+    ParamSpec("channels", "string_array", ["x", "y"],
+              "Velocity axes filtered, one independent channel each", choices=("x", "y"),
+              non_empty=True),
+    ParamSpec("ins_topic", "string", "/ins/velocity",
+              "INS velocity input (geometry_msgs/TwistStamped)", non_empty=True),
+    ParamSpec("reference_topic", "string", "/reference/velocity",
+              "Reference velocity input (geometry_msgs/TwistWithCovarianceStamped)",
+              non_empty=True),
+    ParamSpec("input_qos", "string", "sensor_data",
+              "QoS of both inputs: sensor_data (best effort) or reliable",
+              choices=("sensor_data", "reliable")),
+    ParamSpec("input_queue_depth", "int", 100, "History depth of the input subscriptions",
+              "messages", min=1, max=100000),
+    ParamSpec("max_gap_s", "double", 0.5,
+              "Largest gap between the two INS samples around a reference stamp; a reference "
+              "sample inside a larger gap is dropped", "s", min=0.0, max=60.0,
+              min_exclusive=True),
+    ParamSpec("buffer_s", "double", 2.0,
+              "INS buffer length; also how long a reference sample waits for INS data "
+              "(must exceed max_gap_s)", "s", min=0.0, max=600.0, min_exclusive=True),
+    ParamSpec("gate_rule", "string", "chi2",
+              "beta^2 gate: chi2 (chi-square quantile for gate_probability) or seed "
+              "(m + 3 sqrt(2m))", choices=("chi2", "seed")),
+    ParamSpec("gate_probability", "double", 1e-3,
+              "Per-sample false-alarm probability of the chi2 gate", "", min=0.0, max=0.5,
+              min_exclusive=True),
+    ParamSpec("alarm_m", "int", 3, "Alarm when alarm_m of the last alarm_n samples exceed the "
+              "gate (alarm_m <= alarm_n)", "samples", min=1, max=1000),
+    ParamSpec("alarm_n", "int", 5, "Window of the M-of-N alarm rule", "samples",
+              min=1, max=1000),
+    ParamSpec("gate_action", "string", "flag",
+              "flag: fuse gated samples anyway (post-flight analysis sees the fault); "
+              "reject: do not fuse them", choices=("flag", "reject")),
+    ParamSpec("reference_variance", "double", 0.01,
+              "Reference velocity variance R used when a message carries no valid covariance "
+              "(also the model's default R)", "m^2/s^2", min=0.0, min_exclusive=True),
+    ParamSpec("use_reference_covariance", "bool", True,
+              "Use the reference message's covariance as R when it is finite and > 0"),
+    ParamSpec("time_jump_reset_s", "double", 1.0,
+              "A stamp going backwards by more than this resets the filter (smaller steps back "
+              "are dropped as out of order)", "s", min=0.0, min_exclusive=True),
+    ParamSpec("reset_after_gap_s", "double", 60.0,
+              "After a reference gap up to this long the filter predicts across it; after a "
+              "longer gap it restarts from the prior", "s", min=0.0, min_exclusive=True),
+    ParamSpec("diagnostics_period_s", "double", 1.0, "Period of /diagnostics", "s",
+              min=0.0, max=3600.0, min_exclusive=True),
+    ParamSpec("stale_after_s", "double", 1.0,
+              "An input with no message for longer than this is reported stale (WARN)", "s",
+              min=0.0, min_exclusive=True),
+    ParamSpec("rate_window_s", "double", 5.0, "Window of the input rate estimate", "s",
+              min=0.0, max=3600.0, min_exclusive=True),
+)
+
+_DEFAULTS = {s.name: s.default for s in FILTER_PARAMS}
+_ALARM_NAMES = {0: "clear", 1: "raised", 2: "active", 3: "cleared"}
+
+
+def build_model(values: dict[str, Any]) -> LinearModel:
+    """The channel model from the node parameters (ParameterError when it cannot be built)."""
+    name = values["model"]
+    overrides = {k: values[k] for k in INS_MODEL_PARAMS}
+    try:
+        if name == "ins_channel":
+            model = get_model(name, sigma_ref=math.sqrt(values["reference_variance"]),
+                              **overrides)
+        else:
+            changed = [k for k in INS_MODEL_PARAMS if values[k] != _DEFAULTS[k]]
+            if changed and name not in BUILTIN_MODELS:
+                fail(changed[0], values[changed[0]],
+                     "its default: model parameters apply only to the built-in ins_channel "
+                     "(a model file carries its own)")
+            model = get_model(name)
+            model = model.with_R([[values["reference_variance"]]]) if model.m == 1 else model
+    except CoreError as exc:
+        fail("model", name, f"a built-in model ({', '.join(BUILTIN_MODELS)}) or a readable "
+             f"model YAML file ({exc})")
+    if model.m != 1 or model.B is not None:
+        fail("model", name, "a model with one measurement row (the velocity difference) and no "
+             f"control input; {model.name} has {model.m} rows"
+             + ("" if model.B is None else " and a control input"))
+    return model
+
+
+def validate(values: dict[str, Any]) -> None:
+    """Cross-field checks of FILTER_PARAMS (ParameterError naming the parameter)."""
+    if values["alarm_m"] > values["alarm_n"]:
+        fail("alarm_m", values["alarm_m"], f"alarm_m <= alarm_n (= {values['alarm_n']})")
+    if values["buffer_s"] <= values["max_gap_s"]:
+        fail("buffer_s", values["buffer_s"], f"more than max_gap_s (= {values['max_gap_s']})")
+    if values["ins_topic"] == values["reference_topic"]:
+        fail("reference_topic", values["reference_topic"], "a topic other than ins_topic")
+    build_model(values)
+
+
+def input_qos(kind: str, depth: int) -> QoSProfile:
+    reliability = (ReliabilityPolicy.BEST_EFFORT if kind == "sensor_data"
+                   else ReliabilityPolicy.RELIABLE)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+class _Channel:
+    """One axis: its filter, the stamp of its last step, its counts and last result."""
+
+    def __init__(self, name: str, column: int, model: LinearModel, gate: GateConfig) -> None:
+        self.name = name
+        self.axis = convert.AXIS_INDEX[name]
+        self.column = column  # index in the INS vector given to the aligner
+        self.kf = KalmanFilter(model, gate)
+        self.last_t: float | None = None
+        self.last_step_clock: float | None = None
+        self.counters = diag.Counters(("fused", "gated", "rejected", "covariance_invalid",
+                                       "alarms_raised", "resets"))
+        self.result = None
+        self.alarm_since: float | None = None
+
+    def reset(self) -> None:
+        self.kf.reset()
+        self.last_t = None
+        self.alarm_since = None
+
+
+class FilterNode(Node):
+    """The filter node (see the module docstring).
+
+    ``FilterNode(context=..., parameter_overrides=[...])`` builds it in-process (any keyword goes
+    to ``rclpy.node.Node``); an invalid parameter raises ParameterError."""
+
+    def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        try:
+            self._setup()
+        except ParameterError:
+            self.destroy_node()
+            raise
+
+    # ------------------------------------------------------------------ set-up
+    def _setup(self) -> None:
+        p = self.p = declare_parameters(self, FILTER_PARAMS, validator=validate)
+        self.model = build_model(p)
+        try:
+            self.gate = GateConfig(rule=p["gate_rule"], probability=p["gate_probability"],
+                                   alarm_m=p["alarm_m"], alarm_n=p["alarm_n"],
+                                   action=p["gate_action"])
+        except CoreError as exc:  # the table's checks should make this unreachable
+            raise ParameterError(f"invalid gate parameters: {exc}") from None
+        axes = sorted(p["channels"], key=convert.AXIS_INDEX.__getitem__)
+        self._axes = np.array([convert.AXIS_INDEX[a] for a in axes])
+        self.channels = [_Channel(a, k, self.model, self.gate) for k, a in enumerate(axes)]
+        self._h = np.asarray(self.model.H, dtype=float)
+        self._new_aligner()
+        self._pending: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._last_ref_t: float | None = None
+        self._last_ins_t: float | None = None
+        self.counters = diag.Counters(("received_ins", "received_reference", "time_jump_resets"))
+
+        qos = input_qos(p["input_qos"], p["input_queue_depth"])
+        from geometry_msgs.msg import TwistStamped, TwistWithCovarianceStamped
+        from flight_fdi_msgs.msg import FilterState, Innovation, ModelInfo
+
+        names = {}
+        for key in ("ins_topic", "reference_topic"):
+            try:
+                validate_topic_name(p[key])
+                names[key] = self.resolve_topic_name(p[key])
+            except NameValidationException as exc:
+                fail(key, p[key], f"a valid ROS topic name ({str(exc).splitlines()[0]})")
+            except RuntimeError as exc:  # rcl's own check of the expanded name (e.g. "/a//b")
+                fail(key, p[key], f"a valid ROS topic name ({exc})")
+        self.ins_name, self.ref_name = names["ins_topic"], names["reference_topic"]
+        if self.ins_name == self.ref_name:
+            fail("reference_topic", p["reference_topic"],
+                 f"a topic other than ins_topic (both resolve to {self.ins_name})")
+        self.create_subscription(TwistStamped, self.ins_name, self._on_ins, qos)
+        self.create_subscription(TwistWithCovarianceStamped, self.ref_name, self._on_reference,
+                                 qos)
+        self._row_names = [self.ref_name]
+
+        out_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                             reliability=ReliabilityPolicy.RELIABLE)
+        self.pub_innovation = self.create_publisher(Innovation, "fdi/innovation", out_qos)
+        self.pub_state = self.create_publisher(FilterState, "fdi/state", out_qos)
+        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1, len(self.channels)),
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_model = self.create_publisher(ModelInfo, "fdi/model", latched)
+
+        self.inputs = diag.InputMonitor(self._now, (self.ins_name, self.ref_name),
+                                        window_s=p["rate_window_s"],
+                                        stale_after_s=p["stale_after_s"])
+        self.diagnostics = diag.DiagnosticsTimer(self, p["diagnostics_period_s"],
+                                                 self.diagnostic_statuses)
+        stamp = self.get_clock().now().to_msg()
+        for ch in self.channels:
+            self.pub_model.publish(convert.model_info_msg(stamp, ch.name, self.model, self.gate))
+        self.get_logger().info(
+            f"filtering channels {', '.join(axes)} with model {self.model.name} "
+            f"(gate {self.gate.rule}, alarm {self.gate.alarm_m} of {self.gate.alarm_n}, "
+            f"action {self.gate.action}); inputs {self.ins_name}, {self.ref_name} "
+            f"({p['input_qos']})")
+
+    def _new_aligner(self) -> None:
+        self.aligner = StreamingAligner(max_gap_s=self.p["max_gap_s"], buffer_s=self.p["buffer_s"])
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # ------------------------------------------------------------------ drops
+    def _drop(self, reason: str, detail: str, channel: _Channel | None = None, n: int = 1) -> None:
+        if channel is None:
+            self.counters.inc("dropped_" + reason, n)
+        else:
+            channel.counters.inc("dropped_" + reason, n)
+        self.get_logger().warning(f"dropped {detail}", throttle_duration_sec=5.0)
+
+    # ------------------------------------------------------------------ INS input
+    def _on_ins(self, msg: Any) -> None:
+        self.inputs.seen(self.ins_name)
+        self.counters.inc("received_ins")
+        t, v = convert.twist_velocity(msg)
+        v = v[self._axes]
+        if not np.all(np.isfinite(v)):
+            self._drop("ins_nonfinite", f"INS sample at t={t:.3f} s: non-finite velocity {v}")
+            return
+        last = self._last_ins_t
+        if last is not None and t <= last:
+            if t == last:
+                self._drop("ins_duplicate", f"INS sample at t={t:.3f} s: duplicate stamp")
+                return
+            if last - t <= self.p["time_jump_reset_s"]:
+                self._drop("ins_out_of_order",
+                           f"INS sample at t={t:.3f} s: older than the last one ({last:.3f} s)")
+                return
+            self._ins_time_jump(t, last)
+        try:
+            self.aligner.add_ins(t, v)
+        except CoreError as exc:
+            self._drop("ins_core_error", f"INS sample at t={t:.3f} s: {exc}")
+            return
+        self._last_ins_t = t
+        self._drain()
+
+    def _ins_time_jump(self, t: float, last: float) -> None:
+        self.get_logger().warning(
+            f"INS time jumped back from {last:.3f} s to {t:.3f} s: INS buffer reset")
+        self._new_aligner()
+        self._last_ins_t = None
+        limit = t + self.p["time_jump_reset_s"]
+        keep = deque(r for r in self._pending if r[0] <= limit)
+        stale = len(self._pending) - len(keep)
+        if stale:
+            self._pending = keep
+            self._drop("time_jump", f"{stale} reference samples waiting across a time jump",
+                       n=stale)
+
+    # ------------------------------------------------------------------ reference input
+    def _on_reference(self, msg: Any) -> None:
+        self.inputs.seen(self.ref_name)
+        self.counters.inc("received_reference")
+        t, v, var = convert.twist_cov_velocity(msg)
+        last = self._last_ref_t
+        if last is not None and t <= last:
+            if t == last:
+                self._drop("reference_duplicate",
+                           f"reference sample at t={t:.3f} s: duplicate stamp")
+                return
+            if last - t <= self.p["time_jump_reset_s"]:
+                self._drop("reference_out_of_order", f"reference sample at t={t:.3f} s: "
+                           f"older than the last one ({last:.3f} s)")
+                return
+            self._reference_time_jump(t, last)
+        self._last_ref_t = t
+        self._pending.append((t, v, var))
+        # a sample that waited longer than the INS buffer for its INS data will not get it
+        while self._pending and self._pending[0][0] < t - self.p["buffer_s"]:
+            old = self._pending.popleft()
+            self._drop("ins_timeout", f"reference sample at t={old[0]:.3f} s: no INS data "
+                       f"after it within {self.p['buffer_s']} s")
+        self._drain()
+
+    def _reference_time_jump(self, t: float, last: float) -> None:
+        self.counters.inc("time_jump_resets")
+        self.get_logger().warning(
+            f"reference time jumped back from {last:.3f} s to {t:.3f} s: filter reset")
+        for ch in self.channels:
+            ch.reset()
+            ch.counters.inc("resets")
+        if self._pending:
+            self._drop("time_jump", f"{len(self._pending)} reference samples waiting across a "
+                       "time jump", n=len(self._pending))
+            self._pending.clear()
+        if self._last_ins_t is not None and self._last_ins_t > t + self.p["time_jump_reset_s"]:
+            self._new_aligner()  # the INS buffer is still on the old time line
+            self._last_ins_t = None
+
+    def _drain(self) -> None:
+        """Step the filter for every waiting reference sample whose INS value is available."""
+        while self._pending:
+            t, v_ref, var = self._pending[0]
+            newest = self.aligner.newest_t
+            if newest is None or t > newest:
+                # wait for the INS sample after t, even when t is more than max_gap_s ahead of
+                # the newest one: INS messages may simply be delivered later than references
+                # (a real INS dropout ends as a "gap", or the sample expires after buffer_s)
+                return
+            v_ins = self.aligner.at(t)
+            if v_ins is None:
+                reason = self.aligner.last_reason
+                self._pending.popleft()
+                self._drop(f"ins_{reason}", f"reference sample at t={t:.3f} s: no INS value "
+                           f"({reason}; max_gap_s {self.p['max_gap_s']} s, buffer_s "
+                           f"{self.p['buffer_s']} s)")
+                continue
+            self._pending.popleft()
+            self._step(t, np.asarray(v_ins, dtype=float).reshape(-1), v_ref, var)
+
+    # ------------------------------------------------------------------ the filter step
+    def _step(self, t: float, v_ins: np.ndarray, v_ref: np.ndarray, var: np.ndarray) -> None:
+        """One filter step per channel at reference stamp ``t``. The innovations (what the
+        in-flight monitor waits for) are published as soon as each is known, the states after."""
+        stamp = convert.s_to_stamp(t)
+        now = self._now()
+        states = []
+        for ch in self.channels:
+            vr = float(v_ref[ch.axis])
+            if not math.isfinite(vr):
+                self._drop("reference_nonfinite", f"reference sample at t={t:.3f} s on "
+                           f"channel {ch.name}: non-finite velocity {vr}", channel=ch)
+                continue
+            r = float(var[ch.axis])
+            if not (self.p["use_reference_covariance"] and math.isfinite(r) and r > 0.0):
+                if self.p["use_reference_covariance"]:
+                    ch.counters.inc("covariance_invalid")
+                r = self.p["reference_variance"]
+            z = float(v_ins[ch.column]) - vr
+            reset = ch.last_t is None
+            dt = 0.0 if reset else t - ch.last_t
+            if dt > self.p["reset_after_gap_s"]:
+                self.get_logger().warning(
+                    f"channel {ch.name}: no update for {dt:.1f} s (> reset_after_gap_s "
+                    f"{self.p['reset_after_gap_s']} s): filter restarted from the prior")
+                ch.reset()
+                ch.counters.inc("resets")
+                reset, dt = True, 0.0
+            try:
+                res = ch.kf.step(dt, [z], [[r]])
+            except CoreError as exc:
+                self._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
+                           channel=ch)
+                continue
+            ch.last_t = t
+            ch.last_step_clock = now
+            ch.result = res
+            if res.fused:
+                ch.counters.inc("fused")
+            if res.exceeded:
+                ch.counters.inc("gated")
+                if not res.fused:
+                    ch.counters.inc("rejected")
+            self._alarm_transition(ch, t, res)
+            self.pub_innovation.publish(
+                convert.innovation_msg(stamp, ch.name, self._row_names, res))
+            states.append(convert.filter_state_msg(
+                stamp, ch.name, self.model.state_names, ch.kf.x, ch.kf.P, z=(z,), R=(r,),
+                H=self._h, dt=dt, fused=res.fused, gated=res.exceeded, reset=reset))
+        for msg in states:
+            self.pub_state.publish(msg)
+
+    def _alarm_transition(self, ch: _Channel, t: float, res: Any) -> None:
+        if res.alarm_state == ALARM_RAISED:
+            ch.alarm_since = t
+            ch.counters.inc("alarms_raised")
+            self.get_logger().warning(
+                f"channel {ch.name}: INS fault alarm raised at t={t:.3f} s "
+                f"(beta2 {res.beta2:.3g} > {res.threshold:.3g} in {self.gate.alarm_m} of the "
+                f"last {self.gate.alarm_n} samples)")
+        elif res.alarm_state == ALARM_CLEARED:
+            ch.alarm_since = None
+            self.get_logger().info(f"channel {ch.name}: alarm cleared at t={t:.3f} s")
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostic_statuses(self) -> list:
+        name = self.get_name()
+        problems = self.inputs.problems()
+        values = self.inputs.key_values() + self.counters.key_values()
+        values.append(("waiting_reference_samples", str(len(self._pending))))
+        inputs = diag.make_status(
+            f"{name}: inputs", diag.WARN if problems else diag.OK,
+            "; ".join(problems) if problems else "inputs OK", values, hardware_id=name)
+        out = [inputs]
+        now = self._now()
+        for ch in self.channels:
+            res = ch.result
+            vals: list[tuple[str, Any]] = [
+                ("beta2", math.nan if res is None else res.beta2),
+                ("gate_threshold", self.gate.threshold(self.model.m)),
+                ("alarm_state", "never updated" if res is None
+                 else _ALARM_NAMES.get(res.alarm_state, str(res.alarm_state))),
+                ("alarm_since_s", ch.alarm_since),
+                ("last_stamp_s", ch.last_t),
+            ]
+            vals += ch.counters.key_values()
+            vals += [(f"x.{nm}", float(v)) for nm, v in zip(self.model.state_names, ch.kf.x)]
+            alarm = ch.kf.alarm_active and ch.last_t is not None
+            since = math.nan if ch.last_step_clock is None else now - ch.last_step_clock
+            if alarm:
+                level, text = diag.ERROR, f"INS fault alarm since t={ch.alarm_since:.3f} s"
+            elif ch.last_step_clock is None:
+                level, text = diag.WARN, "no filter update yet"
+            elif since > self.p["stale_after_s"]:
+                level, text = diag.WARN, f"no filter update for {since:.1f} s"
+            else:
+                level, text = diag.OK, "filtering"
+            out.append(diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
+                                        hardware_id=ch.name))
+        return out
+
+
+def main(args: list[str] | None = None) -> int:
+    """``ros2 run flight_fdi filter_node [--ros-args ...]``; exit 1 on invalid parameters."""
+    from rclpy.executors import ExternalShutdownException
+
+    rclpy.init(args=args)
+    try:
+        node = FilterNode()
+    except ParameterError as exc:
+        rclpy.logging.get_logger(NODE_NAME).fatal(str(exc))
+        rclpy.try_shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
