@@ -16,6 +16,7 @@ SUBCOMMANDS = (
     "flight_fdi.cli.info",
     "flight_fdi.cli.simulate",
     "flight_fdi.cli.analyze",
+    "flight_fdi.cli.run",
 )
 
 EXIT_ERROR = 1
