@@ -61,7 +61,7 @@ PYEOF
 fi
 
 # --- 3. colcon build of flight_fdi_msgs and flight_fdi into install/ -------------------------
-BUILD_INPUTS=$(ls msg_defs/msg/*.msg msg_defs/CMakeLists.txt msg_defs/package.xml package.xml setup.py \
+BUILD_INPUTS=$(ls tools/setup.sh msg_defs/msg/*.msg msg_defs/CMakeLists.txt msg_defs/package.xml package.xml setup.py \
     setup.cfg config/*.yaml 2>/dev/null || true)
 BUILD_HASH=$( (echo "$ROOT $REQ_HASH"; ls msg_defs/msg; cat $BUILD_INPUTS) | sha256sum | cut -c1-16)
 if [ "$(cat "$VENV/.flight_fdi-build" 2>/dev/null)" != "$BUILD_HASH" ] || [ ! -d install/flight_fdi_msgs ]; then
@@ -83,7 +83,9 @@ if [ "$(cat "$VENV/.flight_fdi-build" 2>/dev/null)" != "$BUILD_HASH" ] || [ ! -d
         ln -sf "$ROOT/$lib" "$VENV/lib/$(basename "$lib")"
     done
     MSG_SITE=$(ls -d "$ROOT"/install/flight_fdi_msgs/lib/python3*/site-packages)
-    printf '%s\n%s\n' "$ROOT" "$MSG_SITE" > "$SITE/flight_fdi_dev.pth"
+    # the repo (flight_fdi itself, edited in place), the message package, and the build folder
+    # holding flight_fdi's egg-info (so the installed node scripts find their entry points)
+    printf '%s\n%s\n%s\n' "$ROOT" "$MSG_SITE" "$ROOT/build/flight_fdi" > "$SITE/flight_fdi_dev.pth"
     cat > "$VENV/bin/flight-fdi" <<EOF
 #!$VPY
 import sys

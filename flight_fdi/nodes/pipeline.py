@@ -1,0 +1,243 @@
+"""The whole node pipeline in one process: bag_player -> filter_node -> recorder_node ->
+smoother_node, on one executor (what ``flight-fdi run BAG`` runs).
+
+    run_pipeline(bag, out_dir, channel="x", *, config=None, model="ins_channel",
+                 storage="mcap", overwrite=False, timeout_s=600.0, executor="events") -> dict
+
+returns the result dict of the smoother (the JSON schema of ``flight-fdi analyze --json``: the
+in-flight alarms and the localized fault) and leaves in ``out_dir``: ``recording/`` (the bag
+recorded by recorder_node: fdi/innovation, fdi/state, fdi/model) and ``result.json``.
+:func:`run_pipeline_detailed` returns a :class:`PipelineRun` with the same dict plus the
+recording's path, counts and the replay throughput.
+
+* The player replays the bag as fast as possible without loss: it paces itself by the filter's
+  ``fdi/state`` messages (an end-to-end acknowledgement, see ``bag_player``), so no subscriber
+  queue can overflow.
+* The filter runs with the analysis's configuration (model, gate, alarm rule, gate action,
+  ``max_gap_s``) on ``channel`` with reliable inputs; the smoother analyses the recording with the
+  same AnalysisConfig and the same flight start (the earliest header stamp played), so the result
+  agrees with ``flight-fdi analyze`` of the same bag (see test_pipeline.py for the tolerance).
+* Isolation: the nodes run in a private rclpy Context created with
+  ``ROS_AUTOMATIC_DISCOVERY_RANGE=OFF``: they talk to each other inside this process only, so a
+  live ROS system on the same machine and domain neither hears the replay nor feeds it.
+* Executor: rclpy's C++ ``EventsExecutor`` (about four times the throughput of the Python
+  SingleThreadedExecutor here); ``executor="single"`` selects the latter.
+
+Errors: a missing or unreadable bag -> BagError; an invalid ``channel`` or ``executor`` ->
+ParameterError (flight_fdi.nodes.errors); a node that refuses its configuration (e.g. a model file
+the filter cannot use, an output folder holding something that is not a bag), a replay that does
+not finish in ``timeout_s`` or an analysis that fails -> PipelineError. Each carries one clear
+sentence.
+"""
+from __future__ import annotations
+
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+from flight_fdi.bagio.errors import BagError
+
+from .errors import ParameterError
+
+
+class PipelineError(RuntimeError):
+    """The pipeline did not produce a result (timeout, failed analysis)."""
+
+
+@dataclass
+class PipelineRun:
+    """What :func:`run_pipeline_detailed` returns."""
+
+    result: dict                      # JSON schema of flight-fdi analyze --json
+    recording: Path                   # the bag written by recorder_node
+    result_json: Path                 # the smoother's JSON file
+    messages_played: int
+    recorded: dict[str, int] = field(default_factory=dict)   # messages per recorded topic
+    replay_s: float = 0.0             # wall time from the first message played to the last output
+    analysis_s: float = 0.0           # wall time of the smoother's analysis
+    ack_timeouts: int = 0             # the player had to continue without acknowledgement
+
+    @property
+    def throughput(self) -> float:
+        """Input messages per second through player -> filter -> recorder."""
+        return self.messages_played / self.replay_s if self.replay_s > 0 else float("nan")
+
+
+@contextmanager
+def _private_context(log_args: list[str]) -> Iterator[Any]:
+    """An rclpy Context whose nodes discover nothing outside this process."""
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    key = "ROS_AUTOMATIC_DISCOVERY_RANGE"
+    saved = os.environ.get(key)
+    os.environ[key] = "OFF"  # read by rcl_init: applies to this context only
+    try:
+        rclpy.init(context=ctx, args=["flight_fdi_pipeline", "--ros-args", *log_args])
+    finally:
+        if saved is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = saved
+    try:
+        yield ctx
+    finally:
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)
+
+
+def _make_executor(kind: str, ctx: Any):
+    from rclpy.executors import SingleThreadedExecutor
+
+    if kind == "events":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:  # an rclpy without it: the Python executor works, slower
+            return SingleThreadedExecutor(context=ctx)
+        return EventsExecutor(context=ctx)
+    if kind == "single":
+        return SingleThreadedExecutor(context=ctx)
+    raise ParameterError(f"invalid executor {kind!r}; allowed: events, single")
+
+
+def filter_parameters(config: Any, channel: str, model: str) -> dict[str, Any]:
+    """filter_node parameters that make the live filter run as the analysis's forward pass."""
+    gate = config.gate
+    return {"model": model, "channels": [channel], "input_qos": "reliable",
+            "gate_rule": gate.rule, "gate_probability": float(gate.probability),
+            "alarm_m": int(gate.alarm_m), "alarm_n": int(gate.alarm_n),
+            "gate_action": gate.action, "max_gap_s": float(config.max_gap_s),
+            "buffer_s": max(2.0, 4.0 * float(config.max_gap_s))}
+
+
+def _spin_until(executor: Any, done: Any, deadline: float, what: str) -> None:
+    while not done():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise PipelineError(f"pipeline timed out while {what}")
+        executor.spin_once(timeout_sec=min(0.05, left))
+
+
+def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "x", *,
+                          config: Any = None, model: str = "ins_channel", storage: str = "mcap",
+                          overwrite: bool = False, timeout_s: float = 600.0,
+                          executor: str = "events", log_level: str = "warn",
+                          settle_s: float = 0.2) -> PipelineRun:
+    """Replay ``bag`` through the node pipeline; see the module docstring.
+
+    ``config``: the core's AnalysisConfig (default: its defaults), used by the filter (gate,
+    alarm rule, gate action, max_gap_s) and by the smoother. ``model``: the filter's ``model``
+    parameter (built-in name or model YAML). ``log_level``: of the nodes' loggers (rcutils'
+    default level is process-wide). ``settle_s``: after the replay, the recorder must
+    have received nothing new for this long before the bag is closed (all outputs were published
+    by then; this only lets the last deliveries land).
+    """
+    from rclpy.parameter import Parameter
+
+    from flight_fdi.bagio.reader import INS_TOPIC, REF_TOPIC
+    from flight_fdi.core.analysis import AnalysisConfig
+
+    from .bag_player import BagPlayer, BagSource
+    from .filter_node import FilterNode
+    from .recorder_node import RecorderNode
+    from .smoother_node import SmootherNode, write_json
+
+    if config is None:
+        config = AnalysisConfig()
+    if channel not in ("x", "y"):
+        raise ParameterError(f"invalid channel {channel!r}; allowed: x, y")
+    bag = Path(bag)
+    BagSource(bag, [INS_TOPIC, REF_TOPIC]).close()  # a readable bag, before anything is created
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    recording = out / "recording"
+    result_json = out / "result.json"
+    deadline = time.monotonic() + timeout_s
+
+    node_kwargs = {"start_parameter_services": False}
+    with _private_context(["--log-level", log_level]) as ctx:
+        ex = _make_executor(executor, ctx)
+        nodes: list[Any] = []
+
+        def add(node: Any) -> Any:
+            nodes.append(node)
+            ex.add_node(node)
+            return node
+
+        def build(cls: Any, values: dict[str, Any], **extra: Any) -> Any:
+            try:
+                return add(cls(context=ctx, **node_kwargs, **extra,
+                               parameter_overrides=[Parameter(k, value=v)
+                                                    for k, v in values.items()]))
+            except ParameterError as exc:
+                raise PipelineError(f"{cls.__name__}: {exc}") from None
+
+        try:
+            flt = build(FilterNode, filter_parameters(config, channel, model))
+            rec = build(RecorderNode, {"output": str(recording), "storage": storage,
+                                       "overwrite": overwrite})
+            player = build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
+                                       "publish_clock": False})
+            _spin_until(ex, player.done.done, deadline, "replaying the bag")
+            if player.error:
+                raise BagError(player.error)
+            state_topic = rec.resolve_topic_name("fdi/state")
+            # the filter answered the last messages; let the recorder take the last outputs
+            last = [-1, time.monotonic()]
+
+            def settled() -> bool:
+                n = sum(rec.counts().values())
+                now = time.monotonic()
+                if n != last[0]:
+                    last[0], last[1] = n, now
+                    return False
+                return (rec.counts()[state_topic] >= player.acks
+                        and now - last[1] >= settle_s)
+
+            _spin_until(ex, settled, deadline, "recording the filter's last outputs")
+            replay_s = last[1] - player.started_at
+            rec.close()
+            if rec.error:
+                raise PipelineError(f"recording failed: {rec.error}")
+            recorded = rec.counts()
+            played, ack_timeouts = player.published, player.ack_timeouts
+            # analyze's t0: the earliest INS / reference stamp (0.0: the first recorded state)
+            flight_start = max(player.first_stamp_ns, 0) * 1e-9
+            for node in (player, flt, rec):
+                ex.remove_node(node)
+                node.destroy_node()
+                nodes.remove(node)
+
+            t_analysis = time.monotonic()
+            smoother = build(SmootherNode, {
+                "bag": str(recording), "channel": channel, "output_json": str(result_json),
+                "flight_start_s": flight_start, "publish_smoothed": False}, config=config)
+            _spin_until(ex, smoother.done.done, deadline, "analysing the recording")
+            run = smoother.last
+            if run is None or run.error:
+                raise PipelineError(f"analysis of {recording} failed: "
+                                    f"{run.error if run else 'no result'}")
+            result = dict(run.result)
+            result["bag"] = str(bag)  # the input, as flight-fdi analyze names it
+            write_json(result, result_json)
+            return PipelineRun(result=result, recording=recording, result_json=result_json,
+                               messages_played=played, recorded=recorded, replay_s=replay_s,
+                               analysis_s=time.monotonic() - t_analysis,
+                               ack_timeouts=ack_timeouts)
+        finally:
+            for node in nodes:
+                try:
+                    ex.remove_node(node)
+                except Exception:
+                    pass
+                node.destroy_node()
+            ex.shutdown()
+
+
+def run_pipeline(bag: str | Path, out_dir: str | Path, channel: str = "x", **kwargs: Any) -> dict:
+    """``flight-fdi run BAG``: the result dict of :func:`run_pipeline_detailed`."""
+    return run_pipeline_detailed(bag, out_dir, channel, **kwargs).result

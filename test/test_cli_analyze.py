@@ -1,0 +1,116 @@
+"""``flight-fdi analyze`` on the sample flights, its JSON schema, and its one-line errors."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from flight_fdi.cli.main import main
+
+ELEMENTS = ["velocity_error", "tilt", "accel_bias", "gyro_drift"]
+
+
+def _analyze(capsys, *args):
+    rc = main(["analyze", *map(str, args), "--json"])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    return json.loads(out)
+
+
+def _check_schema(res, bag):
+    assert set(res) >= {"bag", "channel", "duration_s", "samples", "in_flight", "post_flight"}
+    assert res["bag"] == str(bag) and res["channel"] == "x"
+    assert 990 < res["duration_s"] < 1001 and res["samples"] > 9000
+    inf = res["in_flight"]
+    assert set(inf) == {"gate_threshold", "exceed_fraction", "first_alarm_s", "alarms"}
+    assert 0.0 <= inf["exceed_fraction"] <= 1.0
+    for a in inf["alarms"]:
+        assert set(a) == {"start_s", "end_s", "peak_beta2"} and a["start_s"] <= a["end_s"]
+    post = res["post_flight"]
+    assert set(post) == {"verdict", "element", "onset_s", "magnitude", "methods_agree",
+                         "seed_method", "glr"}
+    assert post["verdict"] in {"no_fault", "glitch", "failure", "ambiguous", "insufficient_data"}
+    seed = post["seed_method"]
+    assert [e["name"] for e in seed["elements"]] == ELEMENTS
+    for e in seed["elements"]:
+        assert set(e) == {"name", "J_peak", "gamma2", "F_peak", "eta2", "exceed_fraction", "dof"}
+        assert isinstance(e["dof"], int)
+    glr = post["glr"]
+    assert set(glr) == {"hypothesis", "onset_s", "magnitude", "statistic", "threshold"}
+    assert glr["threshold"] > 0
+
+
+def test_nominal_flight_no_alarm_no_fault(capsys, repo_root):
+    bag = repo_root / "bags" / "nominal"
+    res = _analyze(capsys, bag)
+    _check_schema(res, bag)
+    assert res["in_flight"]["first_alarm_s"] is None and res["in_flight"]["alarms"] == []
+    assert res["post_flight"]["glr"]["hypothesis"] == "none"
+    assert res["post_flight"]["verdict"] == "no_fault"
+
+
+@pytest.mark.parametrize("bag_name, hypothesis, element, magnitude", [
+    ("accel_fault_500s", "accel_bias_step", "accel_bias", 0.015),
+    ("gyro_fault_500s", "gyro_drift_step", "gyro_drift", 10.0 * 3.141592653589793 / 180 / 3600),
+])
+def test_faulty_flights_alarm_after_500s_and_glr_isolates(capsys, repo_root, bag_name, hypothesis,
+                                                          element, magnitude):
+    bag = repo_root / "bags" / bag_name
+    res = _analyze(capsys, bag)
+    _check_schema(res, bag)
+    first = res["in_flight"]["first_alarm_s"]
+    assert first is not None and 500.0 < first < 600.0
+    glr = res["post_flight"]["glr"]
+    assert glr["hypothesis"] == hypothesis
+    assert abs(glr["onset_s"] - 500.0) <= 5.0
+    assert glr["magnitude"] == pytest.approx(magnitude, rel=0.15)
+    post = res["post_flight"]
+    assert post["verdict"] == "failure" and post["element"] == element
+    assert abs(post["onset_s"] - 500.0) <= 5.0
+
+
+def test_text_table(capsys, repo_root):
+    assert main(["analyze", str(repo_root / "bags" / "accel_fault_500s")]) == 0
+    out = capsys.readouterr().out
+    assert "FAILURE" in out and "accel_bias_step" in out and "gyro_drift" in out
+
+
+@pytest.mark.parametrize("make_bad, message", [
+    (lambda d: d / "missing", "does not exist"),
+    (lambda d: (d / "empty").mkdir() or d / "empty", "not a rosbag2 bag"),
+    (lambda d: (d / "x.mcap").write_bytes(b"\x89MCAP0\r\n garbage") or d / "x.mcap", ""),
+])
+def test_bad_bag_is_one_line_and_nonzero_exit(tmp_path, make_bad, message):
+    bag = make_bad(tmp_path)
+    proc = subprocess.run([sys.executable, "-m", "flight_fdi.cli.main", "analyze", str(bag)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("flight-fdi analyze: error:"), proc.stderr
+    assert "Traceback" not in proc.stderr and message in lines[0]
+
+
+def test_bag_without_the_topics(tmp_path, capsys):
+    from flight_fdi.bagio import open_writer
+
+    bag = tmp_path / "other"
+    with open_writer(bag) as w:
+        from flight_fdi.bagio import get_typestore
+
+        String = get_typestore().types["std_msgs/msg/String"]
+        w.write("/chatter", "std_msgs/msg/String", String(data="hi"), 1_700_000_000_000_000_000)
+    assert main(["analyze", str(bag)]) == 1
+    err = capsys.readouterr().err
+    assert "/ins/velocity" in err and len(err.strip().splitlines()) == 1
+
+
+def test_invalid_option_values(capsys, repo_root):
+    bag = str(repo_root / "bags" / "nominal")
+    assert main(["analyze", bag, "--gate-probability", "2"]) == 1
+    assert "probability" in capsys.readouterr().err
+    assert main(["analyze", bag, "--alarm", "banana"]) == 1
+    assert "M/N" in capsys.readouterr().err
+    assert main(["analyze", bag, "--model", "no_such_model"]) == 1
+    assert "unknown model" in capsys.readouterr().err
