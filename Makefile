@@ -8,7 +8,7 @@ setup:
 	@bash tools/setup.sh
 
 demo: setup
-	@.venv/bin/flight-fdi info
+	@.venv/bin/flight-fdi run $(BAG)
 
 test: setup
 	@.venv/bin/python -m pytest
