@@ -17,6 +17,9 @@ SUBCOMMANDS = (
     "flight_fdi.cli.simulate",
     "flight_fdi.cli.analyze",
     "flight_fdi.cli.run",
+    "flight_fdi.cli.report",
+    "flight_fdi.cli.montecarlo",
+    "flight_fdi.cli.attitude",
 )
 
 EXIT_ERROR = 1

@@ -26,6 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="output folder (default out/<bag name>): recording, result.json")
     p.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"),
                    help="storage of the recording (default mcap)")
+    p.add_argument("--no-report", action="store_true",
+                   help="skip the figures and HTML page (OUT/report/index.html)")
     add_analysis_options(p)
     p.set_defaults(func=run)
 
@@ -43,10 +45,19 @@ def run(args: argparse.Namespace) -> int:
                            storage=args.storage, overwrite=True)
     except PipelineError as exc:
         raise CliError(str(exc)) from None
+    index = None
+    if not args.no_report:
+        from flight_fdi.cli.report import analyse_run_folder
+        from flight_fdi.report import write_report
+
+        analysis, truth, model, notes = analyse_run_folder(out, args)
+        index = write_report(analysis, out / "report", truth=truth, model=model, notes=notes)
     if args.json:
         json.dump(res, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     else:
         print(format_result(res))
         print(f"\nrecording and result.json in {out}/")
+        if index is not None:
+            print(f"report (figures and verdict): {index}")
     return 0

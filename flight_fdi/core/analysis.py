@@ -10,6 +10,7 @@ recording with ``ForwardResult.from_record``).
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -226,9 +227,14 @@ def analyze_forward(model: LinearModel, fwd: ForwardResult,
     origin = float(fwd.t[0]) if t0 is None else float(t0)
     if not math.isfinite(origin):
         raise CoreError(f"analyze_forward: t0 must be finite, got {t0!r}")
-    bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
-    seed = diagnose(model, fwd, bwd, config.diagnosis_config())
-    glr = isolate(model, fwd, config.glr_config())
+    # GLR needs only the forward pass: it runs in a second thread while this one does the
+    # backward pass (GLR is block-vectorised numpy that releases the GIL; the backward recursion
+    # is a Python loop), so the two use both cores of a small machine.
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        glr_future = pool.submit(isolate, model, fwd, config.glr_config())
+        bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
+        seed = diagnose(model, fwd, bwd, config.diagnosis_config())
+        glr = glr_future.result()
     summary = _summary(model, fwd, seed, glr, origin, bag, channel)
     end_s = None if seed.end_t is None else seed.end_t - origin
     return AnalysisResult(t0=origin, fwd=fwd, bwd=bwd, seed=seed, glr=glr, summary=summary,

@@ -1,0 +1,150 @@
+"""``flight-fdi report INPUT --out DIR``: figures and an HTML page of one analysed flight.
+
+INPUT is one of
+
+* a rosbag2 bag with /ins/velocity and /reference/velocity (a folder with metadata.yaml, or a
+  .mcap / .db3 file): analysed like ``flight-fdi analyze``; a simulated bag's /sim/truth is drawn
+  as the true error;
+* the output folder of ``flight-fdi run`` (result.json and recording/): the forward pass is
+  rebuilt from the recording exactly as the smoother node does, and the truth is taken from the
+  input bag named in result.json when that bag still exists;
+* a result JSON file (``flight-fdi analyze --json`` / ``run``'s result.json): the bag it names is
+  analysed again (the JSON alone holds no time series to draw).
+
+DIR receives index.html (the verdict on top), summary.json and the PNG figures: per state element
+the true error, filtered and smoothed estimates with the chi-square and Fisher statistics and
+their thresholds (like figures 7.2 / 7.3 of seed 000), the beta^2 gate with the alarms, the total
+chi-square statistic, and the GLR statistic over the onset time.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from flight_fdi.cli.analyze import add_analysis_options, analysis_config
+from flight_fdi.cli.errors import CliError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="figures and an HTML page of an analysed flight",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("input", help="a bag, a 'flight-fdi run' output folder or a result JSON file")
+    p.add_argument("--out", required=True, metavar="DIR", help="report folder (created)")
+    add_analysis_options(p)
+    p.set_defaults(func=run)
+
+
+def _is_bag(path: Path) -> bool:
+    return (path.is_dir() and (path / "metadata.yaml").exists()) or \
+        (path.is_file() and path.suffix in (".mcap", ".db3"))
+
+
+def _truth_of(flight: Any, model: Any, shift: float):
+    """Truth (flight_fdi.report.Truth) of a read_flight result, times minus ``shift``."""
+    from flight_fdi.report import Truth
+
+    if flight.x_truth is None or flight.truth_state_names is None:
+        return None
+    if tuple(flight.truth_state_names) != tuple(model.state_names):
+        return None  # truth of another model: nothing to compare
+    return Truth(flight.t_truth - shift, flight.x_truth, flight.truth_state_names)
+
+
+def analyse_bag(bag: Path, args: argparse.Namespace):
+    """(AnalysisResult, Truth or None, model) of an input bag, as ``flight-fdi analyze`` does."""
+    from flight_fdi.bagio import read_flight
+    from flight_fdi.core.analysis import run_analysis
+    from flight_fdi.core.models import get_model
+
+    config = analysis_config(args)
+    model = get_model(args.model)
+    flight = read_flight(bag, channel=args.channel, with_truth=True)
+    res = run_analysis(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
+                       flight.r_ref, config, bag=str(bag), channel=args.channel, t0=0.0)
+    return res, _truth_of(flight, model, flight.t0), model
+
+
+def analyse_run_folder(folder: Path, args: argparse.Namespace):
+    """(AnalysisResult, Truth or None, model, notes) of a ``flight-fdi run`` output folder."""
+    result_json = folder / "result.json"
+    recording = folder / "recording"
+    doc = _load_json(result_json)
+    input_bag = Path(doc["bag"]) if isinstance(doc.get("bag"), str) and doc["bag"] else None
+    channel = doc.get("channel") or args.channel
+    if not recording.exists():
+        if input_bag is not None and _is_bag(input_bag):
+            args.channel = channel
+            res, truth, model = analyse_bag(input_bag, args)
+            return res, truth, model, [f"{recording} is missing: the input bag {input_bag} was "
+                                       "analysed again."]
+        raise CliError(f"{folder}: no recording/ and the input bag named in result.json "
+                       f"({doc.get('bag')!r}) does not exist")
+    try:
+        from flight_fdi.nodes.smoother_node import analyze_recording, read_recording
+    except ImportError as exc:
+        raise CliError(f"reading a recording needs the ROS 2 environment ({exc}); give the input "
+                       "bag instead") from None
+    flight = None
+    if input_bag is not None and _is_bag(input_bag):
+        from flight_fdi.bagio import read_flight
+
+        flight = read_flight(input_bag, channel=channel, with_truth=True)
+    rec = read_recording(recording, channel=channel)
+    # times from the start of the input flight, as in result.json
+    run = analyze_recording(rec, flight_start_s=None if flight is None else flight.t0,
+                            bag_label=str(input_bag) if input_bag else None)
+    truth = None if flight is None else _truth_of(flight, rec.model, 0.0)
+    notes = [f"Rebuilt from the recording {recording} (gate of the recorded run)."]
+    return run.analysis, truth, rec.model, notes
+
+
+def _load_json(path: Path) -> dict:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise CliError(f"cannot read {path}: {exc.strerror}") from None
+    except ValueError as exc:
+        raise CliError(f"{path} is not valid JSON ({exc})") from None
+    if not isinstance(doc, dict) or "post_flight" not in doc:
+        raise CliError(f"{path} is not an analysis result (no 'post_flight')")
+    return doc
+
+
+def run(args: argparse.Namespace) -> int:
+    from flight_fdi.report import write_report
+
+    src = Path(args.input)
+    if not src.exists():
+        raise CliError(f"input {str(src)!r} does not exist")
+    notes: list[str] = []
+    if _is_bag(src):
+        res, truth, model = analyse_bag(src, args)
+        notes.append(f"Analysed from the bag {src}.")
+    elif src.is_dir() and (src / "result.json").exists():
+        res, truth, model, notes = analyse_run_folder(src, args)
+    elif src.is_file() and src.suffix == ".json":
+        if (src.parent / "recording").exists() and src.name == "result.json":
+            res, truth, model, notes = analyse_run_folder(src.parent, args)
+        else:
+            doc = _load_json(src)
+            bag = Path(doc.get("bag") or "")
+            if not doc.get("bag") or not _is_bag(bag):
+                raise CliError(f"{src} names the bag {doc.get('bag')!r}, which does not exist; "
+                               "the figures need the flight's data")
+            args.channel = doc.get("channel") or args.channel
+            res, truth, model = analyse_bag(bag, args)
+            notes.append(f"The bag {bag} named in {src} was analysed again.")
+    else:
+        raise CliError(f"{src} is neither a bag, a 'flight-fdi run' output folder nor a result "
+                       "JSON file")
+    index = write_report(res, args.out, truth=truth, model=model, notes=notes)
+    post = res.summary["post_flight"]
+    if args.json:
+        json.dump({"index": str(index), "summary": res.summary}, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(f"{post['verdict']}  element {post['element'] or '-'}: report in {index}")
+    return 0

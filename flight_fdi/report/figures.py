@@ -1,0 +1,257 @@
+"""PNG figures of one analysed flight (matplotlib, Agg canvas; no pyplot, no global backend).
+
+* :func:`element_figure` -- per state element, like figures 7.2 / 7.3 of seed 000: the true error
+  (when known), the filtered estimate x(i/i) and the smoothed estimate x(i/N); the chi-square term
+  J(i/k) of the element with its bound gamma_k^2; the Fisher statistic F_k with eta^2.
+* :func:`gate_figure` -- the innovation with +-3 sqrt(S), beta^2 with the gate and the alarms.
+* :func:`chi2_figure` -- the total J with gamma^2 and the violation episode.
+* :func:`glr_figure` -- the GLR statistic over the onset time per hypothesis, with its threshold.
+
+Every function takes the core's :class:`~flight_fdi.core.analysis.AnalysisResult` and writes one
+PNG; times on the x axes are seconds from the analysis' ``t0``.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from flight_fdi.core.models import (ATTITUDE_STATES, ATTITUDE_UNITS, DEG_PER_HOUR, INS_STATES,
+                                    INS_UNITS)
+from flight_fdi.eval.errors import EvalError
+
+FIGSIZE = (10.0, 8.0)
+DPI = 100
+MAX_POINTS = 8000
+FLOOR = 1e-3  # lower limit of the logarithmic statistic axes
+
+#: display unit per (state element, SI unit): (label, factor from SI); others are shown in SI
+DISPLAY_UNITS = {("gyro_drift", "rad/s"): ("deg/h", 1.0 / DEG_PER_HOUR),
+                 ("tilt", "rad"): ("mrad", 1e3)}
+#: SI units of the built-in models' states, for results that do not carry their model
+KNOWN_UNITS = dict(zip(INS_STATES, INS_UNITS)) | dict(zip(ATTITUDE_STATES, ATTITUDE_UNITS))
+
+
+@dataclass
+class Truth:
+    """The true error state of a simulated flight, in the time base of the analysis (the same
+    seconds as ``AnalysisResult.fwd.t``)."""
+
+    t: np.ndarray                 # (K,)
+    x: np.ndarray                 # (K, n)
+    state_names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=float).reshape(-1)
+        self.x = np.asarray(self.x, dtype=float)
+        if self.x.ndim != 2 or self.x.shape[0] != self.t.size:
+            raise EvalError(f"truth: x must be ({self.t.size}, n), got {self.x.shape}")
+        self.state_names = tuple(self.state_names)
+        if len(self.state_names) != self.x.shape[1]:
+            raise EvalError(f"truth: {self.x.shape[1]} states but {len(self.state_names)} names")
+
+    def series(self, name: str) -> np.ndarray | None:
+        if name not in self.state_names:
+            return None
+        return self.x[:, self.state_names.index(name)]
+
+
+def _canvas(nrows: int, title: str):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=FIGSIZE, dpi=DPI)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, 1, sharex=True, squeeze=False)[:, 0]
+    # fixed margins: a constrained layout doubles the drawing time
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.07, hspace=0.12)
+    fig.suptitle(title)
+    return fig, axes
+
+
+def _save(fig: Any, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def _stride(t: np.ndarray, *ys: np.ndarray):
+    """Every k-th sample so that at most MAX_POINTS remain (for smooth estimates)."""
+    k = max(1, -(-t.size // MAX_POINTS))
+    return (t[::k],) + tuple(y[::k] for y in ys)
+
+
+def _maxpool(t: np.ndarray, y: np.ndarray):
+    """The maximum of each bin so that at most MAX_POINTS remain (keeps the peaks of a
+    statistic); NaN bins stay NaN."""
+    k = -(-t.size // MAX_POINTS)
+    if k <= 1:
+        return t, y
+    nb = -(-t.size // k)
+    pad = nb * k - t.size
+    yp = np.concatenate([y, np.full(pad, np.nan)]).reshape(nb, k)
+    tp = np.concatenate([t, np.full(pad, t[-1])]).reshape(nb, k)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bins stay NaN
+        peak = np.nanmax(yp, axis=1)
+    return tp[:, 0], peak
+
+
+def _log_positive(y: np.ndarray) -> np.ndarray:
+    y = np.asarray(y, dtype=float)
+    return np.where(np.isfinite(y), np.maximum(y, FLOOR), np.nan)
+
+
+def _onset_line(ax: Any, onset_s: float | None, label: bool = False) -> None:
+    if onset_s is not None:
+        ax.axvline(onset_s, color="tab:red", ls="--", lw=1,
+                   label="isolated onset" if label else None)
+
+
+def _unit(name: str, unit: str) -> tuple[str, float]:
+    return DISPLAY_UNITS.get((name, unit), (unit, 1.0))
+
+
+def state_names(result: Any) -> list[str]:
+    """The state element names of an analysis result."""
+    return [e.name for e in result.seed.elements]
+
+
+def state_units(result: Any, model: Any = None) -> list[str]:
+    """SI units of the states: the model's when given, else those of the built-in models."""
+    if model is not None:
+        return list(model.state_units)
+    return [KNOWN_UNITS.get(nm, "") for nm in state_names(result)]
+
+
+def element_figure(result: Any, k: int, path: Path, truth: Truth | None = None,
+                   model: Any = None) -> Path:
+    """Figure of state element ``k`` (seed 000, figures 7.2 / 7.3)."""
+    name = state_names(result)[k]
+    unit, factor = _unit(name, state_units(result, model)[k])
+    t0 = result.t0
+    fwd, bwd, seed = result.fwd, result.bwd, result.seed
+    t = np.asarray(fwd.t) - t0
+    onset = result.summary["post_flight"]["onset_s"]
+    fig, (ax1, ax2, ax3) = _canvas(3, f"{name}: error, filtered and smoothed estimates; "
+                                      "chi-square and Fisher tests")
+    ts, xf, xs, sf = _stride(t, fwd.x[:, k] * factor, bwd.x_s[:, k] * factor,
+                             np.sqrt(np.maximum(fwd.P[:, k, k], 0.0)) * factor)
+    if truth is not None and truth.series(name) is not None:
+        tt, xt = _stride(truth.t - t0, truth.series(name) * factor)
+        ax1.plot(tt, xt, color="black", lw=1.5, label="true error")
+    ax1.plot(ts, xf, color="tab:blue", lw=1, label="filtered x(i/i)")
+    ax1.fill_between(ts, xf - sf, xf + sf, color="tab:blue", alpha=0.15, lw=0,
+                     label="filtered +-1 sigma")
+    ax1.plot(ts, xs, color="tab:orange", lw=1.2, label="smoothed x(i/N)")
+    _onset_line(ax1, onset, label=True)
+    ax1.set_ylabel(f"{name} [{unit}]")
+    ax1.legend(loc="best", fontsize=8)
+    ax1.grid(True, alpha=0.3)
+
+    valid = np.asarray(seed.valid, dtype=bool)
+    term = np.where(valid, seed.terms[:, k], np.nan)
+    tj, jk = _maxpool(t, term)
+    _, gk = _stride(t, np.where(valid, seed.gammas[:, k], np.nan))
+    ax2.plot(tj, _log_positive(jk), color="tab:green", lw=1, label=f"J(i/{k + 1}) (chi-square)")
+    ax2.plot(_stride(t)[0], gk, color="tab:red", lw=1,
+             label=f"gamma_{k + 1}^2 = k + 3 sqrt(2k) (effective dof)")
+    ax2.set_yscale("log")
+    ax2.set_ylabel("chi-square term")
+    ax2.legend(loc="best", fontsize=8)
+    ax2.grid(True, which="both", alpha=0.3)
+    _onset_line(ax2, onset)
+
+    F = np.where(valid, seed.F[:, k], np.nan)
+    tf, fk = _maxpool(t, F)
+    ax3.plot(tf, _log_positive(fk), color="tab:purple", lw=1,
+             label=f"F_{k + 1} (Fisher, window {seed.config.fisher_window})")
+    ax3.axhline(seed.eta2, color="tab:red", lw=1, label=f"eta^2 = {seed.eta2:.3g}")
+    if not np.any(np.isfinite(F)):
+        ax3.text(0.5, 0.6, "F not defined: the backward filter has no information on this "
+                 "element", transform=ax3.transAxes, ha="center", color="tab:gray")
+    ax3.set_yscale("log")
+    ax3.set_ylabel("variance ratio")
+    ax3.set_xlabel("time [s]")
+    ax3.legend(loc="best", fontsize=8)
+    ax3.grid(True, which="both", alpha=0.3)
+    _onset_line(ax3, onset)
+    return _save(fig, path)
+
+
+def gate_figure(result: Any, path: Path) -> Path:
+    """The innovation with +-3 sqrt(S) and beta^2 with the gate and the alarm episodes."""
+    fwd = result.fwd
+    t = np.asarray(fwd.t) - result.t0
+    fig, (ax1, ax2) = _canvas(2, "in flight: innovation and the beta^2 gate")
+    nu = fwd.nu[:, 0]
+    s3 = 3.0 * np.sqrt(np.maximum(fwd.S[:, 0, 0], 0.0))
+    ts, nus, s3s = _stride(t, nu, s3)
+    ax1.plot(ts, nus, color="tab:blue", lw=0.6, label="innovation nu")
+    ax1.plot(ts, s3s, color="tab:red", lw=1, label="+-3 sqrt(S)")
+    ax1.plot(ts, -s3s, color="tab:red", lw=1)
+    ax1.set_ylabel("innovation")
+    ax1.legend(loc="best", fontsize=8)
+    ax1.grid(True, alpha=0.3)
+
+    tb, b2 = _maxpool(t, np.asarray(fwd.beta2, dtype=float))
+    ax2.plot(tb, _log_positive(b2), color="tab:blue", lw=0.6, label="beta^2 = nu^2 / S")
+    ax2.axhline(float(fwd.threshold[0]), color="tab:red", lw=1,
+                label=f"gate {float(fwd.threshold[0]):.3g}")
+    first = True
+    for a in fwd.alarms():
+        ax2.axvspan(a["start_s"] - result.t0, a["end_s"] - result.t0, color="tab:orange",
+                    alpha=0.3, lw=0, label="alarm" if first else None)
+        first = False
+    ax2.set_yscale("log")
+    ax2.set_ylabel("beta^2")
+    ax2.set_xlabel("time [s]")
+    ax2.legend(loc="best", fontsize=8)
+    ax2.grid(True, which="both", alpha=0.3)
+    return _save(fig, path)
+
+
+def chi2_figure(result: Any, path: Path) -> Path:
+    """The total two-filter statistic J with gamma^2 (7.12-7.14) and the violation episode."""
+    seed = result.seed
+    t = np.asarray(seed.t) - result.t0
+    valid = np.asarray(seed.valid, dtype=bool)
+    fig, (ax,) = _canvas(1, "post flight: chi-square statistic J of the two-filter residual")
+    tj, J = _maxpool(t, np.where(valid, seed.J, np.nan))
+    ax.plot(tj, _log_positive(J), color="tab:green", lw=1, label="J(i)")
+    ts, g = _stride(t, np.where(valid, seed.gamma2, np.nan))
+    ax.plot(ts, g, color="tab:red", lw=1, label="gamma^2 = n + 3 sqrt(2n)")
+    if seed.episode is not None:
+        a, b = seed.episode
+        ax.axvspan(a - result.t0, b - result.t0, color="tab:orange", alpha=0.25, lw=0,
+                   label=f"episode ({seed.verdict}, {seed.element})")
+    _onset_line(ax, None if seed.onset_t is None else seed.onset_t - result.t0)
+    ax.set_yscale("log")
+    ax.set_ylabel("J")
+    ax.set_xlabel("time [s]")
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    return _save(fig, path)
+
+
+def glr_figure(result: Any, path: Path) -> Path:
+    """The GLR statistic l(theta, h) over the onset theta for every hypothesis h."""
+    glr = result.glr
+    fig, (ax,) = _canvas(1, "post flight: GLR statistic over the onset time")
+    for h, (tc, lc) in glr.curves.items():
+        tc = np.asarray(tc, dtype=float) - result.t0
+        ax.plot(tc, _log_positive(lc), lw=1, label=h)
+    ax.axhline(glr.threshold, color="tab:red", lw=1, ls="--",
+               label=f"threshold {glr.threshold:.3g}")
+    if glr.detected and glr.onset_t is not None:
+        ax.plot([glr.onset_t - result.t0], [glr.statistic], "kv", ms=8,
+                label=f"isolated: {glr.hypothesis}")
+    ax.set_yscale("log")
+    ax.set_ylabel("l(theta)")
+    ax.set_xlabel("onset time theta [s]")
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    return _save(fig, path)
+
