@@ -10,6 +10,7 @@ NODES = {
     "recorder_node": "flight_fdi.nodes.recorder_node:main",
     "smoother_node": "flight_fdi.nodes.smoother_node:main",
     "bag_player": "flight_fdi.nodes.bag_player:main",
+    "voter_node": "flight_fdi.nodes.voter_node:main",
 }
 
 setup(
@@ -20,6 +21,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
         ("share/" + PACKAGE + "/config", glob("config/*.yaml")),
+        ("share/" + PACKAGE + "/config/models", glob("config/models/*.yaml")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

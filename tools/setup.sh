@@ -62,7 +62,7 @@ fi
 
 # --- 3. colcon build of flight_fdi_msgs and flight_fdi into install/ -------------------------
 BUILD_INPUTS=$(ls tools/setup.sh msg_defs/msg/*.msg msg_defs/CMakeLists.txt msg_defs/package.xml package.xml setup.py \
-    setup.cfg config/*.yaml 2>/dev/null || true)
+    setup.cfg config/*.yaml config/models/*.yaml 2>/dev/null || true)
 BUILD_HASH=$( (echo "$ROOT $REQ_HASH"; ls msg_defs/msg; cat $BUILD_INPUTS) | sha256sum | cut -c1-16)
 if [ "$(cat "$VENV/.flight_fdi-build" 2>/dev/null)" != "$BUILD_HASH" ] || [ ! -d install/flight_fdi_msgs ]; then
     say "building flight_fdi_msgs and flight_fdi with colcon"

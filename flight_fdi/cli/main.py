@@ -20,6 +20,10 @@ SUBCOMMANDS = (
     "flight_fdi.cli.report",
     "flight_fdi.cli.montecarlo",
     "flight_fdi.cli.attitude",
+    "flight_fdi.cli.criticality",
+    "flight_fdi.cli.imu_simulate",
+    "flight_fdi.cli.voter_calibrate",
+    "flight_fdi.cli.voter_experiment",
 )
 
 EXIT_ERROR = 1

@@ -376,8 +376,9 @@ def model_from_dict(data: Mapping[str, Any], source: str = "model") -> LinearMod
     """
     if not isinstance(data, Mapping):
         raise CoreError(f"{source}: expected a mapping at the top level")
+    # "redundancy" belongs to core.redundancy (criticality analysis) and is not part of the model
     unknown = set(data) - {"name", "states", "A", "Qc", "G", "H", "R", "P0", "B", "scale",
-                           "measurements", "params"}
+                           "measurements", "params", "redundancy"}
     if unknown:
         raise CoreError(f"{source}: unknown keys {sorted(unknown)}")
     for key in ("states", "A", "H", "R", "P0"):

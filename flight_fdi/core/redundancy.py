@@ -162,21 +162,18 @@ class SteadyState:
 
 
 def _undetectable(Phi: np.ndarray, H: np.ndarray, tol: float = 1e-9) -> str:
-    """'' when (Phi, H) is detectable (PBH test), else a description of the bad mode."""
+    """'' when (Phi, H) is detectable, else a description of the first bad mode.
+
+    PBH test: a mode lambda of Phi with |lambda| >= 1 is unobserved when [lambda I - Phi; H] has
+    rank < n (smallest singular value <= tol times the matrix norm)."""
     n = Phi.shape[0]
-    lam, V = np.linalg.eig(Phi)
-    for k, l in enumerate(lam):
-        if abs(l) < 1.0 - 1e-12:
+    for lam in np.linalg.eigvals(Phi):
+        if abs(lam) < 1.0 - 1e-12:
             continue
-        v = V[:, k]
-        # v is an eigenvector of Phi; the mode is unobservable when H v = 0
-        if H.shape[0] == 0 or np.linalg.norm(H @ v) <= tol * max(1.0, np.linalg.norm(H)) \
-                * np.linalg.norm(v):
-            return f"mode with eigenvalue {complex(l):.6g} (|lambda| = {abs(l):.6g}) unobserved"
-        # repeated eigenvalues: also the full PBH rank test
-        M = np.vstack([l * np.eye(n) - Phi, H.astype(complex)])
-        if np.linalg.matrix_rank(M, tol=tol * max(1.0, np.linalg.norm(M))) < n:
-            return f"mode with eigenvalue {complex(l):.6g} (|lambda| = {abs(l):.6g}) unobserved"
+        M = np.vstack([lam * np.eye(n) - Phi, H.astype(complex)])
+        sv = np.linalg.svd(M, compute_uv=False)
+        if sv[-1] <= tol * max(1.0, sv[0]):
+            return f"a mode with eigenvalue {complex(lam):.6g} (|lambda| >= 1) is not observed"
     return ""
 
 

@@ -1,0 +1,230 @@
+"""``flight-fdi voter-calibrate OUTPUT``: threshold table of the triple-IMU voter (seed 002).
+
+Monte Carlo over N nominal flights of three co-mounted IMUs with pulse outputs
+(flight_fdi.sim.imu): at each time step the window means of the pair differences x1 = P1 - P2,
+x2 = P2 - P3, x3 = P1 - P3 of every quantity (gyro x/y/z, accel x/y/z) are tested for normality
+(Kolmogorov-Smirnov); normal -> mu +- z sigma (maximum likelihood), otherwise the alpha/2 and
+1 - alpha/2 quantiles; the bound curves are cut into segments at their largest rates of change,
+each segment taking its max / min. The table is written as JSON (schema in
+flight_fdi/core/voting.py and docs/seed002_experiment.md) and loaded by voter_node.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+
+def add_imu_options(p: argparse.ArgumentParser, duration: float = 60.0) -> None:
+    """Options of the IMU simulation shared by the voter commands."""
+    p.add_argument("--duration", type=float, default=duration, metavar="S",
+                   help=f"flight duration in seconds (default {duration:g})")
+    p.add_argument("--rate", type=float, default=200.0, metavar="HZ",
+                   help="IMU sample rate (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="override an IMU error parameter (repeatable): "
+                        + ", ".join(_param_names()))
+
+
+def _param_names() -> list[str]:
+    from flight_fdi.sim.imu import ImuErrorModel
+
+    return list(ImuErrorModel.__dataclass_fields__)
+
+
+def imu_config(args: argparse.Namespace, faults=()):
+    """ImuSimConfig from the shared options."""
+    from flight_fdi.sim.errors import SimError
+    from flight_fdi.sim.imu import ImuErrorModel, ImuSimConfig
+
+    params: dict[str, float] = {}
+    for item in args.param:
+        if "=" not in item:
+            raise SimError(f"--param {item!r}: expected NAME=VALUE")
+        name, value = (s.strip() for s in item.split("=", 1))
+        try:
+            params[name] = float(value)
+        except ValueError:
+            raise SimError(f"--param {item!r}: {value!r} is not a number") from None
+    return ImuSimConfig(duration_s=args.duration, rate_hz=args.rate, seed=args.seed,
+                        faults=tuple(faults), errors=ImuErrorModel.from_dict(params))
+
+
+def add_calibration_options(p: argparse.ArgumentParser, flights: int = 1000) -> None:
+    p.add_argument("--window", type=int, default=1000, metavar="N",
+                   help="samples of the window mean (default 1000, as the seed)")
+    p.add_argument("--ks-alpha", type=float, default=0.05,
+                   help="significance of the Kolmogorov-Smirnov normality test (default 0.05)")
+    p.add_argument("--method", choices=("auto", "normal", "quantile"), default="auto",
+                   help="bounds: auto (KS decides), or force normal / quantile (default auto)")
+    p.add_argument("--segments", type=int, default=12, metavar="K",
+                   help="at most K threshold segments per curve (default 12)")
+    p.add_argument("--min-segment", type=float, default=1.0, metavar="S",
+                   help="shortest threshold segment in seconds (default 1)")
+    p.add_argument("--smooth", type=float, default=1.0, metavar="S",
+                   help="moving average over S seconds before the rates of change are ranked "
+                        "(0: none; default 1)")
+    p.add_argument("--no-window-cut", action="store_true",
+                   help="do not force a segment boundary at the end of the first window "
+                        "(the seed's segmentation by rates of change alone)")
+    p.add_argument("--eval-every", type=int, default=10, metavar="K",
+                   help="evaluate the distribution every K samples (default 10)")
+    p.add_argument("--batch", type=int, default=100, metavar="B",
+                   help="flights simulated together (memory vs speed, default 100)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _check_int(value: int, name: str, low: int = 1) -> None:
+    from flight_fdi.cli.errors import CliError
+
+    if value < low:
+        raise CliError(f"{name} must be >= {low}, got {value}")
+
+
+def simulate_means(config, n_flights: int, args: argparse.Namespace, quantities,
+                   first_run: int = 0, desc: str = "calibration flights"):
+    """The calibration Monte Carlo with a tqdm bar on stderr: (t, means)."""
+    from tqdm import tqdm
+
+    from flight_fdi.sim.imu import nominal_window_means
+
+    with tqdm(total=n_flights, desc=desc, unit="flight", disable=args.no_progress,
+              file=sys.stderr, leave=False) as bar:
+        return nominal_window_means(config, n_flights, args.window, quantities,
+                                    eval_every=args.eval_every, batch_size=args.batch,
+                                    first_run=first_run, progress=bar.update)
+
+
+def calibration_meta(config, n_flights: int, first_run: int = 0) -> dict:
+    from dataclasses import asdict
+
+    return {"simulator": "flight_fdi.sim.imu", "seed": int(config.seed),
+            "first_run": int(first_run), "flights": int(n_flights),
+            "duration_s": float(config.duration_s), "rate_hz": float(config.rate_hz),
+            "errors": asdict(config.errors), "profile": asdict(config.flight_profile())}
+
+
+def calibrate_from_means(t, means, args: argparse.Namespace, alpha: float, config, quantities,
+                         first_run: int = 0):
+    from flight_fdi.core.voting import calibrate
+
+    return calibrate(means, t, alpha, args.window, config.rate_hz, quantities,
+                     ks_alpha=args.ks_alpha, n_segments=args.segments,
+                     min_segment_s=args.min_segment, smooth_s=args.smooth,
+                     cut_at_window=not args.no_window_cut,
+                     method=args.method,
+                     duration_s=config.duration_s,
+                     calibration=calibration_meta(config, means.shape[0], first_run))
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("voter-calibrate", help="Monte Carlo threshold table for the triple-IMU "
+                       "voter", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("output", help="threshold table file to write (JSON)")
+    p.add_argument("--flights", type=int, default=1000, metavar="N",
+                   help="Monte Carlo flights (default 1000, as the seed)")
+    p.add_argument("--alpha", type=float, default=0.05,
+                   help="bounds of confidence 1 - alpha (default 0.05)")
+    p.add_argument("--quantities", default="all", metavar="LIST",
+                   help="comma-separated quantities (gyro_x ... accel_z; default all)")
+    p.add_argument("--curves", metavar="FILE.npz", default=None,
+                   help="also write the per-step bound curves (t, lower, upper, is_normal, "
+                        "ks_pvalue) for plots")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    add_imu_options(p)
+    add_calibration_options(p)
+    p.set_defaults(func=run)
+
+
+def parse_quantities(text: str) -> tuple[str, ...]:
+    from flight_fdi.cli.errors import CliError
+    from flight_fdi.core.voting import QUANTITIES
+
+    if text.strip().lower() == "all":
+        return QUANTITIES
+    qs = tuple(q.strip().lower() for q in text.split(",") if q.strip())
+    bad = [q for q in qs if q not in QUANTITIES]
+    if bad or not qs:
+        raise CliError(f"--quantities: unknown {', '.join(bad) or 'empty list'}; quantities are "
+                       f"{', '.join(QUANTITIES)} (or all)")
+    if len(set(qs)) != len(qs):
+        raise CliError("--quantities: a quantity is listed twice")
+    return tuple(q for q in QUANTITIES if q in qs)
+
+
+def summary(table, elapsed_s: float, path: str) -> dict:
+    from flight_fdi.core.voting import PAIRS
+
+    entries = {}
+    for q in table.quantities:
+        entries[q] = {}
+        for pair in PAIRS:
+            ts, lo, up = table.entries[q][pair]
+            st = table.stats.get(q, {}).get(pair, {})
+            entries[q][pair] = {"segments": int(len(ts)),
+                                "normal_fraction": st.get("normal_fraction"),
+                                "lower_min": float(lo.min()), "upper_max": float(up.max()),
+                                "upper_after_first_window": float(
+                                    up[ts >= table.window / table.rate_hz].max())
+                                if (ts >= table.window / table.rate_hz).any() else None}
+    return {"output": path, "flights": table.calibration.get("flights"),
+            "alpha": table.alpha, "window": table.window, "rate_hz": table.rate_hz,
+            "elapsed_s": round(elapsed_s, 2), "entries": entries}
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from flight_fdi.cli.errors import CliError
+    from flight_fdi.core.voting import PAIRS, save_table
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise CliError(f"{out} exists already (use --force to overwrite)")
+    if not out.parent.is_dir():
+        raise CliError(f"cannot write {out}: directory {out.parent} does not exist")
+    for name in ("flights", "window", "segments", "eval_every", "batch"):
+        _check_int(getattr(args, name), "--" + name.replace("_", "-"))
+    if not (math.isfinite(args.alpha) and 0 < args.alpha < 1):
+        raise CliError(f"--alpha must be in (0, 1), got {args.alpha!r}")
+    for name in ("min_segment", "smooth"):
+        v = getattr(args, name)
+        if not math.isfinite(v) or v < 0:
+            raise CliError(f"--{name.replace('_', '-')} must be >= 0, got {v!r}")
+    quantities = parse_quantities(args.quantities)
+    config = imu_config(args)
+    start = time.perf_counter()
+    t, means = simulate_means(config, args.flights, args, quantities)
+    cal = calibrate_from_means(t, means, args, args.alpha, config, quantities)
+    save_table(cal.table, out)
+    if args.curves:
+        try:
+            np.savez_compressed(args.curves, t=cal.t, lower=cal.lower, upper=cal.upper,
+                                is_normal=cal.is_normal, ks_pvalue=cal.ks_pvalue,
+                                quantities=np.array(quantities), pairs=np.array(PAIRS))
+        except OSError as exc:
+            raise CliError(f"cannot write {args.curves}: {exc.strerror or exc}") from None
+    info = summary(cal.table, time.perf_counter() - start, str(out))
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    print(f"wrote {out}: {args.flights} flights of {config.duration_s:g} s at "
+          f"{config.rate_hz:g} Hz, window {args.window}, alpha {args.alpha:g}, "
+          f"{info['elapsed_s']:.1f} s")
+    print(f"{'quantity':<8} {'pair':<4} {'segs':>4} {'normal':>7} {'lower min':>12} "
+          f"{'upper max':>12} {'upper after 1st window':>23}")
+    for q, pairs in info["entries"].items():
+        unit = 1.0 if q.startswith("accel") else math.pi / 180 / 3600
+        uname = "m/s^2" if q.startswith("accel") else "deg/h"
+        for pair, e in pairs.items():
+            after = e["upper_after_first_window"]
+            print(f"{q:<8} {pair:<4} {e['segments']:>4} {e['normal_fraction']:>7.2f} "
+                  f"{e['lower_min'] / unit:>12.4g} {e['upper_max'] / unit:>12.4g} "
+                  f"{'-' if after is None else format(after / unit, '.4g'):>17} {uname}")
+    return 0

@@ -1,0 +1,319 @@
+"""voter_node in-process: simulated three-IMU bags are played by publishing their messages from a
+driver node (no sleeps: the executor is spun until the node has received what was sent).
+
+Expected decisions are computed independently of the node's streaming code: the batch window
+means (``core.voting.window_means``), the table's bounds at the flight times (``bounds_at``) and
+the vectorised truth table over the whole flight, from the flight's arrays.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from flight_fdi.core.voting import SINGLE_FAULT, pair_differences, vote_array, window_means
+from flight_fdi.nodes import convert
+from flight_fdi.nodes.errors import ParameterError
+from flight_fdi.sim.imu import IMU_MSG, IMU_TOPICS, write_imu_bag
+
+CHUNK = 50  # samples per IMU published between two spins (150 messages < queue depth)
+WINDOW = 50
+RATE_HZ = 100.0
+DURATION_S = 6.0
+
+
+@pytest.fixture(autouse=True)
+def _same_setup(sim):
+    assert (sim.WINDOW, sim.RATE_HZ, sim.DURATION_S) == (WINDOW, RATE_HZ, DURATION_S)
+
+
+@pytest.fixture
+def flight(sim):
+    return sim.flight
+
+
+def bag_messages(fl, tmp_path, name):
+    """Write the flight as a bag, read it back: per sample, the three rclpy Imu messages."""
+    from flight_fdi.bagio import read_messages
+    from sensor_msgs.msg import Imu
+
+    path = tmp_path / name
+    write_imu_bag(fl, str(path))
+    per_topic = {t: [] for t in IMU_TOPICS}
+    for topic, msgtype, _, m in read_messages(path, IMU_TOPICS):
+        assert msgtype == IMU_MSG
+        msg = Imu()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = m.header.stamp.sec, m.header.stamp.nanosec
+        msg.header.frame_id = m.header.frame_id
+        w, a = m.angular_velocity, m.linear_acceleration
+        msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = w.x, w.y, w.z
+        msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = \
+            a.x, a.y, a.z
+        per_topic[topic].append(msg)
+    return list(zip(*(per_topic[t] for t in IMU_TOPICS)))
+
+
+def expected_votes(fl, table):
+    """(status, faulty) (T, Q) of the batch voter on the flight arrays."""
+    qi = [list(("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")).index(q)
+          for q in table.quantities]
+    P = np.moveaxis(fl.output[:, :, qi], 0, -1)          # (T, Q, 3 IMUs)
+    means = window_means(pair_differences(P), WINDOW, axis=0)
+    lo, up = table.bounds_at(fl.t)
+    status, faulty, _ = vote_array((means >= lo) & (means <= up))
+    return status, faulty, means
+
+
+class Rig:
+    def __init__(self, ros, table_file, **params):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from flight_fdi_msgs.msg import VoteStatus
+        from harness import collect
+        from sensor_msgs.msg import Imu
+
+        from flight_fdi.nodes.voter_node import VoterNode
+
+        self.ros = ros
+        params = {"thresholds_file": str(table_file), "input_qos": "reliable",
+                  "diagnostics_period_s": 0.2, **params}
+        self.node = ros.node(VoterNode, parameters=params)
+        self.drv = ros.node("voter_test_driver")
+        self.pubs = [self.drv.create_publisher(Imu, t, 200) for t in IMU_TOPICS]
+        self.votes = collect(ros, self.drv, VoteStatus, "fdi/vote", 5000)
+        self.voted = collect(ros, self.drv, Imu, "imu/voted", 5000)
+        self.diags = collect(ros, self.drv, DiagnosticArray, "/diagnostics", 100)
+        ros.wait_for_subscribers(self.pubs)
+        ros.wait_for_subscribers([self.node.pub_vote, self.node.pub_voted])
+        self.sent = [0, 0, 0]
+
+    def received(self):
+        return [self.node.counters[f"received_imu{k + 1}"] for k in range(3)]
+
+    def settle(self):
+        self.ros.spin_until(lambda: self.received() == self.sent, what="inputs received")
+
+    def play(self, samples, imus=(0, 1, 2)):
+        for i, triple in enumerate(samples):
+            for k in imus:
+                self.pubs[k].publish(triple[k])
+                self.sent[k] += 1
+            if (i + 1) % CHUNK == 0:
+                self.settle()
+        self.settle()
+
+    def wait_outputs(self, n_voted):
+        self.ros.spin_until(lambda: len(self.voted) >= n_voted, what="voted output")
+
+
+def _frames(msgs):
+    return [m.header.frame_id for m in msgs]
+
+
+def test_nominal_bag_no_fault_no_switch(ros, table_file, small_calibration, tmp_path, flight):
+    table = small_calibration[2].table
+    fl = flight(101)
+    status, _, means = expected_votes(fl, table)
+    assert status.max() < SINGLE_FAULT  # the independent batch voter agrees: no fault
+    rig = Rig(ros, table_file)
+    samples = bag_messages(fl, tmp_path, "nominal")
+    rig.play(samples)
+    T = len(samples)
+    rig.wait_outputs(T)
+    c = rig.node.counters
+    assert c["matched_triples"] == T and c["decisions"] == T
+    assert all(c[f"unmatched_imu{k}"] == 0 for k in (1, 2, 3))
+    assert c["isolations"] == 0 and c["selection_switches"] == 0
+    assert set(_frames(rig.voted)) == {"imu1"} and len(rig.voted) == T
+    # the voted stream is IMU1's, unchanged, in order
+    assert [convert.stamp_to_s(m.header.stamp) for m in rig.voted] == \
+        [convert.stamp_to_s(s[0].header.stamp) for s in samples]
+    rig.ros.spin_until(lambda: len(rig.votes) == T, what="every vote (status_every 1)")
+    last = rig.votes[-1]
+    Q = len(table.quantities)
+    assert list(last.quantities) == list(table.quantities)
+    assert len(last.pair_mean) == len(last.epsilon) == 3 * Q and len(last.status) == Q
+    np.testing.assert_allclose(np.reshape(last.pair_mean, (Q, 3)), means[-1], rtol=1e-9,
+                               atol=1e-12)
+    got = np.array([list(v.status) for v in rig.votes])
+    np.testing.assert_array_equal(got, status)
+    assert {v.selected_imu for v in rig.votes} == {1}
+    assert all(v.overall_status < SINGLE_FAULT for v in rig.votes)
+    lo, up = table.bounds(DURATION_S - 1.0 / RATE_HZ)
+    np.testing.assert_array_equal(np.reshape(last.lower_bound, (Q, 3)), lo)
+    np.testing.assert_array_equal(np.reshape(last.upper_bound, (Q, 3)), up)
+
+
+def _first_fault(status, faulty, q):
+    idx = np.flatnonzero(status[:, q] >= SINGLE_FAULT)
+    return int(idx[0]), int(faulty[idx[0], q])
+
+
+@pytest.mark.parametrize("imu, expect_selected", [(2, 1), (1, 2)])
+def test_stuck_gyro_isolated_and_output_switches(ros, table_file, small_calibration, tmp_path,
+                                                 flight, imu, expect_selected):
+    """IMU2 gyro z stuck at zero: IMU2 isolated, the output stays on IMU1 (the truth table's
+    choice); IMU1 stuck: IMU1 isolated and the output switches to IMU2 for good."""
+    table = small_calibration[2].table
+    fl = flight(102, f"imu{imu}:gyro_z:zero:t=2.5")
+    q = list(table.quantities).index("gyro_z")
+    status, faulty, _ = expected_votes(fl, table)
+    k0, who = _first_fault(status, faulty, q)
+    assert who == imu and fl.t[k0] >= 2.5           # the batch voter isolates the stuck IMU
+    rig = Rig(ros, table_file, status_every=10)
+    samples = bag_messages(fl, tmp_path, f"stuck{imu}")
+    rig.play(samples)
+    rig.wait_outputs(len(samples))
+    node = rig.node
+    assert int(node.latched[q]) == imu and node.counters["isolations"] >= 1
+    assert node.selected == expect_selected
+    frames = _frames(rig.voted)
+    if imu == 1:
+        # IMU1 until the decision at k0 (inclusive: the decision's own triple goes out from the
+        # new selection), IMU2 from then on, never back
+        assert frames[:k0] == ["imu1"] * k0
+        assert frames[k0:] == ["imu2"] * (len(frames) - k0)
+        assert node.counters["selection_switches"] == 1
+    else:
+        assert set(frames) == {"imu1"} and node.counters["selection_switches"] == 0
+    rig.ros.spin_until(lambda: _last_vote_seen(rig, samples), what="last vote")
+    v = rig.votes[-1]
+    assert v.isolated_imu[q] == imu and v.selected_imu == expect_selected
+    assert v.status[q] == SINGLE_FAULT and v.epsilon_sum[q] == 1
+    statuses = {s.name: s for s in node.diagnostic_statuses()}
+    vote = statuses["voter_node: vote"]
+    assert vote.level == b"\x01" and f"IMU{imu} on gyro_z" in vote.message
+
+
+def _last_vote_seen(rig, samples):
+    # status_every 10 over 600 decisions: the last decision (599) is not a multiple of 10, so
+    # wait for the vote of decision 590 or a change
+    return len(rig.votes) > 0 and convert.stamp_to_s(rig.votes[-1].header.stamp) >= \
+        convert.stamp_to_s(samples[-11][0].header.stamp)
+
+
+@pytest.mark.parametrize("release, back", [(0, False), (2, True)])
+def test_selection_is_sticky(ros, table_file, small_calibration, tmp_path, flight, release, back):
+    """A transient fault of IMU1 (1.5 s): the output moves to IMU2 and, with release 0, never
+    returns; with release_after_windows 2 it returns only after two whole windows of healthy
+    votes after the fault has left the window."""
+    table = small_calibration[2].table
+    fl = flight(103, "imu1:gyro_z:zero:t=2,end=3.5")
+    q = list(table.quantities).index("gyro_z")
+    status, faulty, _ = expected_votes(fl, table)
+    k0, who = _first_fault(status, faulty, q)
+    assert who == 1
+    rig = Rig(ros, table_file, release_after_windows=release, status_every=1000)
+    samples = bag_messages(fl, tmp_path, f"transient{release}")
+    rig.play(samples)
+    rig.wait_outputs(len(samples))
+    frames = np.array(_frames(rig.voted))
+    assert np.all(frames[:k0] == "imu1") and frames[k0] == "imu2"
+    if not back:
+        assert np.all(frames[k0:] == "imu2") and rig.node.latched[q] == 1
+        return
+    # independent expectation of the release: the first decision after which the gyro_z vote
+    # has been healthy for 2 * WINDOW decisions in a row (after the fault was isolated)
+    healthy = status[:, q] == 0
+    run = 0
+    release_at = None
+    for k in range(k0 + 1, len(healthy)):
+        run = run + 1 if healthy[k] else 0
+        if run >= 2 * WINDOW:
+            release_at = k
+            break
+    assert release_at is not None, "the flight is long enough for the release"
+    # no other quantity isolated IMU1 in this flight
+    assert not np.any((status >= SINGLE_FAULT) & (faulty == 1) & (np.arange(status.shape[1]) != q))
+    assert np.all(frames[k0:release_at] == "imu2")
+    assert np.all(frames[release_at:] == "imu1")
+    assert rig.node.counters["releases"] == 1 and rig.node.counters["selection_switches"] == 2
+
+
+def test_bad_and_missing_input_is_counted_never_fatal(ros, table_file, tmp_path, flight):
+    """IMU3 never arrives, IMU2 sends a NaN and a duplicate: counted, reported, the voted
+    output keeps flowing from IMU1 (unvoted)."""
+    import copy
+
+    fl = flight(104)
+    samples = bag_messages(fl, tmp_path, "partial")[:200]
+    rig = Rig(ros, table_file, max_wait_s=0.05)
+    bad = copy.deepcopy(samples[10][1])
+    bad.angular_velocity.y = math.nan
+    samples[10] = (samples[10][0], bad, samples[10][2])
+    rig.play(samples, imus=(0, 1))
+    rig.pubs[1].publish(samples[-1][1])  # duplicate stamp
+    rig.sent[1] += 1
+    rig.settle()
+    c = rig.node.counters
+    assert c["dropped_imu2_nonfinite"] == 1 and c["dropped_imu2_duplicate"] == 1
+    assert c["matched_triples"] == 0 and c["decisions"] == 0
+    # samples wait max_wait_s (5 samples at 100 Hz) for IMU3 and then expire
+    expired1 = c["unmatched_imu1"]
+    assert 200 - 6 <= expired1 <= 200
+    rig.wait_outputs(expired1)
+    assert set(_frames(rig.voted)) == {"imu1"} and c["unvoted_published"] == expired1
+    statuses = {s.name: s for s in rig.node.diagnostic_statuses()}
+    inputs = statuses["voter_node: inputs"]
+    assert inputs.level == b"\x01" and "no messages on /imu3/data yet" in inputs.message
+    values = {kv.key: kv.value for kv in inputs.values}
+    assert values["dropped_imu2_nonfinite"] == "1" and values["received_imu3"] == "0"
+    assert "no vote yet" in statuses["voter_node: vote"].message
+    # /diagnostics is published on the timer
+    rig.ros.spin_until(lambda: len(rig.diags) > 0, what="diagnostics")
+
+
+def test_silent_selected_imu_is_not_selected(ros, table_file, tmp_path, flight):
+    """IMU1 stops: the voted output continues from IMU2 (IMU1 is silent, not isolated)."""
+    fl = flight(105)
+    samples = bag_messages(fl, tmp_path, "silent")[:300]
+    rig = Rig(ros, table_file, stale_after_s=0.2)
+    rig.play(samples[:100])
+    rig.play(samples[100:], imus=(1, 2))
+    rig.ros.spin_until(lambda: rig.voted and rig.voted[-1].header.frame_id == "imu2",
+                       what="output from IMU2")
+    assert rig.node.selected == 2 and not np.any(rig.node.latched)
+    assert rig.node.counters["selection_switches"] == 1
+    frames = _frames(rig.voted)
+    assert frames[:100] == ["imu1"] * 100
+
+
+@pytest.mark.parametrize("content, match", [
+    (None, "file not found"),
+    ("{not json", "not valid JSON"),
+    (json.dumps({"format": "something else"}), "not a threshold table"),
+])
+def test_missing_or_corrupt_table_stops_the_node(ros, tmp_path, content, match):
+    from flight_fdi.nodes.voter_node import VoterNode
+
+    path = tmp_path / "t.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(ParameterError, match=match) as err:
+        ros.node(VoterNode, parameters={"thresholds_file": str(path)})
+    assert "'thresholds_file'" in str(err.value)
+
+
+def test_table_parameter_is_required_and_topics_checked(ros, table_file):
+    from flight_fdi.nodes.voter_node import VoterNode
+
+    with pytest.raises(ParameterError, match="thresholds_file"):
+        ros.node(VoterNode, parameters={})
+    with pytest.raises(ParameterError, match="exactly three"):
+        ros.node(VoterNode, parameters={"thresholds_file": str(table_file),
+                                        "imu_topics": ["/a", "/b"]})
+    with pytest.raises(ParameterError, match="duplicate"):
+        ros.node(VoterNode, parameters={"thresholds_file": str(table_file),
+                                        "imu_topics": ["/a", "/b", "/a"]})
+    with pytest.raises(ParameterError, match="three different topics"):  # "a" resolves to /a
+        ros.node(VoterNode, parameters={"thresholds_file": str(table_file),
+                                        "imu_topics": ["/a", "/b", "a"]})
+
+
+def test_voter_yaml_is_the_generated_params_file(repo_root):
+    """config/voter.yaml is regenerated from VOTER_PARAMS (python -m flight_fdi.nodes.params)."""
+    from flight_fdi.nodes.params import render_module
+
+    text = (repo_root / "config" / "voter.yaml").read_text(encoding="utf-8")
+    assert text == render_module("flight_fdi.nodes.voter_node")
