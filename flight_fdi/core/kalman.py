@@ -15,6 +15,12 @@ sees is in physical units.
 Gate: ``beta2 = nu^T S^-1 nu`` is chi-square with m degrees of freedom on a healthy system. A sample
 *exceeds* the gate when ``beta2 > threshold(m)``; an *alarm* is raised when M of the last N
 updates exceeded and cleared when fewer than M of the last N did (:class:`AlarmLogic`).
+
+Failed measurement rows (redundant references, SPEC section 2, seed 001): ``KalmanFilter.update``
+takes ``failed_rows`` and a ``mode`` -- ``nominal`` (ignore them), ``known_anomaly`` (KF2: their
+R grows by C Gamma C^T) or ``exclude`` (AF: the rows E z only). The gains are those of
+:mod:`flight_fdi.core.redundancy` (``kf2_gain``, ``af_gain``); beta^2 and its threshold are then
+over the rows used. Which rows have failed is decided by :mod:`flight_fdi.core.references`.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ from scipy.special import chdtri
 
 from .errors import CoreError
 from .models import LinearModel
+from .redundancy import accuracy, af_gain, anomaly_matrix, kf2_gain
 
 # alarm states, as in msg_defs/msg/Innovation.msg
 ALARM_CLEAR = 0
@@ -40,6 +47,8 @@ ALARM_CLEARED = 3
 
 GATE_RULES = ("chi2", "seed")
 GATE_ACTIONS = ("flag", "reject")
+#: how ``KalmanFilter.update`` treats ``failed_rows``
+UPDATE_MODES = ("nominal", "known_anomaly", "exclude")
 
 
 def _is_int(value: Any) -> bool:
@@ -495,6 +504,84 @@ def _update_any(x: tuple, P: tuple, z: np.ndarray, R: np.ndarray, Hs: np.ndarray
     return tuple(xa.tolist()), tuple(_full_to_tri(Pa).tolist()), nu, S, K, beta2, exceeded, fused
 
 
+def _failed_rows(rows: Any, m: int) -> tuple[int, ...]:
+    """Sorted unique failed row indices in 0..m-1 (CoreError otherwise)."""
+    out = set()
+    for r in np.asarray(rows, dtype=object).reshape(-1).tolist() if rows is not None else ():
+        if not _is_int(r) or not 0 <= r < m:
+            raise CoreError(f"failed row {r!r} is not a row index in 0..{m - 1}")
+        out.add(int(r))
+    return tuple(sorted(out))
+
+
+def _anomaly_covariance(Gamma: Any, r: int) -> np.ndarray:
+    """Gamma as an r x r matrix: a number (the same variance for every failed row), r
+    variances, or an r x r covariance; variances must be > 0."""
+    if Gamma is None:
+        raise CoreError("known_anomaly mode: Gamma (the anomaly variance) is required")
+    try:
+        G = np.asarray(Gamma, dtype=float)
+    except (TypeError, ValueError):
+        raise CoreError(f"Gamma is not numeric: {Gamma!r}") from None
+    if G.ndim == 0:
+        G = np.full(r, float(G))
+    if G.ndim == 1:
+        if G.shape != (r,):
+            raise CoreError(f"Gamma must give {r} variances (one per failed row), got {G.size}")
+        G = np.diag(G)
+    if G.shape != (r, r) or not np.all(np.isfinite(G)):
+        raise CoreError(f"Gamma must be a finite {r} x {r} matrix, got shape {G.shape}")
+    if np.any(np.diag(G) <= 0) or not np.allclose(G, G.T, rtol=1e-9, atol=0.0):
+        raise CoreError("Gamma must be symmetric with positive variances")
+    return G
+
+
+def _update_failed(x: tuple, P: tuple, z: np.ndarray, R: np.ndarray, Hs: np.ndarray,
+                   I: np.ndarray, failed: tuple[int, ...], mode: str, G: np.ndarray | None,
+                   gate: GateConfig, reject: bool):
+    """The update with failed rows (numpy, scaled coordinates): KF2 (``known_anomaly``) or AF
+    (``exclude``) with the gains of :mod:`.redundancy`. Returns (x+, P+) as tuples and nu, S
+    (nominal, all rows), beta2, threshold, exceeded, fused (over the rows used), the rows used
+    and the R used."""
+    m, n = Hs.shape
+    xa = np.array(x)
+    Pa = _tri_to_full(P, n)
+    nu = z - Hs.dot(xa)
+    if mode == "known_anomaly":
+        C = anomaly_matrix(m, failed)
+        R_used = R + C.dot(G).dot(C.T)
+        K, S_used = kf2_gain(Pa, Hs, R, failed, G)
+        S = Hs.dot(Pa).dot(Hs.T) + R  # the nominal S, reported (row_beta2) for every row
+        S = 0.5 * (S + S.T)
+        used = tuple(range(m))
+        nu_used = nu
+    else:
+        R_used = R
+        K, S = af_gain(Pa, Hs, R, failed)
+        used = tuple(i for i in range(m) if i not in failed)
+        S_used = S[np.ix_(used, used)]
+        nu_used = nu[list(used)]
+    if not used:
+        return x, P, nu, S, 0.0, math.nan, False, False, used, R_used
+    try:
+        L = np.linalg.cholesky(S_used)
+    except np.linalg.LinAlgError:
+        raise CoreError("innovation covariance S of the rows used is not positive definite") \
+            from None
+    w = np.linalg.solve(L, nu_used)
+    beta2 = float(w.dot(w))
+    thr = gate.threshold(len(used))
+    exceeded = beta2 > thr
+    if exceeded and reject:
+        return x, P, nu, S, beta2, thr, True, False, used, R_used
+    xa = xa + K.dot(nu)
+    A = I - K.dot(Hs)
+    Pa = A.dot(Pa).dot(A.T) + K.dot(R_used).dot(K.T)
+    Pa = (Pa + Pa.T) * 0.5
+    return (tuple(xa.tolist()), tuple(_full_to_tri(Pa).tolist()), nu, S, beta2, thr, exceeded,
+            True, used, R_used)
+
+
 @contextlib.contextmanager
 def _gc_paused():
     """Pause Python's cyclic garbage collector around a tight numeric loop.
@@ -636,6 +723,11 @@ class UpdateResult:
     fused: bool             # the sample was fused (False only with action="reject")
     alarm_state: int        # ALARM_CLEAR / RAISED / ACTIVE / CLEARED
     row_beta2: np.ndarray   # nu_k^2 / S_kk per row
+    # With failed rows (known_anomaly / exclude), what was fused; None = every row, R as given.
+    # nu, S and row_beta2 are always the nominal ones (S = H P- H^T + R) of all m rows; beta2 and
+    # threshold are over the rows used (known_anomaly: with S + C Gamma C^T).
+    rows_used: tuple[int, ...] | None = None  # exclude: the rows E keeps (may be empty)
+    R_used: np.ndarray | None = None          # known_anomaly: R + C Gamma C^T (m, m)
 
 
 class KalmanFilter:
@@ -693,8 +785,8 @@ class KalmanFilter:
             bu = tuple(mt.Bd.dot(u).tolist())
             self._x, self._P = mt.predict_bu(self._x, self._P, mt.Phi_t, mt.Qd_t, bu)
 
-    def update(self, z: Any, R: Any = None, H: Any = None) -> UpdateResult:
-        """Fuse measurement ``z`` (R default model.R, H default model.H)."""
+    def _measurement(self, z: Any, R: Any, H: Any):
+        """Validated (z, R, scaled H, its transpose, the generated one-row update or None)."""
         sm = self._sm
         if H is None:
             Hs, HsT, update1 = sm.H, sm.HT, self._update1
@@ -715,15 +807,78 @@ class KalmanFilter:
             Rm = self.model.R
         else:
             Rm = _check_R(R, m)
+        return zv, Rm, Hs, HsT, update1
+
+    def innovation(self, z: Any, R: Any = None, H: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        """The innovation ``nu = z - H x`` and its covariance ``S = H P H^T + R`` against the
+        current state (after ``predict``: the prior), without changing the filter."""
+        zv, Rm, Hs, HsT, _ = self._measurement(z, R, H)
+        return self._innovation(zv, Rm, Hs, HsT)
+
+    def _innovation(self, zv: np.ndarray, Rm: np.ndarray, Hs: np.ndarray, HsT: np.ndarray):
+        P = _tri_to_full(self._P, self._sm.n)
+        nu = zv - Hs.dot(np.array(self._x))
+        S = Hs.dot(P).dot(HsT) + Rm
+        return nu, 0.5 * (S + S.T)
+
+    def update(self, z: Any, R: Any = None, H: Any = None, failed_rows: Any = (),
+               mode: str = "nominal", Gamma: Any = None) -> UpdateResult:
+        """Fuse measurement ``z`` (R default model.R, H default model.H).
+
+        ``failed_rows`` (row indices of z) are handled by ``mode``: ``"nominal"`` -- ignored (the
+        plain filter); ``"known_anomaly"`` -- KF2, ``S = H P- H^T + R + C Gamma C^T`` with
+        ``Gamma`` the anomaly variance of each failed row (a number, one per failed row in
+        increasing row order, or an r x r matrix); ``"exclude"`` -- AF, the failed rows are
+        struck out (``E z``). beta^2 and the gate threshold are then over the rows used; when
+        every row is excluded nothing is fused (``fused`` False, beta2 0, threshold NaN, the
+        alarm window is not advanced). The gains are ``redundancy.kf2_gain`` /
+        ``redundancy.af_gain``; the covariance update is the Joseph form with the R used.
+        """
+        if mode not in UPDATE_MODES:
+            raise CoreError(f"update mode must be one of {UPDATE_MODES}, got {mode!r}")
+        zv, Rm, Hs, HsT, update1 = self._measurement(z, R, H)
+        return self._update_checked(zv, Rm, Hs, HsT, update1, failed_rows, mode, Gamma)
+
+    def _update_checked(self, zv: np.ndarray, Rm: np.ndarray, Hs: np.ndarray, HsT: np.ndarray,
+                        update1: Any, failed_rows: Any, mode: str, Gamma: Any) -> UpdateResult:
+        """``update`` after ``_measurement`` validated z, R and H."""
+        m = Hs.shape[0]
+        failed = _failed_rows(failed_rows, m)
+        if failed and mode != "nominal":
+            G = _anomaly_covariance(Gamma, len(failed)) if mode == "known_anomaly" else None
+            x, P, nu, S, beta2, thr, exceeded, fused, used, R_used = _update_failed(
+                self._x, self._P, zv, Rm, Hs, self._sm.I, failed, mode, G, self.gate,
+                self._reject)
+            self._x, self._P = x, P
+            self.steps += 1
+            if used:
+                state = self._alarm.push(exceeded)
+            else:  # nothing fused: the alarm window is not advanced
+                state = ALARM_ACTIVE if self._alarm.active else ALARM_CLEAR
+            return UpdateResult(nu=nu, S=S, beta2=float(beta2), threshold=thr,
+                                exceeded=bool(exceeded), fused=bool(fused), alarm_state=state,
+                                row_beta2=nu * nu / np.diag(S), rows_used=used, R_used=R_used)
         thr = self.gate.threshold(m)
         x, P, nu, S, _, beta2, exceeded, fused = _update_any(
-            self._x, self._P, zv, Rm, Hs, HsT, sm.I, thr, self._reject, update1)
+            self._x, self._P, zv, Rm, Hs, HsT, self._sm.I, thr, self._reject, update1)
         self._x, self._P = x, P
         self.steps += 1
         state = self._alarm.push(exceeded)
         return UpdateResult(nu=nu, S=S, beta2=float(beta2), threshold=thr,
                             exceeded=bool(exceeded), fused=bool(fused), alarm_state=state,
                             row_beta2=nu * nu / np.diag(S))
+
+    def accuracy(self, D: Any = None) -> float:
+        """The seed's estimation accuracy J = tr(D P) of the current covariance
+        (``redundancy.accuracy``). ``D`` (n x n, physical units) defaults to the identity on the
+        scaled states, D = diag(1 / scale^2): J = sum_i P_ii / scale_i^2, dimensionless (the
+        prior std of every state counts as 1)."""
+        if D is None:
+            return accuracy(self._sm.I, _tri_to_full(self._P, self._sm.n))
+        Dm = np.asarray(D, dtype=float)
+        if Dm.shape != (self._sm.n, self._sm.n) or not np.all(np.isfinite(Dm)):
+            raise CoreError(f"D must be a finite {self._sm.n} x {self._sm.n} matrix")
+        return accuracy(Dm, self.P)
 
     def step(self, dt: float, z: Any, R: Any = None, u: Any = None) -> UpdateResult:
         """predict(dt, u) then update(z, R); everything is validated before the state changes.

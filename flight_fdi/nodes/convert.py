@@ -91,20 +91,29 @@ def _flat(a: Any) -> array.array:
     return array.array("d", np.ascontiguousarray(a, dtype=float).reshape(-1).tobytes())
 
 
-def innovation_msg(stamp, channel: str, row_names: Sequence[str], result: Any):
+def innovation_msg(stamp, channel: str, row_names: Sequence[str], result: Any,
+                   row_failed: Sequence[bool] | None = None,
+                   row_excluded: Sequence[bool] | None = None):
     """flight_fdi_msgs/Innovation from the core's UpdateResult (nu, S, beta2, threshold,
-    exceeded, alarm_state); per-row beta^2 = nu_k^2 / S_kk."""
+    exceeded, alarm_state); per-row beta^2 = nu_k^2 / S_kk. ``row_failed`` / ``row_excluded``
+    (one flag per row, default all false): the references declared failed, and the rows struck
+    out or inflated in this update (see filter_node)."""
     from flight_fdi_msgs.msg import Innovation
 
     nu = np.asarray(result.nu, dtype=float).reshape(-1)
     S = np.asarray(result.S, dtype=float).reshape(nu.size, nu.size)
     m = nu.size
+    failed = [False] * m if row_failed is None else [bool(f) for f in row_failed]
+    excluded = [False] * m if row_excluded is None else [bool(f) for f in row_excluded]
+    if len(row_names) != m or len(failed) != m or len(excluded) != m:
+        raise ValueError(f"innovation_msg: {m} rows but {len(row_names)} names, "
+                         f"{len(failed)} failed and {len(excluded)} excluded flags")
     return Innovation(
         header=header(stamp), channel=channel, row_names=list(row_names),
         innovation=_flat(nu), innovation_covariance=_flat(S),
         beta2=float(result.beta2), gate_threshold=float(result.threshold),
         gate_exceeded=bool(result.exceeded), alarm_state=int(result.alarm_state),
-        row_beta2=_flat(nu**2 / np.diag(S)), row_excluded=[False] * m, row_failed=[False] * m)
+        row_beta2=_flat(nu**2 / np.diag(S)), row_excluded=excluded, row_failed=failed)
 
 
 def filter_state_msg(stamp, channel: str, state_names: Sequence[str], x: Any, P: Any,

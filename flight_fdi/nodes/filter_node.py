@@ -4,6 +4,7 @@ Inputs
     ``ins_topic`` (default ``/ins/velocity``, geometry_msgs/TwistStamped): INS velocity.
     ``reference_topic`` (default ``/reference/velocity``, geometry_msgs/TwistWithCovarianceStamped):
     the reference velocity (GNSS, Doppler ...); its linear covariance diagonal is R when valid.
+    ``reference_topics``: several redundant references instead (see "Redundant references").
     QoS ``input_qos``: ``sensor_data`` (best effort, default) or ``reliable``.
 
 Outputs (one message per channel and reference sample, header stamp = the reference stamp)
@@ -54,6 +55,42 @@ any dt, and the grown covariance lets the filter re-converge without a false ala
 is at most ``reset_after_gap_s``; beyond that it restarts from the prior (warning,
 ``reset = True``), because after a very long blind interval the old estimate says little.
 
+Redundant references (SPEC section 2, seed 001; core ``flight_fdi.core.references``)
+    With ``reference_topics`` naming i topics, every reference is one measurement row (row name =
+    its resolved topic name). Reference samples whose stamps lie within
+    ``reference_sync_tolerance_s`` of the first one of a group are stacked into one i-row update
+    at that first stamp (each row uses the INS velocity interpolated at its own stamp). A
+    reference that has no sample for a stamp is absent from that update (fewer rows; counted as
+    ``missing`` of that reference): an update waits for a missing reference until that reference
+    has moved past the stamp, or until some reference is ``reference_sync_wait_s`` (of stamps)
+    ahead, and not at all for a reference more than ``reference_sync_wait_s`` behind (dead or
+    lagging); a sample arriving after its stamp was processed is dropped and counted
+    (``dropped_reference_late``). Updates are never reordered.
+
+    Per channel each row has its own gate (beta2_k = nu_k^2 / S_kk against the one-row
+    threshold); a reference whose exceedance is isolated (the other rows agree with the
+    prediction) ``alarm_m`` of ``alarm_n`` times is declared failed, and is readmitted after its
+    own gate has passed for ``readmit_after_s``. ``reference_mode`` says what a failed reference
+    does to the filter: ``exclude`` (AF, its row is struck out), ``known_anomaly`` (KF2, its
+    variance grows by ``anomaly_variance``), ``nominal`` (nothing: reported only). In the two
+    active modes a row isolated at the current sample is handled so already (a suspect). The last
+    healthy reference is never declared failed; an update that carries only failed rows fuses
+    nothing in exclude mode (a prediction only: FilterState without rows, fused false).
+
+    Innovation (one per channel and update) carries every row present: ``innovation``,
+    ``innovation_covariance`` and ``row_beta2`` are the nominal ones (S = H P- H^T + R, also
+    for excluded rows); ``beta2`` and ``gate_threshold`` are over the rows used (known_anomaly:
+    with S + C Gamma C^T); ``row_failed`` = the reference is declared failed; ``row_excluded`` =
+    the row is handled by the mode in this update -- struck out (exclude) or inflated by Gamma
+    (known_anomaly), for a failed or a suspect row; always false in nominal mode. FilterState
+    carries z, r, h of the rows actually fused (exclude: the rows kept; known_anomaly: every row
+    with the inflated r), so a recording re-runs exactly what was fused. ``/diagnostics`` has one
+    status per reference ("<node>: reference <topic>": per channel failed / excluded, time since
+    the failure, failures and readmissions, its last row beta2; missing and late counts) and,
+    per channel, the estimation accuracy J = tr(D P) with D the identity on the scaled states
+    (J = sum_i P_ii / scale_i^2: the prior std of each state counts 1; 4 for a fresh INS
+    channel) and the rows used at the last update.
+
 Parameters: ``FILTER_PARAMS`` below (documented in ``config/filter.yaml``). Invalid parameters
 stop the node at start-up with a ParameterError naming the parameter.
 """
@@ -75,6 +112,7 @@ from ..core.align import StreamingAligner
 from ..core.errors import CoreError
 from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig, KalmanFilter
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
+from ..core.references import ReferenceConfig, RedundantFilter
 from . import convert
 from . import diagnostics as diag
 from .errors import ParameterError
@@ -115,6 +153,29 @@ FILTER_PARAMS = (
     ParamSpec("reference_topic", "string", "/reference/velocity",
               "Reference velocity input (geometry_msgs/TwistWithCovarianceStamped)",
               non_empty=True),
+    ParamSpec("reference_topics", "string_array", [""],
+              "Redundant reference topics (geometry_msgs/TwistWithCovarianceStamped), one "
+              "measurement row each; when it names any topic it replaces reference_topic. "
+              "[\"\"] (the default): the one reference_topic"),
+    ParamSpec("reference_mode", "string", "exclude",
+              "What a failed redundant reference does to the filter: exclude (AF: its row is "
+              "struck out), known_anomaly (KF2: its variance grows by anomaly_variance), "
+              "nominal (nothing; the failure is only reported)",
+              choices=("nominal", "known_anomaly", "exclude")),
+    ParamSpec("anomaly_variance", "double", 1.0,
+              "Gamma: variance added to a failed reference's row in known_anomaly mode "
+              "(a jump of d m/s calls for about d^2)", "m^2/s^2", min=0.0, min_exclusive=True),
+    ParamSpec("readmit_after_s", "double", 5.0,
+              "A failed reference is readmitted after its own gate has passed for this long "
+              "(stamp time); failure needs alarm_m of its last alarm_n samples isolated", "s",
+              min=0.0, max=3600.0),
+    ParamSpec("reference_sync_tolerance_s", "double", 0.01,
+              "Reference samples with stamps this close to the first one of a group form one "
+              "multi-row update", "s", min=0.0, max=1.0),
+    ParamSpec("reference_sync_wait_s", "double", 0.5,
+              "How far (in reference stamps) an update waits for a missing reference before it "
+              "goes without it (must be below buffer_s)", "s", min=0.0, max=60.0,
+              min_exclusive=True),
     ParamSpec("input_qos", "string", "sensor_data",
               "QoS of both inputs: sensor_data (best effort) or reliable",
               choices=("sensor_data", "reliable")),
@@ -190,13 +251,27 @@ def build_model(values: dict[str, Any]) -> LinearModel:
     return model
 
 
+def reference_topics(values: dict[str, Any]) -> list[str]:
+    """The reference topics: ``reference_topics`` without its empty entries, or else
+    ``[reference_topic]``."""
+    named = [t for t in values["reference_topics"] if t]
+    return named if named else [values["reference_topic"]]
+
+
 def validate(values: dict[str, Any]) -> None:
     """Cross-field checks of FILTER_PARAMS (ParameterError naming the parameter)."""
     if values["alarm_m"] > values["alarm_n"]:
         fail("alarm_m", values["alarm_m"], f"alarm_m <= alarm_n (= {values['alarm_n']})")
     if values["buffer_s"] <= values["max_gap_s"]:
         fail("buffer_s", values["buffer_s"], f"more than max_gap_s (= {values['max_gap_s']})")
-    if values["ins_topic"] == values["reference_topic"]:
+    if values["reference_sync_wait_s"] >= values["buffer_s"]:
+        fail("reference_sync_wait_s", values["reference_sync_wait_s"],
+             f"less than buffer_s (= {values['buffer_s']})")
+    if any(values["reference_topics"]):
+        if values["ins_topic"] in values["reference_topics"]:
+            fail("reference_topics", values["reference_topics"],
+                 "topics other than ins_topic")
+    elif values["ins_topic"] == values["reference_topic"]:
         fail("reference_topic", values["reference_topic"], "a topic other than ins_topic")
     build_model(values)
 
@@ -209,24 +284,63 @@ def input_qos(kind: str, depth: int) -> QoSProfile:
 
 
 class _Channel:
-    """One axis: its filter, the stamp of its last step, its counts and last result."""
+    """One axis: its filter, the stamp of its last step, its counts and last result.
 
-    def __init__(self, name: str, column: int, model: LinearModel, gate: GateConfig) -> None:
+    With redundant references ``rf`` is the core RedundantFilter (its ``kf`` is ``self.kf``);
+    with one reference ``rf`` is None and the plain KalmanFilter steps on its own."""
+
+    def __init__(self, name: str, column: int, model: LinearModel, gate: GateConfig,
+                 ref_names: list[str] | None = None,
+                 ref_config: ReferenceConfig | None = None) -> None:
         self.name = name
         self.axis = convert.AXIS_INDEX[name]
         self.column = column  # index in the INS vector given to the aligner
-        self.kf = KalmanFilter(model, gate)
+        if ref_names is None:
+            self.rf = None
+            self.kf = KalmanFilter(model, gate)
+        else:
+            self.rf = RedundantFilter(model, ref_names, gate, ref_config)
+            self.kf = self.rf.kf
         self.last_t: float | None = None
         self.last_step_clock: float | None = None
         self.counters = diag.Counters(("fused", "gated", "rejected", "covariance_invalid",
                                        "alarms_raised", "resets"))
         self.result = None
+        self.rows_used: int | None = None
         self.alarm_since: float | None = None
 
     def reset(self) -> None:
-        self.kf.reset()
+        if self.rf is None:
+            self.kf.reset()
+        else:
+            self.rf.reset()  # the filter and the health of every reference
         self.last_t = None
         self.alarm_since = None
+
+
+class _Reference:
+    """One reference input: its resolved topic name, the stamp of its last sample, its counts."""
+
+    def __init__(self, index: int, name: str) -> None:
+        self.index = index
+        self.name = name
+        self.last_t: float | None = None
+        self.counters = diag.Counters(("samples", "missing", "dropped_late"))
+
+
+class _Epoch:
+    """Reference samples waiting to be fused as one update at stamp ``t``:
+    ``samples[reference index] = (stamp, velocity (3,), variance (3,))``."""
+
+    __slots__ = ("t", "samples")
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+        self.samples: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
+
+    @property
+    def latest(self) -> float:
+        return max(s[0] for s in self.samples.values())
 
 
 class FilterNode(Node):
@@ -255,11 +369,11 @@ class FilterNode(Node):
             raise ParameterError(f"invalid gate parameters: {exc}") from None
         axes = sorted(p["channels"], key=convert.AXIS_INDEX.__getitem__)
         self._axes = np.array([convert.AXIS_INDEX[a] for a in axes])
-        self.channels = [_Channel(a, k, self.model, self.gate) for k, a in enumerate(axes)]
         self._h = np.asarray(self.model.H, dtype=float)
         self._new_aligner()
-        self._pending: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
-        self._last_ref_t: float | None = None
+        self._pending: deque[_Epoch] = deque()
+        self._last_ref_t: float | None = None     # newest reference stamp (any topic)
+        self._last_epoch_t: float | None = None   # stamp of the last update processed
         self._last_ins_t: float | None = None
         self.counters = diag.Counters(("received_ins", "received_reference", "time_jump_resets"))
 
@@ -267,22 +381,33 @@ class FilterNode(Node):
         from geometry_msgs.msg import TwistStamped, TwistWithCovarianceStamped
         from flight_fdi_msgs.msg import FilterState, Innovation, ModelInfo
 
-        names = {}
-        for key in ("ins_topic", "reference_topic"):
+        ref_key = "reference_topics" if any(p["reference_topics"]) else "reference_topic"
+        self.ins_name = self._resolve("ins_topic", p["ins_topic"])
+        ref_names = [self._resolve(ref_key, topic) for topic in reference_topics(p)]
+        if self.ins_name in ref_names:
+            fail(ref_key, p[ref_key], f"a topic other than ins_topic (both resolve to "
+                 f"{self.ins_name})")
+        if len(set(ref_names)) != len(ref_names):
+            fail(ref_key, p[ref_key], f"distinct topics (they resolve to {ref_names})")
+        self.refs = [_Reference(k, nm) for k, nm in enumerate(ref_names)]
+        self.ref_name = ref_names[0]
+        self.redundant = len(self.refs) > 1
+        if self.redundant:
             try:
-                validate_topic_name(p[key])
-                names[key] = self.resolve_topic_name(p[key])
-            except NameValidationException as exc:
-                fail(key, p[key], f"a valid ROS topic name ({str(exc).splitlines()[0]})")
-            except RuntimeError as exc:  # rcl's own check of the expanded name (e.g. "/a//b")
-                fail(key, p[key], f"a valid ROS topic name ({exc})")
-        self.ins_name, self.ref_name = names["ins_topic"], names["reference_topic"]
-        if self.ins_name == self.ref_name:
-            fail("reference_topic", p["reference_topic"],
-                 f"a topic other than ins_topic (both resolve to {self.ins_name})")
+                self.ref_config = ReferenceConfig(mode=p["reference_mode"],
+                                                  anomaly_variance=p["anomaly_variance"],
+                                                  readmit_after_s=p["readmit_after_s"])
+            except CoreError as exc:  # the table's checks should make this unreachable
+                raise ParameterError(f"invalid reference parameters: {exc}") from None
+            self.channels = [_Channel(a, k, self.model, self.gate, ref_names, self.ref_config)
+                             for k, a in enumerate(axes)]
+        else:
+            self.ref_config = None
+            self.channels = [_Channel(a, k, self.model, self.gate) for k, a in enumerate(axes)]
         self.create_subscription(TwistStamped, self.ins_name, self._on_ins, qos)
-        self.create_subscription(TwistWithCovarianceStamped, self.ref_name, self._on_reference,
-                                 qos)
+        for ref in self.refs:
+            self.create_subscription(TwistWithCovarianceStamped, ref.name,
+                                     lambda msg, k=ref.index: self._on_reference(k, msg), qos)
         self._row_names = [self.ref_name]
 
         out_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
@@ -294,7 +419,7 @@ class FilterNode(Node):
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_model = self.create_publisher(ModelInfo, "fdi/model", latched)
 
-        self.inputs = diag.InputMonitor(self._now, (self.ins_name, self.ref_name),
+        self.inputs = diag.InputMonitor(self._now, [self.ins_name] + ref_names,
                                         window_s=p["rate_window_s"],
                                         stale_after_s=p["stale_after_s"])
         self.diagnostics = diag.DiagnosticsTimer(self, p["diagnostics_period_s"],
@@ -302,11 +427,27 @@ class FilterNode(Node):
         stamp = self.get_clock().now().to_msg()
         for ch in self.channels:
             self.pub_model.publish(convert.model_info_msg(stamp, ch.name, self.model, self.gate))
+        refs_text = ", ".join(ref_names)
+        if self.redundant:
+            refs_text += (f" (redundant: mode {p['reference_mode']}, readmit after "
+                          f"{p['readmit_after_s']} s)")
         self.get_logger().info(
             f"filtering channels {', '.join(axes)} with model {self.model.name} "
             f"(gate {self.gate.rule}, alarm {self.gate.alarm_m} of {self.gate.alarm_n}, "
-            f"action {self.gate.action}); inputs {self.ins_name}, {self.ref_name} "
+            f"action {self.gate.action}); inputs {self.ins_name}, {refs_text} "
             f"({p['input_qos']})")
+
+    def _resolve(self, key: str, topic: str) -> str:
+        """The fully qualified name of ``topic`` (ParameterError naming ``key`` when invalid)."""
+        try:
+            validate_topic_name(topic)
+            return self.resolve_topic_name(topic)
+        except NameValidationException as exc:
+            fail(key, self.p[key], f"valid ROS topic names ({str(exc).splitlines()[0]})"
+                 if key == "reference_topics" else
+                 f"a valid ROS topic name ({str(exc).splitlines()[0]})")
+        except RuntimeError as exc:  # rcl's own check of the expanded name (e.g. "/a//b")
+            fail(key, self.p[key], f"a valid ROS topic name ({exc})")
 
     def _new_aligner(self) -> None:
         self.aligner = StreamingAligner(max_gap_s=self.p["max_gap_s"], buffer_s=self.p["buffer_s"])
@@ -355,37 +496,81 @@ class FilterNode(Node):
         self._new_aligner()
         self._last_ins_t = None
         limit = t + self.p["time_jump_reset_s"]
-        keep = deque(r for r in self._pending if r[0] <= limit)
-        stale = len(self._pending) - len(keep)
+        keep = deque(e for e in self._pending if e.t <= limit)
+        stale = sum(len(e.samples) for e in self._pending) - sum(len(e.samples) for e in keep)
         if stale:
             self._pending = keep
             self._drop("time_jump", f"{stale} reference samples waiting across a time jump",
                        n=stale)
 
     # ------------------------------------------------------------------ reference input
-    def _on_reference(self, msg: Any) -> None:
-        self.inputs.seen(self.ref_name)
+    def _on_reference(self, k: int, msg: Any) -> None:
+        ref = self.refs[k]
+        self.inputs.seen(ref.name)
         self.counters.inc("received_reference")
         t, v, var = convert.twist_cov_velocity(msg)
-        last = self._last_ref_t
+        last = ref.last_t
         if last is not None and t <= last:
             if t == last:
                 self._drop("reference_duplicate",
-                           f"reference sample at t={t:.3f} s: duplicate stamp")
+                           f"reference sample on {ref.name} at t={t:.3f} s: duplicate stamp")
                 return
             if last - t <= self.p["time_jump_reset_s"]:
-                self._drop("reference_out_of_order", f"reference sample at t={t:.3f} s: "
-                           f"older than the last one ({last:.3f} s)")
+                self._drop("reference_out_of_order", f"reference sample on {ref.name} at "
+                           f"t={t:.3f} s: older than the last one ({last:.3f} s)")
                 return
             self._reference_time_jump(t, last)
-        self._last_ref_t = t
-        self._pending.append((t, v, var))
+        ref.last_t = t
+        ref.counters.inc("samples")
+        if self._last_ref_t is None or t > self._last_ref_t:
+            self._last_ref_t = t
+        if self._last_epoch_t is not None and t <= self._last_epoch_t:
+            # its stamp has been processed (without it): an update is never redone
+            ref.counters.inc("dropped_late")
+            self._drop("reference_late", f"reference sample on {ref.name} at t={t:.3f} s: "
+                       f"arrived after the update at {self._last_epoch_t:.3f} s")
+            return
+        self._add_sample(k, t, v, var)
         # a sample that waited longer than the INS buffer for its INS data will not get it
-        while self._pending and self._pending[0][0] < t - self.p["buffer_s"]:
+        newest = self._last_ref_t
+        while self._pending and self._pending[0].t < newest - self.p["buffer_s"]:
             old = self._pending.popleft()
-            self._drop("ins_timeout", f"reference sample at t={old[0]:.3f} s: no INS data "
-                       f"after it within {self.p['buffer_s']} s")
+            self._drop("ins_timeout", f"reference sample at t={old.t:.3f} s: no INS data "
+                       f"after it within {self.p['buffer_s']} s", n=len(old.samples))
         self._drain()
+
+    def _add_sample(self, k: int, t: float, v: np.ndarray, var: np.ndarray) -> None:
+        """Put a reference sample into the waiting update within the sync tolerance of its
+        stamp (the nearest one still without this reference), or into a new one, in stamp
+        order."""
+        tol = self.p["reference_sync_tolerance_s"] if self.redundant else 0.0
+        best = None
+        for e in self._pending:
+            if k not in e.samples and abs(e.t - t) <= tol and \
+                    (best is None or abs(e.t - t) < abs(best.t - t)):
+                best = e
+        if best is None:
+            best = _Epoch(t)
+            pos = len(self._pending)
+            while pos > 0 and self._pending[pos - 1].t > t:
+                pos -= 1
+            self._pending.insert(pos, best)
+        best.samples[k] = (t, v, var)
+
+    def _closed(self, e: _Epoch) -> bool:
+        """The update at ``e.t`` waits for no more references (see the module docstring)."""
+        if len(e.samples) == len(self.refs):
+            return True
+        tol, wait = self.p["reference_sync_tolerance_s"], self.p["reference_sync_wait_s"]
+        if self._last_ref_t is not None and self._last_ref_t > e.t + wait:
+            return True
+        for ref in self.refs:
+            if ref.index in e.samples:
+                continue
+            last = ref.last_t
+            if last is None or e.t - wait <= last <= e.t + tol:
+                return False  # may still come
+        return True
 
     def _reference_time_jump(self, t: float, last: float) -> None:
         self.counters.inc("time_jump_resets")
@@ -394,79 +579,120 @@ class FilterNode(Node):
         for ch in self.channels:
             ch.reset()
             ch.counters.inc("resets")
-        if self._pending:
-            self._drop("time_jump", f"{len(self._pending)} reference samples waiting across a "
-                       "time jump", n=len(self._pending))
+        waiting = sum(len(e.samples) for e in self._pending)
+        if waiting:
+            self._drop("time_jump", f"{waiting} reference samples waiting across a time jump",
+                       n=waiting)
             self._pending.clear()
+        for ref in self.refs:  # every reference starts on the new time line
+            ref.last_t = None
+        self._last_ref_t = None
+        self._last_epoch_t = None
         if self._last_ins_t is not None and self._last_ins_t > t + self.p["time_jump_reset_s"]:
             self._new_aligner()  # the INS buffer is still on the old time line
             self._last_ins_t = None
 
     def _drain(self) -> None:
-        """Step the filter for every waiting reference sample whose INS value is available."""
+        """Step the filter for every waiting update that is complete (or has waited long enough)
+        and whose INS values are available, in stamp order."""
         while self._pending:
-            t, v_ref, var = self._pending[0]
+            e = self._pending[0]
+            if not self._closed(e):
+                return
             newest = self.aligner.newest_t
-            if newest is None or t > newest:
+            if newest is None or e.latest > newest:
                 # wait for the INS sample after t, even when t is more than max_gap_s ahead of
                 # the newest one: INS messages may simply be delivered later than references
                 # (a real INS dropout ends as a "gap", or the sample expires after buffer_s)
                 return
-            v_ins = self.aligner.at(t)
-            if v_ins is None:
-                reason = self.aligner.last_reason
-                self._pending.popleft()
-                self._drop(f"ins_{reason}", f"reference sample at t={t:.3f} s: no INS value "
-                           f"({reason}; max_gap_s {self.p['max_gap_s']} s, buffer_s "
-                           f"{self.p['buffer_s']} s)")
-                continue
             self._pending.popleft()
-            self._step(t, np.asarray(v_ins, dtype=float).reshape(-1), v_ref, var)
+            self._last_epoch_t = e.t
+            rows = []
+            for k in sorted(e.samples):
+                t_k, v_ref, var = e.samples[k]
+                v_ins = self.aligner.at(t_k)
+                if v_ins is None:
+                    reason = self.aligner.last_reason
+                    self._drop(f"ins_{reason}", f"reference sample at t={t_k:.3f} s: no INS "
+                               f"value ({reason}; max_gap_s {self.p['max_gap_s']} s, buffer_s "
+                               f"{self.p['buffer_s']} s)")
+                    continue
+                rows.append((k, np.asarray(v_ins, dtype=float).reshape(-1), v_ref, var))
+            if not rows:
+                continue
+            if self.redundant:
+                present = {k for k, *_ in rows}
+                for ref in self.refs:
+                    if ref.index not in present:
+                        ref.counters.inc("missing")
+                self._step_redundant(e.t, rows)
+            else:
+                _, v_ins, v_ref, var = rows[0]
+                self._step(e.t, v_ins, v_ref, var)
 
     # ------------------------------------------------------------------ the filter step
+    def _row(self, ch: _Channel, t: float, v_ins: np.ndarray, v_ref: np.ndarray,
+             var: np.ndarray) -> tuple[float, float] | None:
+        """(z, r) of one reference sample on channel ``ch``; None (counted) when the reference
+        velocity is not finite on that axis."""
+        vr = float(v_ref[ch.axis])
+        if not math.isfinite(vr):
+            self._drop("reference_nonfinite", f"reference sample at t={t:.3f} s on "
+                       f"channel {ch.name}: non-finite velocity {vr}", channel=ch)
+            return None
+        r = float(var[ch.axis])
+        if not (self.p["use_reference_covariance"] and math.isfinite(r) and r > 0.0):
+            if self.p["use_reference_covariance"]:
+                ch.counters.inc("covariance_invalid")
+            r = self.p["reference_variance"]
+        return float(v_ins[ch.column]) - vr, r
+
+    def _dt(self, ch: _Channel, t: float) -> tuple[float, bool]:
+        """(dt, reset) of the next step of ``ch`` at ``t``; restarts it after a long gap."""
+        reset = ch.last_t is None
+        dt = 0.0 if reset else t - ch.last_t
+        if dt > self.p["reset_after_gap_s"]:
+            self.get_logger().warning(
+                f"channel {ch.name}: no update for {dt:.1f} s (> reset_after_gap_s "
+                f"{self.p['reset_after_gap_s']} s): filter restarted from the prior")
+            ch.reset()
+            ch.counters.inc("resets")
+            reset, dt = True, 0.0
+        return dt, reset
+
+    def _count(self, ch: _Channel, t: float, res: Any, now: float) -> None:
+        ch.last_t = t
+        ch.last_step_clock = now
+        ch.result = res
+        if res.fused:
+            ch.counters.inc("fused")
+        if res.exceeded:
+            ch.counters.inc("gated")
+            if not res.fused:
+                ch.counters.inc("rejected")
+        self._alarm_transition(ch, t, res)
+
     def _step(self, t: float, v_ins: np.ndarray, v_ref: np.ndarray, var: np.ndarray) -> None:
-        """One filter step per channel at reference stamp ``t``. The innovations (what the
-        in-flight monitor waits for) are published as soon as each is known, the states after."""
+        """One filter step per channel at reference stamp ``t`` (one reference). The
+        innovations (what the in-flight monitor waits for) are published as soon as each is
+        known, the states after."""
         stamp = convert.s_to_stamp(t)
         now = self._now()
         states = []
         for ch in self.channels:
-            vr = float(v_ref[ch.axis])
-            if not math.isfinite(vr):
-                self._drop("reference_nonfinite", f"reference sample at t={t:.3f} s on "
-                           f"channel {ch.name}: non-finite velocity {vr}", channel=ch)
+            row = self._row(ch, t, v_ins, v_ref, var)
+            if row is None:
                 continue
-            r = float(var[ch.axis])
-            if not (self.p["use_reference_covariance"] and math.isfinite(r) and r > 0.0):
-                if self.p["use_reference_covariance"]:
-                    ch.counters.inc("covariance_invalid")
-                r = self.p["reference_variance"]
-            z = float(v_ins[ch.column]) - vr
-            reset = ch.last_t is None
-            dt = 0.0 if reset else t - ch.last_t
-            if dt > self.p["reset_after_gap_s"]:
-                self.get_logger().warning(
-                    f"channel {ch.name}: no update for {dt:.1f} s (> reset_after_gap_s "
-                    f"{self.p['reset_after_gap_s']} s): filter restarted from the prior")
-                ch.reset()
-                ch.counters.inc("resets")
-                reset, dt = True, 0.0
+            z, r = row
+            dt, reset = self._dt(ch, t)
             try:
                 res = ch.kf.step(dt, [z], [[r]])
             except CoreError as exc:
                 self._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
                            channel=ch)
                 continue
-            ch.last_t = t
-            ch.last_step_clock = now
-            ch.result = res
-            if res.fused:
-                ch.counters.inc("fused")
-            if res.exceeded:
-                ch.counters.inc("gated")
-                if not res.fused:
-                    ch.counters.inc("rejected")
-            self._alarm_transition(ch, t, res)
+            ch.rows_used = 1
+            self._count(ch, t, res, now)
             self.pub_innovation.publish(
                 convert.innovation_msg(stamp, ch.name, self._row_names, res))
             states.append(convert.filter_state_msg(
@@ -474,6 +700,58 @@ class FilterNode(Node):
                 H=self._h, dt=dt, fused=res.fused, gated=res.exceeded, reset=reset))
         for msg in states:
             self.pub_state.publish(msg)
+
+    def _step_redundant(self, t: float, rows: list) -> None:
+        """One update per channel at stamp ``t`` with the rows of the references present
+        (``rows``: (reference index, INS velocity at its stamp, reference velocity, variance))."""
+        stamp = convert.s_to_stamp(t)
+        now = self._now()
+        states = []
+        for ch in self.channels:
+            present, zs, rs = [], [], []
+            for k, v_ins, v_ref, var in rows:
+                row = self._row(ch, t, v_ins, v_ref, var)
+                if row is not None:
+                    present.append(k)
+                    zs.append(row[0])
+                    rs.append(row[1])
+            if not present:
+                continue
+            dt, reset = self._dt(ch, t)
+            try:
+                out = ch.rf.step(t, dt, zs, rs, present)
+            except CoreError as exc:
+                self._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
+                           channel=ch)
+                continue
+            res = out.update
+            ch.rows_used = len(out.z_used)
+            self._count(ch, t, res, now)
+            for ev in out.events:
+                self._reference_event(ch, ev)
+            self.pub_innovation.publish(convert.innovation_msg(
+                stamp, ch.name, out.names, res, row_failed=out.row_failed,
+                row_excluded=out.row_excluded))
+            states.append(convert.filter_state_msg(
+                stamp, ch.name, self.model.state_names, ch.kf.x, ch.kf.P, z=out.z_used,
+                R=out.R_used, H=out.H_used, dt=dt, fused=res.fused, gated=res.exceeded,
+                reset=reset))
+        for msg in states:
+            self.pub_state.publish(msg)
+
+    def _reference_event(self, ch: _Channel, ev: Any) -> None:
+        mode = self.ref_config.mode
+        if ev.kind == "failed":
+            what = {"exclude": "excluded", "known_anomaly": "inflated by anomaly_variance",
+                    "nominal": "still fused (nominal mode)"}[mode]
+            self.get_logger().warning(
+                f"channel {ch.name}: reference {ev.name} failed at t={ev.t:.3f} s (row beta2 "
+                f"{ev.beta2:.3g} > {self.gate.threshold(1):.3g} in {self.gate.alarm_m} of its "
+                f"last {self.gate.alarm_n} samples): {what}")
+        else:
+            self.get_logger().info(
+                f"channel {ch.name}: reference {ev.name} readmitted at t={ev.t:.3f} s "
+                f"(healthy for {self.p['readmit_after_s']} s)")
 
     def _alarm_transition(self, ch: _Channel, t: float, res: Any) -> None:
         if res.alarm_state == ALARM_RAISED:
@@ -508,6 +786,11 @@ class FilterNode(Node):
                 ("alarm_since_s", ch.alarm_since),
                 ("last_stamp_s", ch.last_t),
             ]
+            vals.append(("accuracy_J", ch.kf.accuracy()))
+            if ch.rf is not None:
+                vals.append(("rows_used", ch.rows_used))
+                vals.append(("failed_references", ",".join(
+                    self.refs[i].name for i in ch.rf.monitor.failed_references())))
             vals += ch.counters.key_values()
             vals += [(f"x.{nm}", float(v)) for nm, v in zip(self.model.state_names, ch.kf.x)]
             alarm = ch.kf.alarm_active and ch.last_t is not None
@@ -522,7 +805,36 @@ class FilterNode(Node):
                 level, text = diag.OK, "filtering"
             out.append(diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
                                         hardware_id=ch.name))
+        if self.redundant:
+            out += [self._reference_status(name, ref) for ref in self.refs]
         return out
+
+    def _reference_status(self, name: str, ref: _Reference):
+        """Per reference: failed / excluded on each channel, time since the failure (stamp
+        time, at the channel's last update), failures, readmissions, last row beta2."""
+        vals: list[tuple[str, Any]] = []
+        failed_on = []
+        handled = self.ref_config.mode != "nominal"
+        for ch in self.channels:
+            h = ch.rf.monitor.refs[ref.index]
+            since = None
+            if h.failed and ch.last_t is not None:
+                since = ch.last_t - h.failed_since
+                failed_on.append(f"{ch.name} since t={h.failed_since:.3f} s")
+            vals += [(f"{ch.name}.failed", h.failed), (f"{ch.name}.excluded", h.failed and handled),
+                     (f"{ch.name}.time_since_failure_s", since),
+                     (f"{ch.name}.failures", h.failures),
+                     (f"{ch.name}.readmissions", h.readmissions),
+                     (f"{ch.name}.row_beta2", h.last_beta2)]
+        vals += ref.counters.key_values()
+        if failed_on:
+            what = {"exclude": "excluded", "known_anomaly": "inflated",
+                    "nominal": "still fused"}[self.ref_config.mode]
+            level, text = diag.WARN, f"failed on channel {', '.join(failed_on)} ({what})"
+        else:
+            level, text = diag.OK, "healthy"
+        return diag.make_status(f"{name}: reference {ref.name}", level, text, vals,
+                                hardware_id=ref.name)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -158,6 +158,36 @@ def _closed_cleanly(path: Path) -> bool | None:
     return None if flag is None else flag == "true"
 
 
+def measurement_of(msg: Any, model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(z, R, H) of a FilterState in the model's m rows, or None when its arrays are malformed.
+
+    * m rows: as recorded.
+    * no rows (a prediction-only step, e.g. every reference excluded): z = 0, the model's R and H,
+      and the step counts as not fused -- the backward pass adds no information there.
+    * k > m = 1 rows sharing one H row with a diagonal R (redundant references stacked by the
+      filter): the information-equivalent single row z = sum(z_i / r_i) / sum(1 / r_i),
+      r = 1 / sum(1 / r_i), which gives the backward filter exactly the same information.
+    Anything else raises ValueError (not representable in the model's rows).
+    """
+    n, m = model.n, model.m
+    k = len(msg.z)
+    if len(msg.h) != k * n or len(msg.r) != k * k:
+        return None
+    if k == 0:
+        return np.zeros(m), np.array(model.R, dtype=float), np.array(model.H, dtype=float)
+    z = np.asarray(msg.z, dtype=float)
+    R = np.asarray(msg.r, dtype=float).reshape(k, k)
+    H = np.asarray(msg.h, dtype=float).reshape(k, n)
+    if k == m:
+        return z, R, H
+    if m == 1 and np.all(H == H[0]) and np.count_nonzero(R - np.diag(np.diag(R))) == 0 \
+            and np.all(np.diag(R) > 0):
+        w = 1.0 / np.diag(R)
+        return (np.array([float(w @ z / w.sum())]), np.array([[1.0 / w.sum()]]), H[:1].copy())
+    raise ValueError(f"{k} measurement rows that are not stacked copies of the model's "
+                     f"{m} row(s)")
+
+
 def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fdi/state",
                    model_topic: str = "/fdi/model") -> Recording:
     """Read one channel of a recorder_node bag. BagError (bag or content) / CoreError (model).
@@ -200,16 +230,27 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
         if last_ns is not None and stamp_ns <= last_ns:
             problems["out_of_order_state"] += 1
             continue
-        if len(msg.z) != m or len(msg.h) != m * n or len(msg.r) != m * m:
+        try:
+            meas = measurement_of(msg, model)
+        except ValueError as exc:
+            raise BagError(f"bag '{p}': FilterState at {stamp_ns * 1e-9:.3f} s of channel "
+                           f"{channel!r}: {exc}") from None
+        if meas is None:
             problems["no_measurement"] += 1
             continue
-        segments[-1].append(msg)
+        if not len(msg.z):
+            problems["prediction_only"] = problems.get("prediction_only", 0) + 1
+        elif len(msg.z) != m:
+            problems["merged_rows"] = problems.get("merged_rows", 0) + 1
+        segments[-1].append((msg, meas))
         last_ns = stamp_ns
     problems["segments"] = len(segments)
     seg = max(segments, key=len)
     if not seg:
         raise BagError(f"bag '{p}': no usable FilterState for channel {channel!r}")
     N = len(seg)
+    meas = [mz for _, mz in seg]
+    seg = [msg for msg, _ in seg]
     t = np.array([s.header.stamp.sec + s.header.stamp.nanosec * 1e-9 for s in seg])
     stamps = np.array([s.header.stamp.sec * 1_000_000_000 + s.header.stamp.nanosec
                        for s in seg], dtype=np.int64)
@@ -231,13 +272,13 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
                 u[i] = np.asarray(s.u, dtype=float)
     return Recording(
         path=str(p), channel=channel, model=model, gate=gate, t=t, dt=dt,
-        z=np.array([np.asarray(s.z, dtype=float) for s in seg]).reshape(N, m),
-        R=np.array([np.asarray(s.r, dtype=float) for s in seg]).reshape(N, m, m),
-        H=np.array([np.asarray(s.h, dtype=float) for s in seg]).reshape(N, m, n),
+        z=np.array([mz[0] for mz in meas]).reshape(N, m),
+        R=np.array([mz[1] for mz in meas]).reshape(N, m, m),
+        H=np.array([mz[2] for mz in meas]).reshape(N, m, n),
         u=u,
         x=np.array([np.asarray(s.x, dtype=float) for s in seg]).reshape(N, n),
         P=np.array([np.asarray(s.p, dtype=float) for s in seg]).reshape(N, n, n),
-        fused=np.array([bool(s.fused) for s in seg]),
+        fused=np.array([bool(s.fused) and len(s.z) > 0 for s in seg]),
         gated=np.array([bool(s.gated) for s in seg]),
         first_stamp_s=first_stamp, closed_cleanly=_closed_cleanly(p), problems=problems)
 

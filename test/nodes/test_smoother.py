@@ -270,3 +270,35 @@ def test_batch_mode_exit_status(flight, tmp_path):
         else:
             assert "failure of accel_bias" in proc.stderr
             assert math.isfinite(res["post_flight"]["glr"]["statistic"])
+
+
+def test_stacked_reference_rows_merge_into_the_information_equivalent_row():
+    """A FilterState of a multi-reference filter (k stacked rows) is read as one row that gives
+    the same posterior; a prediction-only state as an unfused step; other shapes are refused."""
+    from types import SimpleNamespace
+
+    from flight_fdi.core.kalman import KalmanFilter
+    from flight_fdi.core.models import ins_channel
+    from flight_fdi.nodes.smoother_node import measurement_of
+
+    model = ins_channel()
+    h = [1.0, 0.0, 0.0, 0.0]
+    z = [0.3, 0.1, 0.25]
+    r = [0.01, 0.04, 0.02]
+    R3 = np.diag(r)
+    msg = SimpleNamespace(z=z, r=R3.ravel().tolist(), h=h * 3)
+    zm, Rm, Hm = measurement_of(msg, model)
+    stacked, merged = KalmanFilter(model), KalmanFilter(model)
+    stacked.predict(0.1)
+    merged.predict(0.1)
+    stacked.update(np.array(z), R=R3, H=np.array([h] * 3))
+    merged.update(zm, R=Rm, H=Hm)
+    np.testing.assert_allclose(merged.x, stacked.x, rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(merged.P, stacked.P, rtol=1e-9, atol=1e-20)
+
+    empty = measurement_of(SimpleNamespace(z=[], r=[], h=[]), model)
+    assert empty is not None and empty[0].shape == (1,)
+    assert measurement_of(SimpleNamespace(z=[1.0], r=[0.01], h=[1.0, 0.0]), model) is None
+    with pytest.raises(ValueError, match="not stacked copies"):
+        measurement_of(SimpleNamespace(z=[1.0, 2.0], r=[0.01, 0, 0, 0.01],
+                                       h=[1.0, 0, 0, 0, 0, 1.0, 0, 0]), model)
