@@ -15,19 +15,25 @@ from flight_fdi.cli.errors import CliError
 
 
 def add_analysis_options(p: argparse.ArgumentParser) -> None:
-    """Options shared by ``analyze`` and ``run`` (one set of names for one configuration)."""
+    """Options shared by ``analyze``, ``run`` and ``report`` (one set of names for one
+    configuration)."""
     p.add_argument("--channel", default="x", choices=("x", "y"), help="velocity axis (default x)")
     p.add_argument("--model", default="ins_channel",
                    help="built-in model name or a model YAML file (default ins_channel)")
+    add_gate_options(p)
+    p.add_argument("--gate-action", default="flag", choices=("flag", "reject"),
+                   help="fuse (flag) or drop (reject) a gated sample (default flag)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+
+
+def add_gate_options(p: argparse.ArgumentParser) -> None:
+    """The in-flight gate and alarm options (read by :func:`analysis_config`)."""
     p.add_argument("--gate-rule", default="chi2", choices=("chi2", "seed"),
                    help="beta^2 gate: chi-square quantile or the seed's m + 3 sqrt(2m) (default chi2)")
     p.add_argument("--gate-probability", type=float, default=1e-3,
                    help="per-sample false-alarm probability of the chi2 gate (default 1e-3)")
     p.add_argument("--alarm", default="3/5", metavar="M/N",
                    help="alarm when M of the last N samples exceed the gate (default 3/5)")
-    p.add_argument("--gate-action", default="flag", choices=("flag", "reject"),
-                   help="fuse (flag) or drop (reject) a gated sample (default flag)")
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
 
 def analysis_config(args: argparse.Namespace):

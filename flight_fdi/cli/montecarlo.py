@@ -17,6 +17,7 @@ import json
 import sys
 from pathlib import Path
 
+from flight_fdi.cli.analyze import add_gate_options
 from flight_fdi.cli.errors import CliError
 
 
@@ -61,12 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--channel", choices=("x", "y"), default="x", help="axis (default x)")
     p.add_argument("--seed", type=int, default=0, help="seed of the study (default 0)")
     p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
-    p.add_argument("--gate-rule", default="chi2", choices=("chi2", "seed"),
-                   help="beta^2 gate: chi-square quantile or the seed's m + 3 sqrt(2m)")
-    p.add_argument("--gate-probability", type=float, default=1e-3,
-                   help="per-sample false-alarm probability of the chi2 gate (default 1e-3)")
-    p.add_argument("--alarm", default="3/5", metavar="M/N",
-                   help="alarm when M of the last N samples exceed the gate (default 3/5)")
+    add_gate_options(p)
     p.add_argument("--glr-p-false-alarm", type=float, default=1e-3,
                    help="GLR per-flight false-alarm probability (default 1e-3)")
     p.add_argument("--out", default=None, metavar="FILE",
