@@ -489,6 +489,21 @@ def _update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, Hs: np.n
     return x, P, nu, S, K, beta2, exceeded, True
 
 
+def _check_finite_update(x: Any, P: Any, beta2: float, nu: Any = None, S: Any = None) -> None:
+    """CoreError when an update overflowed float64: a finite measurement so far from the
+    prediction (e.g. 1e200 m/s) that beta2 = nu^T S^-1 nu, a row's nu_k^2 / S_kk or the
+    corrected state is Inf or NaN. The caller then leaves the filter unchanged. (For one row
+    beta2 = nu^2 / S is the row's value; ``nu`` and ``S`` are needed for several rows.)"""
+    ok = math.isfinite(beta2) and all(map(math.isfinite, x)) and all(map(math.isfinite, P))
+    if ok and nu is not None and np.size(nu) > 1:
+        with np.errstate(over="ignore", invalid="ignore"):
+            ok = bool(np.all(np.isfinite(np.square(nu) / np.diag(S))))
+    if not ok:
+        raise CoreError(f"the update overflows float64 (innovation "
+                        f"{np.ravel(nu).tolist() if nu is not None else '?'}, beta2 {beta2!r}): "
+                        "the measurement is not a plausible value")
+
+
 def _update_any(x: tuple, P: tuple, z: np.ndarray, R: np.ndarray, Hs: np.ndarray,
                 HsT: np.ndarray, I: np.ndarray, threshold: float, reject: bool, update1: Any):
     """One update on the tuple state: the generated one-row update when m = 1, else numpy.
@@ -849,6 +864,7 @@ class KalmanFilter:
             x, P, nu, S, beta2, thr, exceeded, fused, used, R_used = _update_failed(
                 self._x, self._P, zv, Rm, Hs, self._sm.I, failed, mode, G, self.gate,
                 self._reject)
+            _check_finite_update(x, P, beta2, nu, S)
             self._x, self._P = x, P
             self.steps += 1
             if used:
@@ -861,6 +877,7 @@ class KalmanFilter:
         thr = self.gate.threshold(m)
         x, P, nu, S, _, beta2, exceeded, fused = _update_any(
             self._x, self._P, zv, Rm, Hs, HsT, self._sm.I, thr, self._reject, update1)
+        _check_finite_update(x, P, beta2, nu, S)
         self._x, self._P = x, P
         self.steps += 1
         state = self._alarm.push(exceeded)
@@ -902,6 +919,7 @@ class KalmanFilter:
         _, _, x, P, nu, s, _, beta2, exceeded, fused = step(
             self._x, self._P, mt.Phi_t, mt.Qd_t, bu, self._h, Rm.item(), zv.item(), thr,
             self._reject)
+        _check_finite_update(x, P, beta2, (nu,))
         self._x, self._P = x, P
         self.steps += 1
         state = self._alarm.push(exceeded)

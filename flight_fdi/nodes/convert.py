@@ -22,11 +22,26 @@ def stamp_to_s(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+#: seconds a builtin_interfaces/Time can hold (int32 sec, nanosec in [0, 1e9))
+STAMP_MIN_S = -(2**31)
+STAMP_MAX_S = 2**31 - 1e-9
+
+
+def stamp_fits(t: float) -> bool:
+    """True when ``s_to_stamp(t)`` can represent ``t`` (finite, int32 seconds after rounding
+    to the nanosecond). A received stamp may not: nanosec is a uint32 on the wire, so
+    sec = 2^31 - 1 with nanosec >= 1e9 reads as a time after the last representable one."""
+    if not math.isfinite(t):
+        return False
+    return STAMP_MIN_S * 1_000_000_000 <= int(round(t * 1e9)) < 2**31 * 1_000_000_000
+
+
 def s_to_stamp(t: float):
-    """float seconds -> builtin_interfaces/Time (nanoseconds rounded; t >= 0)."""
+    """float seconds -> builtin_interfaces/Time (nanoseconds rounded). Negative times (sec < 0,
+    nanosec >= 0) are valid stamps; ValueError when ``t`` does not fit (``stamp_fits``)."""
     from builtin_interfaces.msg import Time
 
-    if not math.isfinite(t) or t < 0:
+    if not stamp_fits(t):
         raise ValueError(f"cannot convert {t!r} s to a ROS time stamp")
     ns = int(round(t * 1e9))
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
@@ -81,6 +96,13 @@ def twist_cov_stamped(t: float, v: Sequence[float], var: Sequence[float] | float
     cov[[0, 7, 14]] = var3
     msg.twist.covariance = cov
     return msg
+
+
+def vector3_values(msg: Any) -> tuple[float, np.ndarray]:
+    """geometry_msgs/Vector3Stamped -> (t [s], vector (3,)) (the attitude mode's angle, rate and
+    control inputs: one value per axis x, y, z)."""
+    v = msg.vector
+    return stamp_to_s(msg.header.stamp), np.array([v.x, v.y, v.z], dtype=float)
 
 
 # --- outputs -----------------------------------------------------------------------------------

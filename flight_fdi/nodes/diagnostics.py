@@ -70,7 +70,7 @@ def format_value(value: Any) -> str:
     if isinstance(value, float):
         if math.isnan(value):
             return "nan"
-        return f"{value:.6g}"
+        return f"{value:.12g}"  # enough for stamps in seconds since 1970 to show ms
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(format_value(v) for v in value) + "]"
     return str(value)

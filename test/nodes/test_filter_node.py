@@ -451,7 +451,7 @@ def test_velocity_ramp_raises_the_alarm(ros, action):
     ({"buffer_s": 0.4}, "buffer_s"),
     ({"channels": ["z"]}, "channels"),
     ({"model": "no_such_model"}, "model"),
-    ({"model": "attitude_axis"}, "model"),
+    ({"model": "attitude_axis", "attitude_measure": "rate"}, "attitude_measure"),
     ({"reference_variance": 0.0}, "reference_variance"),
     ({"input_qos": "best"}, "input_qos"),
     ({"ins_topic": "bad topic!"}, "ins_topic"),

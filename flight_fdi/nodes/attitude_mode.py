@@ -1,0 +1,751 @@
+"""The filter node's attitude mode (seed 003, SPEC section 7): per axis the Kalman filter of the
+spacecraft attitude axis with its control input, and the actuator monitor whose decision is
+"switch to reserve".
+
+The mode is selected by the node's ``model`` parameter: ``attitude_axis`` (the built-in model,
+shaped by the ``attitude_*`` parameters) or a model YAML file with a control input B (one input,
+a state named ``disturbance``, rows angle or angle and rate). ``filter_node`` declares every
+parameter (``FILTER_PARAMS``) and builds :class:`AttitudeMode`; the attitude logic is here.
+
+Start-up check
+    The Kalman rank test rank [H^T A^T H^T (A^T)^2 H^T] = n (``core.actuator.require_observable``)
+    runs before anything is created: an unobservable configuration -- ``attitude_measure: rate``,
+    where the angle never enters a measurement -- stops the node with a ParameterError naming
+    ``attitude_measure`` (``model`` for a model file) and the rank message.
+
+Inputs (geometry_msgs/Vector3Stamped, one value per axis x, y, z; QoS ``input_qos``)
+    ``angle_topic``   (/attitude/angle)    measured angle [rad]
+    ``rate_topic``    (/attitude/rate)     measured rate [rad/s]; only with
+                                           ``attitude_measure: angle+rate``
+    ``control_topic`` (/attitude/control)  command u per axis (-1 / 0 / +1 for an on/off thruster
+                                           pair; torque = m_c u), stamped when commanded and in
+                                           force until the next message
+
+The step (per channel, ``channels``: any of x, y, z; one filter and one monitor each)
+    Each angle message is one step at its stamp t_k. The command in force over (t_{k-1}, t_k] is
+    the last control message stamped *before* t_k (as ``sim.attitude.read_attitude_bag`` reads a
+    bag): the filter predicts with it over dt = t_k - t_{k-1} (exact discretisation) and updates
+    with the angle, and with the rate sample whose stamp is within ``rate_sync_tolerance_s`` of
+    t_k when the rate is measured (angle alone when it is missing: counted ``rate_missing``).
+    The first step after a (re)start is an update only (dt = 0, u = 0: no command acts over an
+    empty interval). A command stamped inside the interval is applied over all of it (counted
+    ``control_changed_within_interval`` when it changes the value): publish commands at
+    measurement stamps, as the simulator does, and the discretisation is exact.
+
+    A sample waits until the control topic has reached its stamp (a control message stamped
+    at or after t_k: no command for the interval can still come) and, with the rate, until its
+    rate sample came or the rate topic moved past it -- at most ``attitude_wait_s``, of angle
+    stamps (a newer angle more than that ahead) or of node time (a timer), after which it is
+    processed with what is known. A controller that publishes only on change therefore costs up
+    to ``attitude_wait_s`` of latency, never a wrong command. Samples are never reordered.
+
+    No command is ever assumed: before the first control message (stamped at or before t_k)
+    samples are dropped (``dropped_no_control``; the filter starts with the first command).
+
+Actuator monitor (``core.actuator.ActuatorMonitor``; ``actuator_*`` -> ActuatorConfig)
+    After each step the monitor takes (t_k, u, x, P). The mean of the estimated disturbance over
+    a window of ``actuator_window_s`` of zero control (|u| <= ``actuator_zero_tolerance``, from
+    ``actuator_settle_s`` after the last firing), when the estimate is precise enough (rms std
+    <= threshold / ``actuator_k_sigma``), above the threshold (``actuator_threshold_urad_s2``, in
+    micro-rad/s^2; the monitor and its events work in rad/s^2) is an actuator fault. On
+    that event the node
+
+    * logs an ERROR with the event,
+    * publishes it as JSON on ``fdi/actuator_event`` (std_msgs/String, reliable + transient
+      local, so a late subscriber gets it): node, axis, t, window_start_t, window_end_t, mean,
+      threshold, std, samples, ``"action": "switch_to_reserve"``, message;
+    * turns the status ``"<node>: actuator <axis>"`` of ``/diagnostics`` to ERROR ("switch to
+      reserve: ..."; values ``action``, ``event_t_s``, ``event_window_start_s``,
+      ``event_window_end_s``, ``event_mean``, ``event_std``, ``event_samples``, ``threshold``)
+      and publishes ``/diagnostics`` at once.
+
+    The event is latched: the status stays ERROR (the reserve set is in use) until the node is
+    restarted or the service ``~/reset_actuator`` (std_srvs/Trigger) re-arms the monitors; a
+    reset publishes ``{"action": "reset", "axes": [...]}`` on ``fdi/actuator_event``. Without
+    an event the status is OK with the last window's mean, std and whether it was evaluated.
+
+Outputs as in the INS velocity mode: ``fdi/innovation`` (row names = the angle and rate topics of
+the rows used), ``fdi/state`` (FilterState with ``u`` = [the command applied], z, r, h of the rows
+used), ``fdi/model`` (ModelInfo with B, latched). ``/diagnostics``: "<node>: inputs" (rates,
+staleness, counts), per channel "<node>: channel <c>" (beta2, gate, innovation alarm -- WARN:
+the measurements disagree with the model --, last command, counts, x) and
+"<node>: actuator <c>".
+
+Bad input is counted, never fatal (message level in "inputs", sample level per channel):
+
+    =================================== =======================================================
+    count                               what happened
+    =================================== =======================================================
+    dropped_{angle,rate,control}_invalid_stamp stamp after the last time a ROS stamp can hold
+                                        (sec 2^31 - 1 with nanosec >= 1e9)
+    dropped_{angle,rate,control}_duplicate     stamp equal to the previous one on that topic
+    dropped_{angle,rate,control}_out_of_order  stamp older than the previous one (by at most
+                                        ``time_jump_reset_s``)
+    dropped_control_nonfinite           NaN/Inf command on a configured axis: the message is
+                                        ignored, the previous command stays in force
+    dropped_no_control                  no command known yet for the sample
+    dropped_rate_unmatched              a rate sample with no angle sample within
+                                        ``rate_sync_tolerance_s`` (or after its angle was used)
+    dropped_time_jump                   samples waiting when the angle time line jumped back
+    dropped_control_expired             a sample older than the bounded command buffer
+    rate_missing                        a step without its rate sample (angle alone)
+    control_late                        a command stamped before a sample already processed
+                                        (in force from then on)
+    control_changed_within_interval     see above
+    time_jump_resets                    angle stamps went back by more than
+                                        ``time_jump_reset_s``: filters restarted
+    (channel) dropped_angle_nonfinite   NaN/Inf angle on the channel's axis
+    (channel) dropped_rate_nonfinite    NaN/Inf rate on the channel's axis (angle alone)
+    (channel) dropped_core_error        the core raised CoreError for this sample
+    (channel) resets                    filter restarts (time jump, gap > reset_after_gap_s,
+                                        control time jump)
+    =================================== =======================================================
+
+A jump back of the control stamps (a bag loop) clears the command state and restarts the
+filters; samples between the jumps of the two topics may use a command of the other time line
+for a moment -- the angle's own jump then restarts the filters again.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from ..core.actuator import (DISTURBANCE, ActuatorConfig, ActuatorEvent, ActuatorMonitor,
+                             attitude_model, require_observable)
+from ..core.errors import CoreError
+from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig, KalmanFilter
+from ..core.models import LinearModel
+from . import convert
+from . import diagnostics as diag
+from .errors import ParameterError
+from .params import fail
+
+# Small quantities are parameters in micro-units (like the INS mode's sigma_w_deg_h): rclpy's
+# Python params-file loader reads a double written as 1e-05 back as a string.
+_MICRO = 1e6
+#: node parameter -> (keyword of the built-in ``attitude_axis`` model, divisor to its SI unit)
+MODEL_KEYS = {"attitude_m_c": ("m_c", 1.0),
+              "attitude_sigma_md_walk_urad_s2": ("sigma_md_walk", _MICRO),
+              "attitude_sigma_angle_urad": ("sigma_angle", _MICRO),
+              "attitude_sigma_rate_urad_s": ("sigma_rate", _MICRO)}
+#: node parameter -> (ActuatorConfig field, divisor to its SI unit)
+MONITOR_KEYS = {"actuator_window_s": ("window_s", 1.0),
+                "actuator_threshold_urad_s2": ("threshold", _MICRO),
+                "actuator_zero_tolerance": ("zero_tol", 1.0),
+                "actuator_settle_s": ("settle_s", 1.0), "actuator_k_sigma": ("k_sigma", 1.0)}
+#: parameters that mean something only in the attitude mode
+ATTITUDE_ONLY = ("attitude_measure", *MODEL_KEYS, "angle_topic", "rate_topic", "control_topic",
+                 "attitude_wait_s", "rate_sync_tolerance_s", *MONITOR_KEYS)
+EVENT_TOPIC = "fdi/actuator_event"
+RESET_SERVICE = "~/reset_actuator"
+#: commands buffered for samples still to come; beyond this the oldest are folded into the one
+#: in force (a sample older than a folded command is then dropped: ``control_expired``)
+MAX_CONTROLS = 10000
+_ROWS = {"angle": 1, "angle+rate": 2, "rate": 1}
+_ALARM_NAMES = {0: "clear", 1: "raised", 2: "active", 3: "cleared"}
+
+
+def _time(t: float | None) -> str:
+    """A stamp for /diagnostics: full resolution (format_value's 6 digits would turn
+    1700000054.0 into 1.7e+09)."""
+    return "never" if t is None else f"{t:.6f}"
+
+
+# --------------------------------------------------------------------------- parameters
+
+def is_attitude_model(name: str) -> bool:
+    """True when ``model`` names the built-in attitude model (a model file selects the attitude
+    mode by having a control input B)."""
+    return name == "attitude_axis"
+
+
+def build_attitude_model(values: dict[str, Any], defaults: dict[str, Any],
+                         file_model: LinearModel | None = None) -> LinearModel:
+    """The attitude model from the node parameters, checked for observability (ParameterError
+    naming the parameter otherwise). ``file_model``: a model loaded from a YAML file with B."""
+    measure = values["attitude_measure"]
+    if file_model is None:
+        key = "attitude_sigma_rate_urad_s"
+        if measure == "angle" and values[key] != defaults[key]:
+            fail(key, values[key], f"its default ({defaults[key]!r}): the rate is not measured "
+                 "(attitude_measure angle)")
+        params = {core: values[k] / div for k, (core, div) in MODEL_KEYS.items()}
+        try:
+            model = attitude_model(measure, **params)
+        except CoreError as exc:  # the table's ranges should make this unreachable
+            raise ParameterError(f"invalid attitude model parameters: {exc}") from None
+        key = "attitude_measure"
+    else:
+        model = file_model
+        key = "model"
+        for k in MODEL_KEYS:
+            if values[k] != defaults[k]:
+                fail(k, values[k], f"its default ({defaults[k]!r}): attitude model parameters "
+                     "apply only to the built-in attitude_axis (a model file carries its own)")
+        if model.B.shape[1] != 1:
+            fail("model", values["model"], "an attitude model with one control input per axis; "
+                 f"{model.name} has {model.B.shape[1]}")
+        if DISTURBANCE not in model.state_names:
+            fail("model", values["model"], f"an attitude model with a state named "
+                 f"{DISTURBANCE!r} (the actuator monitor's); {model.name} has "
+                 f"{', '.join(model.state_names)}")
+        if model.m != _ROWS[measure]:
+            fail("attitude_measure", measure, f"the rows of the model file: {model.name} has "
+                 f"{model.m} measurement row(s) (angle: 1 row from angle_topic; angle+rate: "
+                 "2 rows, angle_topic then rate_topic)")
+    try:
+        require_observable(model, values["actuator_window_s"])
+    except CoreError as exc:
+        fail(key, values[key], f"an observable configuration ({exc})")
+    if measure == "rate":  # observable only for an exotic model file
+        fail("attitude_measure", measure, "angle or angle+rate (the attitude mode steps at each "
+             "angle sample)")
+    return model
+
+
+def actuator_config(values: dict[str, Any]) -> ActuatorConfig:
+    """ActuatorConfig from the ``actuator_*`` parameters."""
+    try:
+        return ActuatorConfig(**{f: values[k] / div for k, (f, div) in MONITOR_KEYS.items()})
+    except CoreError as exc:  # the table's ranges should make this unreachable
+        raise ParameterError(f"invalid actuator monitor parameters: {exc}") from None
+
+
+# --------------------------------------------------------------------------- state
+
+class _AxisChannel:
+    """One axis: its filter, its actuator monitor, the latched event, counts."""
+
+    def __init__(self, name: str, model: LinearModel, gate: GateConfig,
+                 config: ActuatorConfig) -> None:
+        self.name = name
+        self.axis = convert.AXIS_INDEX[name]
+        self.model = model
+        self.config = config
+        self.kf = KalmanFilter(model, gate)
+        self.event: ActuatorEvent | None = None
+        self.windows_closed = 0
+        self.windows_evaluated = 0
+        self.last_t: float | None = None
+        self.last_step_clock: float | None = None
+        self.last_u: float | None = None
+        self.result = None
+        self.alarm_since: float | None = None
+        self.counters = diag.Counters(("fused", "gated", "rejected", "alarms_raised", "resets"))
+        self._new_monitor(check_observable=True)
+
+    def _new_monitor(self, check_observable: bool = False) -> None:
+        self.monitor = ActuatorMonitor(self.model, self.config, self.name, keep_windows=False,
+                                       check_observable=check_observable)
+        self.monitor.latched = self.event is not None  # the switch has been made
+        self._window = None
+
+    def reset(self) -> None:
+        """Restart the filter from the prior, and the monitor (its time line and open window;
+        a latched event stays latched)."""
+        self.kf.reset()
+        self.last_t = None
+        self.alarm_since = None
+        self._new_monitor()
+
+    def window_closed(self) -> bool:
+        """Count a window the monitor closed at the last update; True when one did."""
+        w = self.monitor.last_window
+        if w is None or w is self._window:
+            return False
+        self._window = w
+        self.windows_closed += 1
+        self.windows_evaluated += bool(w.evaluated)
+        return True
+
+
+class _Sample:
+    """An angle sample waiting for its command (and rate): stamp, values per axis, arrival time
+    on the node clock."""
+
+    __slots__ = ("t", "angle", "rate", "arrived")
+
+    def __init__(self, t: float, angle: np.ndarray, arrived: float) -> None:
+        self.t = t
+        self.angle = angle
+        self.rate: np.ndarray | None = None
+        self.arrived = arrived
+
+
+# --------------------------------------------------------------------------- the mode
+
+class AttitudeMode:
+    """The attitude mode of a FilterNode (module docstring). Built by the node after its
+    parameters are declared; creates the subscriptions, publishers, the reset service and the
+    diagnostics timer on the node, and sets the node's ``counters``, ``channels``, ``inputs``
+    and ``diagnostics``."""
+
+    def __init__(self, node: Any, model: LinearModel, gate: GateConfig, qos: Any) -> None:
+        from geometry_msgs.msg import Vector3Stamped
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+        from std_srvs.srv import Trigger
+
+        self.node = node
+        p = self.p = node.p
+        self.model = model
+        self.gate = gate
+        self.config = actuator_config(p)
+        self.with_rate = model.m == 2
+        self.wait_s = p["attitude_wait_s"]
+        self.tol = p["rate_sync_tolerance_s"]
+        self.jump_s = p["time_jump_reset_s"]
+        self._H = np.asarray(model.H, dtype=float)
+        self._R = np.asarray(model.R, dtype=float)
+
+        self.angle_name = node._resolve("angle_topic", p["angle_topic"])
+        self.control_name = node._resolve("control_topic", p["control_topic"])
+        if self.control_name == self.angle_name:
+            fail("control_topic", p["control_topic"], f"a topic other than angle_topic (both "
+                 f"resolve to {self.angle_name})")
+        self.rate_name = None
+        if self.with_rate:
+            self.rate_name = node._resolve("rate_topic", p["rate_topic"])
+            if self.rate_name in (self.angle_name, self.control_name):
+                fail("rate_topic", p["rate_topic"], f"a topic other than angle_topic and "
+                     f"control_topic (it resolves to {self.rate_name})")
+        self._row_names = [self.angle_name] + ([self.rate_name] if self.with_rate else [])
+
+        axes = sorted(p["channels"], key=convert.AXIS_INDEX.__getitem__)
+        self._axes = np.array([convert.AXIS_INDEX[a] for a in axes])
+        self.channels = [_AxisChannel(a, model, gate, self.config) for a in axes]
+        names = ["received_angle"] + (["received_rate"] if self.with_rate else []) + [
+            "received_control", "time_jump_resets", "control_late",
+            "control_changed_within_interval"] + (["rate_missing"] if self.with_rate else [])
+        self.counters = diag.Counters(names)
+        node.counters = self.counters
+        node.channels = self.channels
+
+        self._pending: deque[_Sample] = deque()
+        self._rates: deque[tuple[float, np.ndarray]] = deque()     # rate samples awaiting angles
+        self._controls: deque[tuple[float, np.ndarray]] = deque()  # commands for samples to come
+        self._current: tuple[float, np.ndarray] | None = None      # the last command stamped
+        #                                                   before the last sample processed
+        self._horizon: float | None = None  # stamp of the newest command folded out of the buffer
+        self._last_angle_t: float | None = None
+        self._last_rate_t: float | None = None
+        self._last_control_t: float | None = None
+        self._last_sample_t: float | None = None  # stamp of the last sample processed
+
+        node.create_subscription(Vector3Stamped, self.angle_name, self._on_angle, qos)
+        if self.with_rate:
+            node.create_subscription(Vector3Stamped, self.rate_name, self._on_rate, qos)
+        node.create_subscription(Vector3Stamped, self.control_name, self._on_control, qos)
+        node._create_outputs(len(self.channels))
+        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._String = String
+        self.pub_event = node.create_publisher(String, EVENT_TOPIC, latched)
+        self.reset_service = node.create_service(Trigger, RESET_SERVICE, self._on_reset)
+
+        inputs = [self.angle_name] + ([self.rate_name] if self.with_rate else []) + [
+            self.control_name]
+        self.inputs = node.inputs = diag.InputMonitor(node._now, inputs,
+                                                      window_s=p["rate_window_s"],
+                                                      stale_after_s=p["stale_after_s"])
+        node.diagnostics = diag.DiagnosticsTimer(node, p["diagnostics_period_s"],
+                                                 self.diagnostic_statuses)
+        # samples whose command never comes (a controller publishing only on change) are
+        # processed after attitude_wait_s of node time
+        self.timer = node.create_timer(self.wait_s / 2.0, self._on_timer)
+        stamp = node.get_clock().now().to_msg()
+        for ch in self.channels:
+            node.pub_model.publish(convert.model_info_msg(stamp, ch.name, model, gate))
+        c = self.config
+        node.get_logger().info(
+            f"attitude mode: channels {', '.join(axes)}, model {model.name} measuring "
+            f"{' and '.join(model.measurement_names)} (observable), control input "
+            f"{self.control_name}, measurements {', '.join(self._row_names)} "
+            f"({p['input_qos']}); actuator monitor: |mean disturbance| over {c.window_s:g} s of "
+            f"zero control > {c.threshold:g} -> switch to reserve")
+
+    # ------------------------------------------------------------------ inputs
+    def _order(self, topic: str, t: float, last: float | None) -> str:
+        """"ok", "jump" (stamps went back by more than time_jump_reset_s) or "drop" (duplicate
+        or out of order; counted)."""
+        if last is None or t > last:
+            return "ok"
+        if t == last:
+            self.node._drop(f"{topic}_duplicate", f"{topic} sample at t={t:.3f} s: duplicate "
+                            "stamp")
+            return "drop"
+        if last - t <= self.jump_s:
+            self.node._drop(f"{topic}_out_of_order", f"{topic} sample at t={t:.3f} s: older "
+                            f"than the last one ({last:.3f} s)")
+            return "drop"
+        return "jump"
+
+    def _on_angle(self, msg: Any) -> None:
+        self.inputs.seen(self.angle_name)
+        self.counters.inc("received_angle")
+        t, v = convert.vector3_values(msg)
+        if self.node._bad_stamp("angle", t, msg):
+            return
+        order = self._order("angle", t, self._last_angle_t)
+        if order == "drop":
+            return
+        if order == "jump":
+            self._angle_time_jump(t, self._last_angle_t)
+        self._last_angle_t = t
+        e = _Sample(t, v, self.node._now())
+        if self.with_rate:
+            # rates older than this angle (less the tolerance) can match no angle to come
+            while self._rates and self._rates[0][0] < t - self.tol:
+                old = self._rates.popleft()
+                self.node._drop("rate_unmatched", f"rate sample at t={old[0]:.3f} s: no angle "
+                                f"sample within {self.tol} s")
+            best = None
+            for k, (tr, _) in enumerate(self._rates):
+                if abs(tr - t) <= self.tol and (best is None or
+                                                abs(tr - t) < abs(self._rates[best][0] - t)):
+                    best = k
+            if best is not None:
+                e.rate = self._rates[best][1]
+                del self._rates[best]
+        self._pending.append(e)
+        self._drain()
+
+    def _on_rate(self, msg: Any) -> None:
+        self.inputs.seen(self.rate_name)
+        self.counters.inc("received_rate")
+        t, v = convert.vector3_values(msg)
+        if self.node._bad_stamp("rate", t, msg):
+            return
+        order = self._order("rate", t, self._last_rate_t)
+        if order == "drop":
+            return
+        if order == "jump":
+            self.node.get_logger().warning(
+                f"rate time jumped back from {self._last_rate_t:.3f} s to {t:.3f} s")
+            self._rates.clear()
+        self._last_rate_t = t
+        best = None
+        for e in self._pending:
+            if e.rate is None and abs(e.t - t) <= self.tol and \
+                    (best is None or abs(e.t - t) < abs(best.t - t)):
+                best = e
+        if best is not None:
+            best.rate = v
+        elif self._last_sample_t is not None and t <= self._last_sample_t + self.tol:
+            self.node._drop("rate_unmatched", f"rate sample at t={t:.3f} s: its angle sample "
+                            "was processed already or never came (last processed "
+                            f"{self._last_sample_t:.3f} s)")
+        else:
+            self._rates.append((t, v))
+            if len(self._rates) > MAX_CONTROLS:
+                old = self._rates.popleft()
+                self.node._drop("rate_unmatched", f"rate sample at t={old[0]:.3f} s: no angle "
+                                "sample came")
+        self._drain()
+
+    def _on_control(self, msg: Any) -> None:
+        self.inputs.seen(self.control_name)
+        self.counters.inc("received_control")
+        t, v = convert.vector3_values(msg)
+        if self.node._bad_stamp("control", t, msg):
+            return
+        if not np.all(np.isfinite(v[self._axes])):
+            self.node._drop("control_nonfinite", f"control at t={t:.3f} s: non-finite command "
+                            f"{v[self._axes]} (the previous command stays in force)")
+            return
+        order = self._order("control", t, self._last_control_t)
+        if order == "drop":
+            return
+        if order == "jump":
+            self.node.get_logger().warning(
+                f"control time jumped back from {self._last_control_t:.3f} s to {t:.3f} s: "
+                "commands cleared, filters restarted")
+            self._reset_controls()
+            self._restart_channels()
+        self._last_control_t = t
+        if self._last_sample_t is not None and t < self._last_sample_t:
+            # stamped before a sample that was processed without it (it waited attitude_wait_s);
+            # every command before it is older, so it is the one in force from now on
+            self.counters.inc("control_late")
+            self.node.get_logger().warning(
+                f"control at t={t:.3f} s arrived after the sample at {self._last_sample_t:.3f} s "
+                f"was processed (attitude_wait_s {self.wait_s} s)", throttle_duration_sec=5.0)
+            self._current = (t, v)
+        else:
+            self._controls.append((t, v))
+            if len(self._controls) > MAX_CONTROLS:
+                self._current = self._controls.popleft()
+                self._horizon = self._current[0]
+        self._drain()
+
+    def _on_timer(self) -> None:
+        if self._pending:
+            self._drain(self.node._now())
+
+    # ------------------------------------------------------------------ time jumps
+    def _reset_controls(self) -> None:
+        self._controls.clear()
+        self._current = None
+        self._horizon = None
+        self._last_control_t = None
+
+    def _restart_channels(self) -> None:
+        for ch in self.channels:
+            ch.reset()
+            ch.counters.inc("resets")
+        self._last_sample_t = None
+
+    def _angle_time_jump(self, t: float, last: float) -> None:
+        self.counters.inc("time_jump_resets")
+        self.node.get_logger().warning(
+            f"angle time jumped back from {last:.3f} s to {t:.3f} s: filters reset")
+        self._restart_channels()
+        if self._pending:
+            self.node._drop("time_jump", f"{len(self._pending)} angle samples waiting across a "
+                            "time jump", n=len(self._pending))
+            self._pending.clear()
+        limit = t + self.jump_s
+        self._rates = deque(r for r in self._rates if r[0] <= limit)
+        if self._last_rate_t is not None and self._last_rate_t > limit:
+            self._last_rate_t = None
+        if self._last_control_t is not None and self._last_control_t > limit:
+            self._reset_controls()  # still on the old time line
+
+    # ------------------------------------------------------------------ processing
+    def _ready(self, e: _Sample, now: float | None) -> bool:
+        """The sample at the head waits for no more input (module docstring)."""
+        if self._last_angle_t > e.t + self.wait_s or (now is not None and
+                                                      now - e.arrived >= self.wait_s):
+            return True
+        if self._last_control_t is None or self._last_control_t < e.t:
+            return False
+        if self.with_rate and e.rate is None and \
+                (self._last_rate_t is None or self._last_rate_t <= e.t + self.tol):
+            return False
+        return True
+
+    def _drain(self, now: float | None = None) -> None:
+        while self._pending and self._ready(self._pending[0], now):
+            self._process(self._pending.popleft())
+
+    def _process(self, e: _Sample) -> None:
+        t = e.t
+        prev = self._last_sample_t
+        self._last_sample_t = t
+        if self.with_rate and e.rate is None:
+            self.counters.inc("rate_missing")
+        if self._horizon is not None and t <= self._horizon:
+            self.node._drop("control_expired", f"angle sample at t={t:.3f} s: older than the "
+                            f"command buffer ({MAX_CONTROLS} commands)")
+            return
+        # the command in force over (prev, t]: the last one stamped before t
+        at_start = self._current
+        while self._controls and self._controls[0][0] < t:
+            c = self._controls.popleft()
+            if prev is not None and c[0] <= prev:
+                at_start = c
+            self._current = c
+        cur = self._current
+        if cur is None and not (self._controls and self._controls[0][0] <= t):
+            self.node._drop("no_control", f"angle sample at t={t:.3f} s: no command on "
+                            f"{self.control_name} at or before it (filtering starts with the "
+                            "first command)")
+            return
+        if cur is not None and prev is not None and at_start is not cur and (
+                at_start is None or not np.array_equal(at_start[1][self._axes],
+                                                       cur[1][self._axes])):
+            self.counters.inc("control_changed_within_interval")
+        self._step(e, None if cur is None else cur[1])
+
+    def _step(self, e: _Sample, u_vec: np.ndarray | None) -> None:
+        """One step per channel at the angle stamp; ``u_vec`` the command in force over the
+        interval (None: only first steps, dt = 0, may be taken)."""
+        node = self.node
+        t = e.t
+        stamp = convert.s_to_stamp(t)
+        now = node._now()
+        states = []
+        for ch in self.channels:
+            a = float(e.angle[ch.axis])
+            if not math.isfinite(a):
+                node._drop("angle_nonfinite", f"angle sample at t={t:.3f} s on channel "
+                           f"{ch.name}: non-finite angle {a}", channel=ch)
+                continue
+            rows, z = [0], [a]
+            if e.rate is not None:
+                r = float(e.rate[ch.axis])
+                if math.isfinite(r):
+                    rows.append(1)
+                    z.append(r)
+                else:
+                    node._drop("rate_nonfinite", f"rate sample at t={t:.3f} s on channel "
+                               f"{ch.name}: non-finite rate {r} (the angle alone is used)",
+                               channel=ch)
+            dt, reset = node._dt(ch, t)
+            if reset:
+                u = 0.0  # an update only: no command acts over an empty interval
+            elif u_vec is None:
+                node._drop("no_control", f"angle sample at t={t:.3f} s on channel {ch.name}: "
+                           "no command for the interval", channel=ch)
+                continue
+            else:
+                u = float(u_vec[ch.axis])
+            H, R = self._H, self._R
+            try:
+                if len(rows) == self.model.m:
+                    res = ch.kf.step(dt, z, R, [u])
+                else:
+                    H, R = H[rows], R[np.ix_(rows, rows)]
+                    ch.kf.predict(dt, [u])
+                    res = ch.kf.update(z, R, H)
+            except CoreError as exc:
+                node._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
+                           channel=ch)
+                continue
+            x, P = ch.kf.x, ch.kf.P
+            self._count(ch, t, res, now, u)
+            try:
+                event = ch.monitor.update(t, [u], x, P)
+            except CoreError as exc:
+                node._drop("core_error", f"actuator monitor at t={t:.3f} s on channel "
+                           f"{ch.name}: {exc}", channel=ch)
+                event = None
+            ch.window_closed()
+            node.pub_innovation.publish(convert.innovation_msg(
+                stamp, ch.name, [self._row_names[k] for k in rows], res))
+            states.append(convert.filter_state_msg(
+                stamp, ch.name, self.model.state_names, x, P, z=z, R=R, H=H, u=(u,), dt=dt,
+                fused=res.fused, gated=res.exceeded, reset=reset))
+            if event is not None:
+                self._on_event(ch, event)
+        for msg in states:
+            node.pub_state.publish(msg)
+
+    def _count(self, ch: _AxisChannel, t: float, res: Any, now: float, u: float) -> None:
+        ch.last_t = t
+        ch.last_step_clock = now
+        ch.last_u = u
+        ch.result = res
+        if res.fused:
+            ch.counters.inc("fused")
+        if res.exceeded:
+            ch.counters.inc("gated")
+            if not res.fused:
+                ch.counters.inc("rejected")
+        if res.alarm_state == ALARM_RAISED:
+            ch.alarm_since = t
+            ch.counters.inc("alarms_raised")
+            self.node.get_logger().warning(
+                f"channel {ch.name}: innovation alarm raised at t={t:.3f} s (beta2 "
+                f"{res.beta2:.3g} > {res.threshold:.3g} in {self.gate.alarm_m} of the last "
+                f"{self.gate.alarm_n} samples): the attitude measurements disagree with the model")
+        elif res.alarm_state == ALARM_CLEARED:
+            ch.alarm_since = None
+            self.node.get_logger().info(f"channel {ch.name}: innovation alarm cleared at "
+                                        f"t={t:.3f} s")
+
+    # ------------------------------------------------------------------ the event
+    def _publish_record(self, record: dict) -> None:
+        record = {"node": self.node.get_fully_qualified_name(), **record}
+        self.pub_event.publish(self._String(data=json.dumps(record, sort_keys=True,
+                                                            allow_nan=False)))
+
+    def _on_event(self, ch: _AxisChannel, event: ActuatorEvent) -> None:
+        ch.event = event
+        self.node.get_logger().error(f"{event.message()} (t={event.t:.3f} s, window "
+                                     f"{event.window_start_t:.3f} .. {event.window_end_t:.3f} s)")
+        self._publish_record({**event.as_dict(), "message": event.message()})
+        self.node.diagnostics.publish_now()
+
+    def _on_reset(self, request: Any, response: Any) -> Any:
+        axes = [ch.name for ch in self.channels if ch.event is not None]
+        for ch in self.channels:
+            if ch.event is not None:
+                ch.event = None
+                ch.monitor.reset()
+        if axes:
+            self._publish_record({"action": "reset", "axes": axes})
+            self.node.get_logger().warning(
+                f"actuator monitor re-armed on axis {', '.join(axes)} (reset_actuator)")
+            response.message = f"actuator monitor re-armed on axis {', '.join(axes)}"
+            self.node.diagnostics.publish_now()
+        else:
+            response.message = "no actuator event latched"
+        response.success = True
+        return response
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostic_statuses(self) -> list:
+        name = self.node.get_name()
+        problems = self.inputs.problems()
+        values = self.inputs.key_values() + self.counters.key_values()
+        values += [("waiting_samples", str(len(self._pending))),
+                   ("buffered_commands", str(len(self._controls)))]
+        out = [diag.make_status(f"{name}: inputs", diag.WARN if problems else diag.OK,
+                                "; ".join(problems) if problems else "inputs OK", values,
+                                hardware_id=name)]
+        now = self.node._now()
+        for ch in self.channels:
+            out.append(self._channel_status(name, ch, now))
+            out.append(self._actuator_status(name, ch))
+        return out
+
+    def _channel_status(self, name: str, ch: _AxisChannel, now: float):
+        res = ch.result
+        vals: list[tuple[str, Any]] = [
+            ("beta2", math.nan if res is None else res.beta2),
+            ("gate_threshold", self.gate.threshold(self.model.m) if res is None
+             else res.threshold),
+            ("alarm_state", "never updated" if res is None
+             else _ALARM_NAMES.get(res.alarm_state, str(res.alarm_state))),
+            ("alarm_since_s", _time(ch.alarm_since)),
+            ("last_stamp_s", _time(ch.last_t)),
+            ("u", ch.last_u),
+            ("accuracy_J", ch.kf.accuracy()),
+        ]
+        vals += ch.counters.key_values()
+        vals += [(f"x.{nm}", float(v)) for nm, v in zip(self.model.state_names, ch.kf.x)]
+        since = math.nan if ch.last_step_clock is None else now - ch.last_step_clock
+        if ch.kf.alarm_active and ch.last_t is not None:
+            level, text = diag.WARN, (f"innovation alarm since t={ch.alarm_since:.3f} s (the "
+                                      "measurements disagree with the model)")
+        elif ch.last_step_clock is None:
+            level, text = diag.WARN, "no filter update yet"
+        elif since > self.p["stale_after_s"]:
+            level, text = diag.WARN, f"no filter update for {since:.1f} s"
+        else:
+            level, text = diag.OK, "filtering"
+        return diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
+                                hardware_id=ch.name)
+
+    def _actuator_status(self, name: str, ch: _AxisChannel):
+        c = self.config
+        ev = ch.event
+        w = ch.monitor.last_window
+        vals: list[tuple[str, Any]] = [
+            ("action", "switch_to_reserve" if ev is not None else "none"),
+            ("threshold", c.threshold), ("window_s", c.window_s),
+            ("windows_closed", ch.windows_closed), ("windows_evaluated", ch.windows_evaluated),
+            ("last_window_mean", None if w is None else w.mean),
+            ("last_window_std", None if w is None else w.std),
+            ("last_window_end_s", _time(None if w is None else w.end_t)),
+            ("last_window_evaluated", None if w is None else w.evaluated),
+        ]
+        if ev is not None:
+            vals += [("event_t_s", _time(ev.t)), ("event_window_start_s", _time(ev.window_start_t)),
+                     ("event_window_end_s", _time(ev.window_end_t)), ("event_mean", ev.mean),
+                     ("event_std", ev.std), ("event_samples", ev.samples)]
+            level, text = diag.ERROR, f"switch to reserve: {ev.message()}"
+        elif w is None:
+            level, text = diag.OK, "no actuator fault (no zero-control window closed yet)"
+        else:
+            note = "" if w.evaluated else ", not evaluated: estimate too uncertain"
+            level, text = diag.OK, (f"no actuator fault (last window mean {w.mean:.3g} "
+                                    f"rad/s^2{note})")
+        return diag.make_status(f"{name}: actuator {ch.name}", level, text, vals,
+                                hardware_id=ch.name)
