@@ -12,7 +12,6 @@ Qd by Van Loan's method, Bd = int_0^dt expm(A s) ds B. Results are cached per dt
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 

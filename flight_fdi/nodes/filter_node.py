@@ -124,7 +124,6 @@ from collections import deque
 from typing import Any
 
 import numpy as np
-import rclpy
 from rclpy.exceptions import NameValidationException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -970,23 +969,9 @@ class FilterNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run flight_fdi filter_node [--ros-args ...]``; exit 1 on invalid parameters."""
-    from rclpy.executors import ExternalShutdownException
+    from .runner import run_node
 
-    rclpy.init(args=args)
-    try:
-        node = FilterNode()
-    except ParameterError as exc:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(exc))
-        rclpy.try_shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(FilterNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":
