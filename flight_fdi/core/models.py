@@ -412,20 +412,24 @@ def model_from_dict(data: Mapping[str, Any], source: str = "model") -> LinearMod
         params={str(k): float(v) for k, v in dict(data.get("params") or {}).items()})
 
 
-def load_model(path: str | Path) -> LinearModel:
-    """Load a model YAML file."""
+def read_yaml(path: str | Path) -> Any:
+    """The data of a YAML file (model files); CoreError naming the file when it cannot be read."""
     import yaml  # PyYAML ships with the ROS wheels; imported lazily to keep the core light
 
     p = Path(path)
     try:
         text = p.read_text()
     except OSError as exc:
-        raise CoreError(f"model file {p}: {exc.strerror}") from None
+        raise CoreError(f"model file {p}: {exc.strerror or exc}") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise CoreError(f"model file {p}: not valid YAML ({exc})") from None
-    return model_from_dict(data, source=str(p))
+
+
+def load_model(path: str | Path) -> LinearModel:
+    """Load a model YAML file."""
+    return model_from_dict(read_yaml(path), source=str(path))
 
 
 BUILTIN_MODELS = {"ins_channel": ins_channel, "attitude_axis": attitude_axis}

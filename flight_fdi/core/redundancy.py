@@ -49,7 +49,7 @@ import numpy as np
 from scipy.linalg import LinAlgError, solve_discrete_are
 
 from .errors import CoreError
-from .models import LinearModel, model_from_dict
+from .models import LinearModel, model_from_dict, read_yaml
 
 MODES = ("kf2", "af")
 #: largest number of sensors whose 2^s fault sets are enumerated
@@ -451,18 +451,7 @@ def redundant_model_from_dict(data: Any, source: str = "model"
 
 def load_redundant_model(path: str | Path) -> tuple[LinearModel, RedundancySpec]:
     """Load a model YAML file with a ``redundancy:`` section."""
-    import yaml
-
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise CoreError(f"model file {p}: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CoreError(f"model file {p}: not valid YAML ({exc})") from None
-    return redundant_model_from_dict(data, str(p))
+    return redundant_model_from_dict(read_yaml(path), str(path))
 
 
 # --------------------------------------------------------------------------- criticality
