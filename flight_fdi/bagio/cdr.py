@@ -155,18 +155,38 @@ def decode(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryview]",
     if not isinstance(payloads, Payloads):
         payloads = Payloads.from_list(payloads)
     n = len(payloads)
+    cols = twist_cols + [6 + c for c in cov_cols]
+    stamp_ns = np.zeros(n, np.int64)
+    values = np.zeros((n, len(cols)))
+    # in blocks: the gathers index with (messages x bytes) int64 arrays, which for a 10-hour
+    # flight in one piece would be several hundred MB
+    for a in range(0, n, _BLOCK):
+        b = min(n, a + _BLOCK)
+        stamp_ns[a:b], values[a:b] = _decode_block(
+            msgtype, payloads.buf, payloads.starts[a:b], payloads.lengths[a:b], cols, what, a)
+    twist = values[:, :len(twist_cols)]
+    cov_out = values[:, len(twist_cols):] if has_cov else None
+    return stamp_ns, twist, cov_out
+
+
+#: messages decoded per block
+_BLOCK = 65536
+
+
+def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+                  cols: list[int], what: str, first: int) -> tuple[np.ndarray, np.ndarray]:
+    """(stamp_ns, the doubles at ``cols``) of messages ``first`` ... of a series."""
+    n = starts.size
     ndouble = _DOUBLES[msgtype]
-    cov_out = np.zeros((n, len(cov_cols))) if has_cov else None
     if n == 0:
-        return np.zeros(0, np.int64), np.zeros((0, len(twist_cols))), cov_out
-    buf, starts, lengths = payloads.buf, payloads.starts, payloads.lengths
+        return np.zeros(0, np.int64), np.zeros((0, len(cols)))
     if lengths.min() < 16:
         bad = int(np.argmin(lengths))
-        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {msgtype}")
+        raise BagError(f"{what} #{first + bad}: {lengths[bad]} bytes is too short for {msgtype}")
     head = buf[starts[:, None] + np.arange(16)]  # encapsulation, sec, nanosec, strlen
     if np.any(head[:, 0] != 0) or np.any(head[:, 1] > 1):
         bad = int(np.flatnonzero((head[:, 0] != 0) | (head[:, 1] > 1))[0])
-        raise BagError(f"{what} #{bad}: not a CDR message (encapsulation "
+        raise BagError(f"{what} #{first + bad}: not a CDR message (encapsulation "
                        f"{bytes(head[bad, :2]).hex()})")
     little = head[:, 1] == 1
     all_little = bool(np.all(little))
@@ -180,19 +200,14 @@ def decode(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryview]",
     short = off + 8 * ndouble > lengths
     if np.any(short):
         bad = int(np.flatnonzero(short)[0])
-        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {msgtype} "
+        raise BagError(f"{what} #{first + bad}: {lengths[bad]} bytes is too short for {msgtype} "
                        f"with a frame_id of {strlen[bad]} bytes")
-    cols = twist_cols + [6 + c for c in cov_cols]
     raw = buf[(starts + off)[:, None, None] + (8 * np.asarray(cols))[None, :, None]
               + np.arange(8)[None, None, :]]
     if not all_little:
         raw[~little] = raw[~little][:, :, ::-1]
     values = np.ascontiguousarray(raw).view("<f8").reshape(n, len(cols))
-    stamp_ns = sec * _NS + nsec
-    twist = values[:, :len(twist_cols)]
-    if has_cov:
-        cov_out = values[:, len(twist_cols):]
-    return stamp_ns, twist, cov_out
+    return sec * _NS + nsec, values
 
 
 FILTER_STATE = "flight_fdi_msgs/msg/FilterState"

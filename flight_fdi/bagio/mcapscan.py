@@ -49,10 +49,10 @@ class ChannelMessages:
     order: np.ndarray
 
 
-def _string(buf: bytes, pos: int) -> tuple[str, int]:
+def _string(buf: bytes | memoryview, pos: int) -> tuple[str, int]:
     (n,) = _U32.unpack_from(buf, pos)
     pos += 4
-    return buf[pos:pos + n].decode("utf-8"), pos + n
+    return bytes(buf[pos:pos + n]).decode("utf-8"), pos + n
 
 
 def _channel_topic(content: bytes) -> tuple[int, str]:
@@ -72,8 +72,10 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
         raise BagError(f"bag '{what}': {path} is not an MCAP file")
     total = len(data)
     channels: dict[int, str] = {}
-    # per chunk: (uncompressed records, list of message-index records) or loose messages
-    pieces: list[tuple[bytes, list[tuple[int, bytes]]]] = []
+    # per chunk: ((compression, offset of its data in the file, compressed size, uncompressed
+    # size), its message-index records); the chunks are decompressed afterwards into ONE buffer,
+    # so that the records are never held twice (a 10-hour flight is several hundred MB of them)
+    pieces: list[tuple[tuple[str, int, int, int], list[tuple[int, bytes]]]] = []
     loose: list[tuple[int, int, bytes]] = []  # messages outside chunks: (channel, log, data)
     pos = 8
     in_data = True  # the summary section after Data End repeats the schemas and channels
@@ -94,21 +96,15 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
                 (usize,) = _U64.unpack_from(data, start + 16)
                 comp, p = _string(data, start + 28)
                 (clen,) = _U64.unpack_from(data, p)
-                raw = data[p + 8:p + 8 + clen]
                 if p + 8 + clen > end:
                     raise BagError(f"bag '{what}': {path} has a chunk larger than its record")
-                if comp == "zstd":
-                    try:
-                        raw = zstd.decompress(raw)
-                    except Exception as exc:
-                        raise BagError(f"bag '{what}': {path} has a corrupt compressed chunk "
-                                       f"({exc})") from None
-                elif comp != "":
+                if comp not in ("", "zstd"):
                     raise Unsupported(f"chunk compression {comp!r}")
-                if len(raw) != usize:
-                    raise BagError(f"bag '{what}': {path} has a chunk of {len(raw)} bytes, "
+                declared = clen if comp == "" else _zstd_size(data[p + 8:p + 8 + clen])
+                if declared is not None and declared != usize:
+                    raise BagError(f"bag '{what}': {path} has a chunk of {declared} bytes, "
                                    f"expected {usize}")
-                pieces.append((raw, []))
+                pieces.append(((comp, p + 8, clen, usize), []))
             elif op == OP_MESSAGE_INDEX and in_data:
                 if not pieces:
                     raise BagError(f"bag '{what}': {path} has a message index before any chunk")
@@ -119,45 +115,66 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
                 cid, _, log, _ = _MSG_HEAD.unpack_from(data, start)
                 loose.append((cid, log, data[start + 22:end]))
             pos = end
-    except struct.error:
+    except (struct.error, UnicodeDecodeError):
         raise BagError(f"bag '{what}': {path} is truncated or corrupt") from None
 
+    # every chunk's records, back to back in one buffer (then the loose messages' data)
+    sizes = [d[3] for d, _ in pieces]
+    bases = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)]).astype(np.int64) \
+        if pieces else np.zeros(1, np.int64)
+    loose_size = sum(len(d) for _, _, d in loose)
+    try:
+        buf = np.empty(int(bases[-1]) + loose_size, dtype=np.uint8)
+    except (MemoryError, ValueError):
+        raise BagError(f"bag '{what}': {path} declares chunks of {int(bases[-1])} bytes in "
+                       "all, more than can be held (a corrupt size field?)") from None
+    for k, ((comp, at, clen, usize), _) in enumerate(pieces):
+        b0 = int(bases[k])
+        if comp == "zstd":
+            try:
+                out = zstd.decompress(data[at:at + clen])
+            except Exception as exc:
+                raise BagError(f"bag '{what}': {path} has a corrupt compressed chunk "
+                               f"({_first_line(exc)})") from None
+            if len(out) != usize:
+                raise BagError(f"bag '{what}': {path} has a chunk of {len(out)} bytes, "
+                               f"expected {usize}")
+            buf[b0:b0 + usize] = np.frombuffer(out, dtype=np.uint8)
+            del out
+        else:
+            buf[b0:b0 + usize] = np.frombuffer(data, dtype=np.uint8, count=clen, offset=at)
+    del data
+    chunk_views = [memoryview(buf[int(bases[k]):int(bases[k + 1])]) for k in range(len(pieces))]
+
     # channel records may also sit inside chunks (rosbags and rosbag2 put them there)
-    for raw, _ in pieces:
+    for raw in chunk_views:
         _collect_channels(raw, channels, what, path, leading_only=True)
     if not set(topics) <= set(channels.values()):
-        for raw, _ in pieces:  # rare: a channel record after messages in a chunk
+        for raw in chunk_views:  # rare: a channel record after messages in a chunk
             _collect_channels(raw, channels, what, path, leading_only=False)
     wanted = {cid: t for cid, t in channels.items() if t in topics}
 
-    bufs: list[np.ndarray] = []
     per_topic: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {
         t: [] for t in topics}
-    base = 0
-    for k, (raw, indexes) in enumerate(pieces):
-        arr = np.frombuffer(raw, dtype=np.uint8)
+    for k, ((_, indexes), raw) in enumerate(zip(pieces, chunk_views)):
+        base = int(bases[k])
         if indexes:
-            found = _from_index(arr, indexes, wanted, what, path)
+            found = _from_index(buf[base:int(bases[k + 1])], indexes, wanted, what, path)
         else:
             found = _from_records(raw, wanted, what, path)
         for cid, (log, offs, lens) in found.items():
             order = np.stack([np.full(offs.size, k, dtype=np.int64), offs], axis=1)
             per_topic[wanted[cid]].append((log, offs + base, lens, order))
-        bufs.append(arr)
-        base += arr.size
-    if loose:
-        extra = [(cid, log, d) for cid, log, d in loose if cid in wanted]
-        k = len(pieces)
-        blob = b"".join(d for _, _, d in extra)
-        arr = np.frombuffer(blob, dtype=np.uint8)
-        lens = np.array([len(d) for _, _, d in extra], dtype=np.int64)
-        offs = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64) if extra else lens
-        for j, (cid, log, _) in enumerate(extra):
-            per_topic[wanted[cid]].append((np.array([log], np.int64), offs[j:j + 1] + base,
-                                           lens[j:j + 1], np.array([[k, j]], np.int64)))
-        bufs.append(arr)
-        base += arr.size
-    buf = np.concatenate(bufs) if bufs else np.zeros(0, np.uint8)
+    if loose:  # after the chunks in the buffer, in file order
+        k, at = len(pieces), int(bases[-1])
+        for j, (cid, log, d) in enumerate(loose):
+            buf[at:at + len(d)] = np.frombuffer(d, dtype=np.uint8)
+            if cid in wanted:
+                per_topic[wanted[cid]].append((np.array([log], np.int64),
+                                               np.array([at], np.int64),
+                                               np.array([len(d)], np.int64),
+                                               np.array([[k, j]], np.int64)))
+            at += len(d)
     out: dict[str, ChannelMessages] = {}
     for topic, parts in per_topic.items():
         if not parts:
@@ -174,7 +191,21 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
     return out
 
 
-def _collect_channels(raw: bytes, channels: dict[int, str], what: str, path: str,
+def _zstd_size(frame: bytes) -> int | None:
+    """The content size a zstd frame declares (None when it declares none or is unreadable:
+    decompressing it then tells)."""
+    try:
+        size = zstd.get_frame_info(frame).decompressed_size
+    except Exception:
+        return None
+    return None if size is None else int(size)
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
+def _collect_channels(raw: bytes | memoryview, channels: dict[int, str], what: str, path: str,
                       leading_only: bool) -> None:
     """Find the channel records in a chunk: those before its first message, or all of them."""
     pos, total = 0, len(raw)
@@ -222,7 +253,7 @@ def _from_index(arr: np.ndarray, indexes: list[tuple[int, bytes]], wanted: dict[
     return found
 
 
-def _from_records(raw: bytes, wanted: dict[int, str], what: str, path: str
+def _from_records(raw: bytes | memoryview, wanted: dict[int, str], what: str, path: str
                   ) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Record-by-record scan of one uncompressed chunk (for files without message indexes)."""
     acc: dict[int, tuple[list[int], list[int], list[int]]] = {}

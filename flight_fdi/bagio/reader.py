@@ -184,10 +184,13 @@ def _read_raw_generic(reader: Any, path: Path, topics: set[str]) -> dict[str, _R
         for conn, t_ns, data in reader.messages(connections=conns):
             logs[conn.topic].append(t_ns)
             datas[conn.topic].append(data)
+        # (a damaged sqlite3 record can hold a receive time or data of the wrong type)
+        return {t: _Raw(np.array(logs[t], dtype=np.int64), cdr.Payloads.from_list(datas[t]))
+                for t in topics}
+    except BagError:
+        raise
     except Exception as exc:
         raise BagError(f"bag '{path}' is corrupt: {_reason(exc)}") from None
-    return {t: _Raw(np.array(logs[t], dtype=np.int64), cdr.Payloads.from_list(datas[t]))
-            for t in topics}
 
 
 # --------------------------------------------------------------------------- read_flight
@@ -350,6 +353,9 @@ def read_messages(path: str | Path, topics: Iterable[str] | None = None
         try:
             it = reader.messages(connections=conns)
             for conn, t_ns, data in it:
+                if not isinstance(t_ns, int):  # a damaged sqlite3 record
+                    raise BagError(f"bag '{p}' is corrupt: a message on {conn.topic} has the "
+                                   f"receive time {t_ns!r}, not an integer")
                 try:
                     msg = store.deserialize_cdr(data, conn.msgtype)
                 except Exception as exc:

@@ -193,9 +193,13 @@ class ReferenceMonitor:
         d = np.diag(S)
         if np.any(d <= 0):
             raise CoreError("assess: a diagonal element of S is not positive")
+        with np.errstate(over="ignore"):
+            rb = nu * nu / d
+        if not np.all(np.isfinite(rb)):
+            raise CoreError(f"assess: a row's beta2 nu^2 / S overflows float64 (innovation "
+                            f"{nu.tolist()}): the measurement is not a plausible value")
         self._last_t = t
         thr = self.threshold
-        rb = nu * nu / d
         exceeded = rb > thr
         was_failed = np.array([self.refs[i].failed for i in rows])
         witnesses = np.flatnonzero(~was_failed & ~exceeded)
@@ -206,7 +210,8 @@ class ReferenceMonitor:
                 a[j] = 1.0
                 a[witnesses] -= 1.0 / witnesses.size
                 var = float(a.dot(S).dot(a))
-                attributed[j] = var > 0 and float(a.dot(nu)) ** 2 / var > thr
+                # (a nu)^2 / var > thr, without squaring a huge innovation
+                attributed[j] = var > 0 and abs(float(a.dot(nu))) > math.sqrt(thr * var)
         events = []
         handled = np.zeros(p, dtype=bool)
         for j, i in enumerate(rows):

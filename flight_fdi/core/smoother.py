@@ -27,6 +27,7 @@ physical units.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -168,6 +169,10 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
     fixed = np.einsum("kab,kbc->kac", allT, infoT)
     fixed[:, n + 1:, :] += sm.I
     fixed_l = list(fixed)
+    # (memory: these per-step arrays are large on long flights and not used in the loop)
+    del info, infoT
+    if fwd.u is None:
+        del allT
     Phis = [mt.Phi for mt in steps]
     Zt = np.ascontiguousarray(Z.T)
     dgesv = lapack.dgesv
@@ -185,7 +190,9 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
                 # relative, so it is removed periodically here and in the result below
                 Zt[:n] = 0.5 * (Zt[:n] + Zt[:n].T)
         out[0] = Zt
+    del fixed_l, fixed, prodT
     Zs = np.swapaxes(np.array(out), 1, 2)
+    del out
     Ys = Zs[:, :, :n]
     return 0.5 * (Ys + np.swapaxes(Ys, 1, 2)), np.ascontiguousarray(Zs[:, :, n])
 
@@ -208,9 +215,44 @@ def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] 
     return _combine(Ys, ys, xf, Pf, s, SS, fwd.t, rank_tol)
 
 
+#: steps combined per block: the combination is per step, and its temporaries (a dozen n x n
+#: arrays per step) for a 10-hour flight in one piece would be several hundred MB
+_COMBINE_BLOCK = 32768
+
+
 def _combine(Ys: np.ndarray, ys: np.ndarray, xf: np.ndarray, Pf: np.ndarray, s: np.ndarray,
              SS: np.ndarray, t: np.ndarray, rank_tol: float) -> BackwardResult:
-    """Two-filter combination, vectorised over the record (scaled inputs, physical outputs)."""
+    """Two-filter combination (scaled inputs, physical outputs), block by block into
+    preallocated results (the same numbers as one vectorised call: every step is independent)."""
+    N = xf.shape[0]
+    if N <= _COMBINE_BLOCK:
+        return _combine_block(Ys, ys, xf, Pf, s, SS, t, rank_tol)
+    out: BackwardResult | None = None
+    for a in range(0, N, _COMBINE_BLOCK):
+        b = min(N, a + _COMBINE_BLOCK)
+        part = _combine_block(Ys[a:b], ys[a:b], xf[a:b], Pf[a:b], s, SS, t[a:b], rank_tol)
+        if out is None:  # preallocate every array field (and those of the localization)
+            def full(x: Any) -> Any:
+                return np.empty((N,) + x.shape[1:], x.dtype) if isinstance(x, np.ndarray) \
+                    and x.ndim >= 1 and x.shape[0] == b - a else x
+            loc = part.localization
+            out = BackwardResult(**{f.name: full(getattr(part, f.name))
+                                    for f in dataclasses.fields(BackwardResult)})
+            out.localization = type(loc)(**{f.name: full(getattr(loc, f.name))
+                                            for f in dataclasses.fields(type(loc))})
+        for obj, src in ((out, part), (out.localization, part.localization)):
+            for f in dataclasses.fields(obj):
+                dst = getattr(obj, f.name)
+                if isinstance(dst, np.ndarray) and dst.ndim >= 1 and dst.shape[0] == N:
+                    dst[a:b] = getattr(src, f.name)
+        del part
+    return out
+
+
+def _combine_block(Ys: np.ndarray, ys: np.ndarray, xf: np.ndarray, Pf: np.ndarray,
+                   s: np.ndarray, SS: np.ndarray, t: np.ndarray,
+                   rank_tol: float) -> BackwardResult:
+    """Two-filter combination, vectorised over the steps (scaled inputs, physical outputs)."""
     from .diagnosis import localize, udu  # diagnosis builds on this module
 
     N, n = xf.shape

@@ -596,6 +596,7 @@ class AttitudeMode:
             else:
                 u = float(u_vec[ch.axis])
             H, R = self._H, self._R
+            saved = ch.kf._x, ch.kf._P  # (an update refused after the prediction: undo it)
             try:
                 if len(rows) == self.model.m:
                     res = ch.kf.step(dt, z, R, [u])
@@ -604,6 +605,7 @@ class AttitudeMode:
                     ch.kf.predict(dt, [u])
                     res = ch.kf.update(z, R, H)
             except CoreError as exc:
+                ch.kf._x, ch.kf._P = saved
                 node._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
                            channel=ch)
                 continue

@@ -42,8 +42,10 @@ Selection (sticky)
     clears the isolation at once. An IMU whose newest stamp lags the newest stamp of the others
     by more than ``stale_after_s`` (silent) is not selected either while another IMU is live.
 
-Bad input never stops the node: non-finite values, duplicate and out-of-order stamps are
-dropped and counted per IMU (``dropped_imuK_<reason>``); a stamp going back by more than
+Bad input never stops the node: non-finite values, values too large for the window statistic
+(|value| > max float / (4 N): a window of pair differences could overflow float64), duplicate and
+out-of-order stamps are dropped and counted per IMU (``dropped_imuK_<reason>``: ``nonfinite``,
+``out_of_range``, ``duplicate``, ``out_of_order``); a stamp going back by more than
 ``time_jump_reset_s`` restarts the voter (windows, flight time; isolations are kept). Silent
 and never-arriving inputs are reported in ``/diagnostics``.
 
@@ -204,6 +206,8 @@ class VoterNode(Node):
         Q = len(self.quantities)
         self.window = int(self.table.window)
         self.means = WindowMeans(self.window, (Q, 3))
+        # a pair difference is at most 2 max|v|; a window sum of N of them must stay finite
+        self._max_abs = sys.float_info.max / (4 * self.window)
 
         names = []
         for topic in p["imu_topics"]:
@@ -237,6 +241,7 @@ class VoterNode(Node):
                   "selection_switches", "isolations", "releases", "resets"]
         for nm in names3:
             counts += [f"received_{nm}", f"unmatched_{nm}", f"dropped_{nm}_nonfinite",
+                       f"dropped_{nm}_out_of_range",
                        f"dropped_{nm}_duplicate", f"dropped_{nm}_out_of_order"]
         self.counters = diag.Counters(counts)
         self._queues: list[deque] = [deque() for _ in range(3)]
@@ -278,6 +283,10 @@ class VoterNode(Node):
         v = imu_values(msg)
         if not np.all(np.isfinite(v)):
             self._drop(f"{name}_nonfinite", f"{name} sample at t={t:.3f} s: non-finite values")
+            return
+        if np.any(np.abs(v) > self._max_abs):
+            self._drop(f"{name}_out_of_range", f"{name} sample at t={t:.3f} s: a value beyond "
+                       f"{self._max_abs:.3g} (the window statistic would overflow)")
             return
         last = self._last_t[k]
         if last is not None and t <= last:
