@@ -208,6 +208,11 @@ def run_analysis(model: LinearModel, t_ins: Any, v_ins: Any, t_ref: Any, v_ref: 
     return result
 
 
+#: records longer than this (steps; 5.5 hours at 10 Hz) run GLR before the backward pass
+#: instead of beside it, to bound the peak memory (see analyze_forward)
+GLR_CONCURRENT_MAX_STEPS = 200_000
+
+
 def analyze_forward(model: LinearModel, fwd: ForwardResult,
                     config: AnalysisConfig = AnalysisConfig(), bag: str = "", channel: str = "x",
                     t0: float | None = None) -> AnalysisResult:
@@ -229,12 +234,19 @@ def analyze_forward(model: LinearModel, fwd: ForwardResult,
         raise CoreError(f"analyze_forward: t0 must be finite, got {t0!r}")
     # GLR needs only the forward pass: it runs in a second thread while this one does the
     # backward pass (GLR is block-vectorised numpy that releases the GIL; the backward recursion
-    # is a Python loop), so the two use both cores of a small machine.
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        glr_future = pool.submit(isolate, model, fwd, config.glr_config())
+    # is a Python loop), so the two use both cores of a small machine. On very long records the
+    # working memory of the two together is too much (GLR ~1 kB per step, the backward pass as
+    # much again): GLR then runs first, alone (10-hour flight at 10 Hz: peak under 1 GB).
+    if len(fwd.t) > GLR_CONCURRENT_MAX_STEPS:
+        glr = isolate(model, fwd, config.glr_config())
         bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
         seed = diagnose(model, fwd, bwd, config.diagnosis_config())
-        glr = glr_future.result()
+    else:
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            glr_future = pool.submit(isolate, model, fwd, config.glr_config())
+            bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
+            seed = diagnose(model, fwd, bwd, config.diagnosis_config())
+            glr = glr_future.result()
     summary = _summary(model, fwd, seed, glr, origin, bag, channel)
     end_s = None if seed.end_t is None else seed.end_t - origin
     return AnalysisResult(t0=origin, fwd=fwd, bwd=bwd, seed=seed, glr=glr, summary=summary,

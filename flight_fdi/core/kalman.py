@@ -477,7 +477,8 @@ def _update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, Hs: np.n
     Sinv = Linv.T.dot(Linv)
     nu = z - Hs.dot(x)
     w = Linv.dot(nu)
-    beta2 = float(w.dot(w))
+    with np.errstate(over="ignore"):  # an overflow is refused by the caller's finiteness check
+        beta2 = float(w.dot(w))
     exceeded = beta2 > threshold
     K = PHt.dot(Sinv)
     if exceeded and reject:
