@@ -82,14 +82,24 @@ def test_text_table(capsys, repo_root):
     (lambda d: (d / "empty").mkdir() or d / "empty", "not a rosbag2 bag"),
     (lambda d: (d / "x.mcap").write_bytes(b"\x89MCAP0\r\n garbage") or d / "x.mcap", ""),
 ])
-def test_bad_bag_is_one_line_and_nonzero_exit(tmp_path, make_bad, message):
+@pytest.mark.parametrize("jobs", ["1", "2"])  # with 2 the bag is read in a forked child
+def test_bad_bag_is_one_line_and_nonzero_exit(tmp_path, make_bad, message, jobs):
     bag = make_bad(tmp_path)
-    proc = subprocess.run([sys.executable, "-m", "flight_fdi.cli.main", "analyze", str(bag)],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run([sys.executable, "-m", "flight_fdi.cli.main", "analyze", str(bag),
+                           "--jobs", jobs], capture_output=True, text=True, timeout=60)
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("flight-fdi analyze: error:"), proc.stderr
     assert "Traceback" not in proc.stderr and message in lines[0]
+
+
+def test_one_and_two_jobs_give_the_same_json(repo_root):
+    bag = str(repo_root / "bags" / "accel_fault_500s")
+    outs = [subprocess.run([sys.executable, "-m", "flight_fdi.cli.main", "analyze", bag, "--json",
+                            "--jobs", jobs], capture_output=True, text=True, timeout=120,
+                           check=True).stdout for jobs in ("1", "2")]
+    assert json.loads(outs[0]) == json.loads(outs[1])
+    assert json.loads(outs[0])["post_flight"]["glr"]["hypothesis"] == "accel_bias_step"
 
 
 def test_bag_without_the_topics(tmp_path, capsys):

@@ -211,6 +211,24 @@ def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np
 
 
 FILTER_STATE = "flight_fdi_msgs/msg/FilterState"
+STRING = "std_msgs/msg/String"
+
+
+def decode_string(payload: bytes | memoryview, what: str = "message") -> str:
+    """The text of one std_msgs/String message (a CDR string: u32 length with its NUL, the
+    bytes, the NUL), without loading a type store."""
+    data = bytes(payload)
+    if len(data) < 9 or data[0] != 0 or data[1] > 1:
+        raise BagError(f"{what}: not a CDR message")
+    (n,) = np.frombuffer(data, dtype="<u4" if data[1] == 1 else ">u4", count=1, offset=4)
+    n = int(n)
+    if n < 1 or 8 + n > len(data) or data[8 + n - 1] != 0:
+        raise BagError(f"{what}: not a valid {STRING} (string length {n}, "
+                       f"{len(data) - 8} bytes after the header)")
+    try:
+        return data[8:8 + n - 1].decode("utf-8")
+    except UnicodeDecodeError:
+        raise BagError(f"{what}: {STRING} is not UTF-8") from None
 
 
 def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",

@@ -316,8 +316,9 @@ def _attach_fault(data: FlightData, raw: _Raw, path: Path, topic: str) -> None:
     if len(raw.payloads) == 0:
         return
     try:
-        msg: Any = get_typestore().deserialize_cdr(raw.payloads[0], STRING)
-        doc = json.loads(msg.data)
+        doc = json.loads(cdr.decode_string(raw.payloads[0], what=f"bag '{path}': {topic}"))
+    except BagError:
+        raise
     except Exception as exc:
         raise BagError(f"bag '{path}': {topic} is not a JSON fault description: "
                        f"{_reason(exc)}") from None

@@ -48,7 +48,7 @@ def analysis_config(args: argparse.Namespace):
         raise CliError(f"--alarm must look like M/N (e.g. 3/5), got {args.alarm!r}") from None
     gate = GateConfig(rule=args.gate_rule, probability=args.gate_probability,
                       alarm_m=alarm_m, alarm_n=alarm_n, action=args.gate_action)
-    return AnalysisConfig(gate=gate)
+    return AnalysisConfig(gate=gate, jobs=getattr(args, "jobs", 1))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -56,20 +56,41 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bag", help="rosbag2 bag (folder) with /ins/velocity and /reference/velocity")
     add_analysis_options(p)
+    p.add_argument("--jobs", type=int, choices=(1, 2), default=default_jobs(),
+                   help="processes to use: with 2 the backward pass runs beside the forward "
+                        "pass, same results (default 2 on a machine with 2 or more cores)")
     p.set_defaults(func=run)
+
+
+def default_jobs() -> int:
+    import os
+
+    return 2 if (os.cpu_count() or 1) >= 2 else 1
 
 
 def analyze_bag(bag: str, args: argparse.Namespace) -> dict:
     from flight_fdi.bagio import read_flight
-    from flight_fdi.core.analysis import analyze_flight
-    from flight_fdi.core.models import get_model
+    from flight_fdi.core.forked import fork_call
 
-    config = analysis_config(args)
-    model = get_model(args.model)
-    flight = read_flight(bag, channel=args.channel, with_truth=False)
+    # with two jobs the bag is read in a forked child while this process imports the estimation
+    # core (SciPy: ~0.5 s); errors of either side come out here, the child never outlives this
+    reading = fork_call if getattr(args, "jobs", 1) == 2 else _call_here
+    with reading(read_flight, bag, channel=args.channel, with_truth=False) as job:
+        from flight_fdi.core.analysis import analyze_flight
+        from flight_fdi.core.models import get_model
+
+        config = analysis_config(args)
+        model = get_model(args.model)
+        flight = job.result()
     # times relative to the first INS/reference message, exact from integer nanoseconds
     return analyze_flight(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
                           flight.r_ref, config, bag=str(bag), channel=args.channel, t0=0.0)
+
+
+def _call_here(fn, *args, **kwargs):
+    from flight_fdi.core.forked import ForkedCall
+
+    return ForkedCall(fn, args, kwargs, fork=False)
 
 
 def _fmt(value, spec: str = ".3g", none: str = "-") -> str:

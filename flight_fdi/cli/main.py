@@ -11,20 +11,21 @@ import sys
 
 from flight_fdi import __version__
 
-#: subcommand modules; each has ``register(subparsers)`` that adds a parser with ``func=run``
-SUBCOMMANDS = (
-    "flight_fdi.cli.info",
-    "flight_fdi.cli.simulate",
-    "flight_fdi.cli.analyze",
-    "flight_fdi.cli.run",
-    "flight_fdi.cli.report",
-    "flight_fdi.cli.montecarlo",
-    "flight_fdi.cli.attitude",
-    "flight_fdi.cli.criticality",
-    "flight_fdi.cli.imu_simulate",
-    "flight_fdi.cli.voter_calibrate",
-    "flight_fdi.cli.voter_experiment",
-)
+#: subcommand name -> its module; each module has ``register(subparsers)`` that adds the parser
+#: of that name with ``func=run``
+SUBCOMMANDS = {
+    "info": "flight_fdi.cli.info",
+    "simulate": "flight_fdi.cli.simulate",
+    "analyze": "flight_fdi.cli.analyze",
+    "run": "flight_fdi.cli.run",
+    "report": "flight_fdi.cli.report",
+    "montecarlo": "flight_fdi.cli.montecarlo",
+    "attitude": "flight_fdi.cli.attitude",
+    "criticality": "flight_fdi.cli.criticality",
+    "imu-simulate": "flight_fdi.cli.imu_simulate",
+    "voter-calibrate": "flight_fdi.cli.voter_calibrate",
+    "voter-experiment": "flight_fdi.cli.voter_experiment",
+}
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
@@ -44,7 +45,15 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return tuple(errors)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_of(argv: list[str]) -> str | None:
+    """The subcommand named by ``argv`` when it is the first argument (the top-level parser has
+    only --help and --version), else None."""
+    return argv[0] if argv and argv[0] in SUBCOMMANDS else None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every subcommand, or with ``only`` that one: importing a subcommand's
+    module can be slow (SciPy's statistics for the IMU voter), and ``analyze`` is timed."""
     parser = argparse.ArgumentParser(
         prog="flight-fdi",
         description="INS fault detection in flight and fault isolation after the flight.",
@@ -52,13 +61,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"flight-fdi {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in SUBCOMMANDS:
-        importlib.import_module(name).register(sub)
+    for name, module in SUBCOMMANDS.items():
+        if only is None or name == only:
+            importlib.import_module(module).register(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    if argv is None:
+        argv = sys.argv[1:]
+    parser = build_parser(_command_of(argv))
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -20,9 +20,10 @@ from .align import align_to_reference
 from .diagnosis import DiagnosisConfig, SeedDiagnosis, diagnose
 from .errors import CoreError
 from .glr import GlrConfig, GlrResult, isolate
-from .kalman import ForwardResult, GateConfig, run_forward
+from .forked import ForkedCall, can_fork, fork_call
+from .kalman import ForwardResult, GateConfig, measurement_record, run_forward
 from .models import LinearModel
-from .smoother import DEFAULT_RANK_TOL, BackwardResult, run_backward
+from .smoother import DEFAULT_RANK_TOL, BackwardResult, backward_information, run_backward
 
 _GLR_DEFAULTS = GlrConfig()
 
@@ -37,6 +38,10 @@ class AnalysisConfig:
         diagnosis (:class:`~flight_fdi.core.diagnosis.DiagnosisConfig`).
     glr_p_false_alarm, glr_hypotheses: the GLR isolator
         (:class:`~flight_fdi.core.glr.GlrConfig`).
+    jobs: processes :func:`run_analysis` may use. With 2, the backward information filter runs
+        in a forked child beside the forward pass when that gives the same numbers and is safe
+        (gate action "flag", so every sample is fused; a single-threaded caller; a record of
+        ``PARALLEL_MIN_STEPS`` to ``GLR_CONCURRENT_MAX_STEPS`` steps); otherwise one process.
     """
 
     gate: GateConfig = field(default_factory=GateConfig)
@@ -48,8 +53,12 @@ class AnalysisConfig:
     rank_tol: float = DEFAULT_RANK_TOL
     glr_p_false_alarm: float = 1e-3
     glr_hypotheses: tuple = _GLR_DEFAULTS.hypotheses
+    jobs: int = 1
 
     def __post_init__(self) -> None:
+        if isinstance(self.jobs, bool) or not isinstance(self.jobs, (int, np.integer)) \
+                or self.jobs not in (1, 2):
+            raise CoreError(f"AnalysisConfig.jobs must be 1 or 2, got {self.jobs!r}")
         if not isinstance(self.gate, GateConfig):
             raise CoreError(f"AnalysisConfig.gate must be a GateConfig, got "
                             f"{type(self.gate).__name__}")
@@ -96,6 +105,7 @@ class AnalysisResult:
                                # from analyze_forward, which gets no raw messages)
     end_s: float | None        # end of the seed method's J episode, seconds from t0 (None:
                                # no episode, or it lasts to the end of the record)
+    backward_forked: bool = False  # the backward recursion ran in a second process
 
 
 def glr_element(model: LinearModel, hypothesis: str) -> str | None:
@@ -199,8 +209,18 @@ def run_analysis(model: LinearModel, t_ins: Any, v_ins: Any, t_ref: Any, v_ref: 
     if not math.isfinite(origin):
         raise CoreError(f"run_analysis: t0 must be finite, got {t0!r}")
 
-    fwd = run_forward(model, t, z, R, gate=config.gate)
-    result = analyze_forward(model, fwd, config, bag=bag, channel=channel, t0=origin)
+    record = measurement_record(model, t, z, R)
+    if (config.jobs == 2 and config.gate.action == "flag"
+            and PARALLEL_MIN_STEPS <= len(record) <= GLR_CONCURRENT_MAX_STEPS and can_fork()):
+        # every sample will be fused: the backward recursion does not need the forward pass
+        with fork_call(backward_information, model, record) as job:
+            fwd = run_forward(model, None, None, gate=config.gate, record=record)
+            result = analyze_forward(model, fwd, config, bag=bag, channel=channel, t0=origin,
+                                     _information=job)
+        result.backward_forked = True
+    else:
+        fwd = run_forward(model, None, None, gate=config.gate, record=record)
+        result = analyze_forward(model, fwd, config, bag=bag, channel=channel, t0=origin)
     result.aligned = aligned
     result.summary["input"] = {"ins_messages": int(ti.size), "ref_messages": int(tr.size),
                                "invalid_covariance": invalid_cov,
@@ -209,13 +229,17 @@ def run_analysis(model: LinearModel, t_ins: Any, v_ins: Any, t_ref: Any, v_ref: 
 
 
 #: records longer than this (steps; 5.5 hours at 10 Hz) run GLR before the backward pass
-#: instead of beside it, to bound the peak memory (see analyze_forward)
+#: instead of beside it, and never fork, to bound the peak memory (see analyze_forward)
 GLR_CONCURRENT_MAX_STEPS = 200_000
+#: records shorter than this do not fork (the fork and the transfer would cost more than the
+#: backward recursion: ~10 us per step, ~20 ms for a fork and its result)
+PARALLEL_MIN_STEPS = 20_000
 
 
 def analyze_forward(model: LinearModel, fwd: ForwardResult,
                     config: AnalysisConfig = AnalysisConfig(), bag: str = "", channel: str = "x",
-                    t0: float | None = None) -> AnalysisResult:
+                    t0: float | None = None, _information: ForkedCall | None = None
+                    ) -> AnalysisResult:
     """The post-flight part of the analysis on a forward pass -- what :func:`run_analysis` does
     after its own forward pass, and what the ROS smoother calls on a forward pass rebuilt from a
     recording (``ForwardResult.from_record``): the backward pass, the seed diagnosis, GLR and
@@ -237,14 +261,31 @@ def analyze_forward(model: LinearModel, fwd: ForwardResult,
     # is a Python loop), so the two use both cores of a small machine. On very long records the
     # working memory of the two together is too much (GLR ~1 kB per step, the backward pass as
     # much again): GLR then runs first, alone (10-hour flight at 10 Hz: peak under 1 GB).
+    # (_information: run_analysis's backward recursion from a forked child, started before the
+    # forward pass; it assumed every sample fused -- checked here, as the forward pass decides)
+    if _information is not None and not np.all(fwd.fused):
+        _information.cancel()
+        _information = None
+
+    def backward() -> BackwardResult:
+        info = None if _information is None else _information.result()
+        return run_backward(model, fwd, rank_tol=config.rank_tol, information=info)
+
     if len(fwd.t) > GLR_CONCURRENT_MAX_STEPS:
         glr = isolate(model, fwd, config.glr_config())
-        bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
+        bwd = backward()
         seed = diagnose(model, fwd, bwd, config.diagnosis_config())
+    elif _information is not None:
+        # two processes: GLR in a forked child (it inherits fwd without a copy), the combination
+        # here -- no contention for the GIL as with a thread
+        with fork_call(isolate, model, fwd, config.glr_config()) as glr_job:
+            bwd = backward()
+            seed = diagnose(model, fwd, bwd, config.diagnosis_config())
+            glr = glr_job.result()
     else:
         with ThreadPoolExecutor(max_workers=1) as pool:
             glr_future = pool.submit(isolate, model, fwd, config.glr_config())
-            bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
+            bwd = backward()
             seed = diagnose(model, fwd, bwd, config.diagnosis_config())
             glr = glr_future.result()
     summary = _summary(model, fwd, seed, glr, origin, bag, channel)

@@ -84,7 +84,6 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.optimize import brentq
 from scipy.special import erfc, owens_t
 
 from .errors import CoreError
@@ -513,6 +512,8 @@ def _threshold(fresh: int, pair_a: np.ndarray, p_false_alarm: float) -> float:
 
     def bound(u: float) -> float:
         return fresh * 2.0 * _Q(u) + float(counts @ _crossing_from_a(u, edges))
+
+    from scipy.optimize import brentq  # (here: importing scipy.optimize costs ~0.2 s)
 
     hi = 8.0
     while bound(hi) > p_false_alarm:

@@ -1081,17 +1081,29 @@ def check_times(t: Any, what: str = "t") -> np.ndarray:
     return arr
 
 
-def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None,
-                gate: GateConfig = GateConfig(), x0: Any = None, P0: Any = None) -> ForwardResult:
-    """Run the forward filter over a record (the same step functions as :class:`KalmanFilter`).
+@dataclass
+class MeasurementRecord:
+    """What the forward filter is given, checked: everything the backward information filter
+    needs (:func:`flight_fdi.core.smoother.backward_information` reads only these fields of a
+    ForwardResult), so that it can start before the forward pass when every sample is fused
+    (gate action ``"flag"``)."""
 
-    t: (N,) strictly increasing seconds; z: (N, m) (or (N,) when m = 1); R: None (model.R) or
-    (N, m, m); u: None or (N, p), the control applied in the prediction to step k. The first step
-    is an update on the prior (x0, P0) (default 0, model.P0).
-    """
-    if not isinstance(gate, GateConfig):
-        raise CoreError(f"gate must be a GateConfig, got {type(gate).__name__}")
-    sm = scaled_model(model)
+    t: np.ndarray            # (N,) strictly increasing seconds
+    dt: np.ndarray           # (N,), dt[0] = 0
+    z: np.ndarray            # (N, m)
+    R: np.ndarray            # (N, m, m)
+    H: np.ndarray            # (N, m, n)
+    fused: np.ndarray        # (N,) bool: all True (what the forward pass fuses with "flag")
+    u: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def measurement_record(model: LinearModel, t: Any, z: Any, R: Any = None,
+                       u: Any = None) -> MeasurementRecord:
+    """Check a record's inputs (as :func:`run_forward` takes them) and build its
+    :class:`MeasurementRecord`; CoreError on anything invalid."""
     n, m = model.n, model.m
     tt = check_times(t)
     N = tt.size
@@ -1114,11 +1126,35 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
             Ra = Ra.reshape(N, m, m)
         Ra = _check_R_batch(Ra, N, m)
     ua = _check_u_batch(model, u, N)
-    x0v, P0m = _check_prior(model, x0, P0)
-
     dt = np.empty(N)
     dt[0] = 0.0
     dt[1:] = np.diff(tt)
+    return MeasurementRecord(t=tt, dt=dt, z=za, R=Ra, H=np.broadcast_to(model.H, (N, m, n)).copy(),
+                             fused=np.ones(N, dtype=bool), u=ua)
+
+
+def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None,
+                gate: GateConfig = GateConfig(), x0: Any = None, P0: Any = None,
+                record: MeasurementRecord | None = None) -> ForwardResult:
+    """Run the forward filter over a record (the same step functions as :class:`KalmanFilter`).
+
+    t: (N,) strictly increasing seconds; z: (N, m) (or (N,) when m = 1); R: None (model.R) or
+    (N, m, m); u: None or (N, p), the control applied in the prediction to step k. The first step
+    is an update on the prior (x0, P0) (default 0, model.P0). ``record``: the same inputs already
+    checked by :func:`measurement_record` (then t, z, R and u are not used).
+    """
+    if not isinstance(gate, GateConfig):
+        raise CoreError(f"gate must be a GateConfig, got {type(gate).__name__}")
+    sm = scaled_model(model)
+    n, m = model.n, model.m
+    if record is None:
+        record = measurement_record(model, t, z, R, u)
+    elif not isinstance(record, MeasurementRecord):
+        raise CoreError(f"record must be a MeasurementRecord, got {type(record).__name__}")
+    tt, za, Ra, ua, dt = record.t, record.z, record.R, record.u, record.dt
+    N = tt.size
+    x0v, P0m = _check_prior(model, x0, P0)
+
     mats, idx = sm.matrices_for(dt)
     steps = [mats[i] for i in idx.tolist()]
     if ua is None:
@@ -1200,7 +1236,7 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
     beta2 = arr(b2_l)
     exceeded = beta2 > thr
     return ForwardResult(
-        t=tt, dt=dt, z=za, R=Ra, H=np.broadcast_to(model.H, (N, m, n)).copy(),
+        t=tt, dt=dt, z=za, R=Ra, H=record.H,
         x_prior=arr(xp_l, n) * s, P_prior=_tri_to_full(arr(Pp_l, nt), n) * SS,
         x=arr(x_l, n) * s, P=_tri_to_full(arr(P_l, nt), n) * SS,
         nu=arr(nu_l, m), S=arr(S_l, m, m), K=arr(K_l, n, m) * s[None, :, None],

@@ -113,7 +113,8 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
                          prior: tuple[Any, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The backward recursion alone: (Y', y') per step in *scaled* coordinates (see module doc).
 
-    Uses only dt, z, R, H, fused and u of the record. ``prior = (x, P)``: information about the
+    Uses only dt, z, R, H, fused and u of the record: ``fwd`` may be a ForwardResult or a
+    :class:`~flight_fdi.core.kalman.MeasurementRecord`. ``prior = (x, P)``: information about the
     last state before the last measurement (default: none).
     """
     sm = scaled_model(model)
@@ -198,9 +199,13 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
 
 
 def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] | None = None,
-                 rank_tol: float = DEFAULT_RANK_TOL) -> BackwardResult:
+                 rank_tol: float = DEFAULT_RANK_TOL,
+                 information: tuple[np.ndarray, np.ndarray] | None = None) -> BackwardResult:
     """Backward information filter over ``fwd``'s record and the two-filter combination with
-    its posterior x(i/i), P(i/i). See the module docstring for the formulas."""
+    its posterior x(i/i), P(i/i). See the module docstring for the formulas.
+
+    ``information``: the result of :func:`backward_information` for this record, computed
+    beforehand (e.g. in another process while the forward pass ran); ``prior`` is then unused."""
     if not isinstance(fwd, ForwardResult):
         raise CoreError(f"run_backward: expected a ForwardResult, got {type(fwd).__name__}")
     if not (np.isfinite(rank_tol) and 0 < rank_tol < 1):
@@ -209,7 +214,13 @@ def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] 
     n = model.n
     if fwd.x.shape[1] != n:
         raise CoreError(f"run_backward: the record has {fwd.x.shape[1]} states, the model {n}")
-    Ys, ys = backward_information(model, fwd, prior)
+    if information is None:
+        Ys, ys = backward_information(model, fwd, prior)
+    else:
+        Ys, ys = information
+        if Ys.shape != (len(fwd.t), n, n) or ys.shape != (len(fwd.t), n):
+            raise CoreError(f"run_backward: information for {Ys.shape[0]} steps and "
+                            f"{Ys.shape[1]} states does not fit the record ({len(fwd.t)}, {n})")
     s, SS = sm.s, sm.SS
     xf, Pf = sm.to_scaled(fwd.x, fwd.P)
     return _combine(Ys, ys, xf, Pf, s, SS, fwd.t, rank_tol)

@@ -126,3 +126,24 @@ def test_filter_state_fast_decoder_matches_rosbags(little):
         assert np.array_equal(xs[i], m.x)
     with pytest.raises(BagError, match="#0: not a valid"):
         cdr.decode_filter_state_x([payloads[0][:40]])
+
+
+@pytest.mark.parametrize("text", ["", "a", '{"kind": "step", "mag": 0.01}', "température ✓",
+                                  "x" * 1000])
+def test_decode_string_matches_rosbags(text):
+    store = get_typestore()
+    for little in (True, False):
+        msg = store.types[cdr.STRING](data=text)
+        payload = store.serialize_cdr(msg, cdr.STRING, little_endian=little)
+        assert cdr.decode_string(payload) == text
+
+
+@pytest.mark.parametrize("cut, message", [(3, "not a CDR message"),
+                                          (-1, "not a valid std_msgs/msg/String")])
+def test_decode_string_rejects_truncated_messages(cut, message):
+    store = get_typestore()
+    payload = bytes(store.serialize_cdr(store.types[cdr.STRING](data="hello"), cdr.STRING))
+    with pytest.raises(BagError, match=message):
+        cdr.decode_string(payload[:cut], what="m")
+    with pytest.raises(BagError, match="not UTF-8"):
+        cdr.decode_string(payload[:8] + b"\xff\xfe\xfd\xfc\x00" + payload[13:], what="m")

@@ -205,3 +205,17 @@ def test_analyze_forward_on_a_rebuilt_record_equals_run_analysis(accel_flight):
         assert x["start_s"] == y["start_s"] and x["end_s"] == y["end_s"]
         assert x["peak_beta2"] == pytest.approx(y["peak_beta2"], rel=1e-8)
     assert np.max(np.abs(b.bwd.x_s - a.bwd.x_s) / model.scale) < 1e-8
+
+
+def test_core_package_exports_every_listed_name_lazily():
+    import subprocess
+    import sys
+
+    import flight_fdi.core as core
+
+    for name in core.__all__:
+        assert getattr(core, name).__name__ == name
+    code = ("import sys, flight_fdi.core.forked\n"
+            "print('scipy' in sys.modules, 'flight_fdi.core.kalman' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]
