@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import struct
 import sys
 import threading
 import time
@@ -34,6 +35,7 @@ import rclpy  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.serialization import serialize_message  # noqa: E402
 
 from flight_fdi.nodes import convert  # noqa: E402
 from flight_fdi.nodes.filter_node import FilterNode  # noqa: E402
@@ -103,14 +105,24 @@ def main() -> int:
     recv_innov: dict[tuple[str, int], float] = {}
     recv_raw: dict[int, float] = {}
 
-    def on_innov(msg):
-        recv_innov[(msg.channel, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)] = clock()
+    # the bench's own ends (sensors, consumer) keep out of the way of the node under test:
+    # messages are serialized before the run and read back raw (stamp and channel only)
+    def stamp_ns(data: bytes) -> int:
+        sec, nanosec = struct.unpack_from("<iI", data, 4)
+        return sec * 10**9 + nanosec
 
-    def on_raw(msg):
-        recv_raw[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = clock()
+    def on_innov(data: bytes):
+        now = clock()
+        flen = struct.unpack_from("<I", data, 12)[0]
+        at = 16 + flen + (-(12 + flen) % 4)  # the channel string after frame_id (4-aligned)
+        clen = struct.unpack_from("<I", data, at)[0]
+        recv_innov[(data[at + 4:at + 3 + clen].decode(), stamp_ns(data))] = now
 
-    drv.create_subscription(Innovation, "fdi/innovation", on_innov, 1000)
-    drv.create_subscription(TwistStamped, "/bench/raw", on_raw, 1000)
+    def on_raw(data: bytes):
+        recv_raw[stamp_ns(data)] = clock()
+
+    drv.create_subscription(Innovation, "fdi/innovation", on_innov, 1000, raw=True)
+    drv.create_subscription(TwistStamped, "/bench/raw", on_raw, 1000, raw=True)
     deadline = clock() + 10.0
     while not all(p.get_subscription_count() >= 1 for p in (pub_ins, pub_ref, pub_raw,
                                                              filt.pub_innovation)):
@@ -120,6 +132,9 @@ def main() -> int:
             return 1
 
     events, t_ref = schedule(args.seconds, args.ins_hz, args.ref_hz, args.offset, args.seed)
+    events = [(t, kind, serialize_message(convert.twist_cov_stamped(t, v, 0.01) if kind == "ref"
+                                          else convert.twist_stamped(t, v)))
+              for t, kind, v in events]
     sent_ins: list[tuple[int, float]] = []  # (stamp ns, publish time)
     sent_ref: dict[int, float] = {}
     sent_raw: dict[int, float] = {}
@@ -139,17 +154,14 @@ def main() -> int:
                 late[0] += 1
             ns = int(round(t * 1e9))
             if kind == "ins":
-                msg = convert.twist_stamped(t, v)
                 sent_ins.append((ns, clock()))
-                pub_ins.publish(msg)
+                pub_ins.publish(v)
             elif kind == "ref":
-                msg = convert.twist_cov_stamped(t, v, 0.01)
                 sent_ref[ns] = clock()
-                pub_ref.publish(msg)
+                pub_ref.publish(v)
             else:
-                msg = convert.twist_stamped(t, v)
                 sent_raw[ns] = clock()
-                pub_raw.publish(msg)
+                pub_raw.publish(v)
         done.set()
 
     want = 2 * sum(1 for e in events if e[1] == "ref")

@@ -10,15 +10,19 @@ A stamp that coincides with an INS sample takes that sample. No value is produce
 the bracketing samples are more than ``max_gap_s`` apart (a dropout: interpolating across it would
 invent data), or when the stamp is outside the span of the INS samples (no extrapolation).
 
-Two front ends share that one algorithm (:func:`interpolate_at`):
+Two front ends share that one algorithm (the bracket rule of :func:`_bracket` and the arithmetic
+of :func:`_lerp`):
 
-* :func:`align_to_reference` -- a whole record (post-flight, bag replay);
+* :func:`align_to_reference` -- a whole record (post-flight, bag replay), vectorised
+  (:func:`interpolate_at`);
 * :class:`StreamingAligner` -- a ROS node: INS samples arrive one at a time into a bounded buffer
-  and each reference stamp is looked up when it arrives.
+  and each reference stamp is looked up when it arrives, with plain floats (a few microseconds:
+  NumPy's per-call overhead on one element costs ~20 times more).
 """
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from typing import Any
 
 import numpy as np
@@ -42,6 +46,11 @@ def _check_gap(max_gap_s: Any) -> float:
     if not math.isfinite(max_gap_s) or max_gap_s <= 0:
         raise CoreError(f"max_gap_s must be a finite number > 0, got {max_gap_s!r}")
     return float(max_gap_s)
+
+
+def _lerp(v0: Any, v1: Any, t0: Any, t1: Any, tq: Any) -> Any:
+    """The interpolation formula (arrays or scalars: the same IEEE operations, the same bits)."""
+    return v0 + (v1 - v0) * ((tq - t0) / (t1 - t0))
 
 
 def interpolate_at(t_ins: np.ndarray, v_ins: np.ndarray, t_q: np.ndarray, max_gap_s: float):
@@ -70,9 +79,9 @@ def interpolate_at(t_ins: np.ndarray, v_ins: np.ndarray, t_q: np.ndarray, max_ga
     code[sub[gap]] = GAP
     ok = sub[~gap]
     lo, t0, t1 = lo[~gap], t0[~gap], t1[~gap]
-    frac = (t_q[ok] - t0) / (t1 - t0)
-    frac = frac.reshape((-1,) + (1,) * (v_ins.ndim - 1))
-    values[ok] = v_ins[lo] + (v_ins[lo + 1] - v_ins[lo]) * frac
+    shape = (-1,) + (1,) * (v_ins.ndim - 1)
+    values[ok] = _lerp(v_ins[lo], v_ins[lo + 1], t0.reshape(shape), t1.reshape(shape),
+                       t_q[ok].reshape(shape))
     code[ok] = OK
     return code, values
 
@@ -151,67 +160,64 @@ class StreamingAligner:
         self.buffer_s = float(buffer_s)
         self.max_samples = int(max_samples)
         self.last_reason = REASON_EMPTY
-        self._t = np.empty(0)
-        self._v: np.ndarray | None = None
-        self._lo = 0  # live samples are [_lo, _hi) of the storage
-        self._hi = 0
+        # live samples are [_lo:] of two Python lists (stamps as floats, values as float or
+        # read-only (d,) arrays); the dropped head is cut off once it is as long as the rest
+        self._t: list[float] = []
+        self._v: list[Any] = []
+        self._shape: tuple | None = None
+        self._lo = 0
 
     def __len__(self) -> int:
-        return self._hi - self._lo
+        return len(self._t) - self._lo
 
     @property
     def newest_t(self) -> float | None:
-        return float(self._t[self._hi - 1]) if len(self) else None
+        return self._t[-1] if len(self._t) > self._lo else None
 
     @property
     def oldest_t(self) -> float | None:
-        return float(self._t[self._lo]) if len(self) else None
+        return self._t[self._lo] if len(self._t) > self._lo else None
 
     def add_ins(self, t: float, v: Any) -> None:
         """Append one INS sample (stamp ``t`` seconds, value ``v``)."""
         try:
             tf = float(t)
-            vv = np.asarray(v, dtype=float)
+            if isinstance(v, float):
+                vv: Any = v
+                shape: tuple = ()
+                finite = math.isfinite(v)
+            else:
+                arr = np.array(v, dtype=float)
+                shape = arr.shape
+                finite = bool(np.isfinite(arr).all())
+                vv = float(arr) if arr.ndim == 0 else arr
         except (TypeError, ValueError):
             raise CoreError(f"add_ins: stamp and value must be numeric, got {t!r}, {v!r}") from None
         if not math.isfinite(tf):
             raise CoreError(f"add_ins: stamp must be finite, got {t!r}")
-        if vv.ndim > 1 or not np.all(np.isfinite(vv)):
+        if len(shape) > 1 or not finite:
             raise CoreError(f"add_ins: value must be a finite number or vector, got {v!r}")
-        if self._v is not None and vv.shape != self._v.shape[1:]:
-            raise CoreError(f"add_ins: value has shape {vv.shape}, earlier samples "
-                            f"{self._v.shape[1:]}")
-        if len(self) and tf <= self._t[self._hi - 1]:
+        if self._shape is not None and shape != self._shape:
+            raise CoreError(f"add_ins: value has shape {shape}, earlier samples {self._shape}")
+        ts = self._t
+        if len(ts) > self._lo and tf <= ts[-1]:
             raise CoreError(f"add_ins: stamps must be strictly increasing; {tf!r} follows "
-                            f"{float(self._t[self._hi - 1])!r}")
-        if self._v is None:
-            cap = 64
-            self._t = np.empty(cap)
-            self._v = np.empty((cap,) + vv.shape)
-        if self._hi == self._t.size:
-            self._make_room()
-        self._t[self._hi] = tf
-        self._v[self._hi] = vv
-        self._hi += 1
+                            f"{ts[-1]!r}")
+        if isinstance(vv, np.ndarray):
+            vv.flags.writeable = False
+        self._shape = shape
+        ts.append(tf)
+        self._v.append(vv)
         # drop what is older than the horizon, keeping the last sample before it
         horizon = tf - self.buffer_s
-        keep_from = int(np.searchsorted(self._t[self._lo:self._hi], horizon, side="right")) - 1
-        self._lo += max(keep_from, 0)
-        if len(self) > self.max_samples:
-            self._lo = self._hi - self.max_samples
-
-    def _make_room(self) -> None:
-        """Compact the live samples to the front; grow the storage when they fill half of it."""
-        live = len(self)
-        cap = self._t.size
-        if 2 * live > cap:
-            cap *= 2
-        t_new = np.empty(cap)
-        v_new = np.empty((cap,) + self._v.shape[1:])
-        t_new[:live] = self._t[self._lo:self._hi]
-        v_new[:live] = self._v[self._lo:self._hi]
-        self._t, self._v = t_new, v_new
-        self._lo, self._hi = 0, live
+        lo, hi = self._lo, len(ts)
+        while lo + 1 < hi and ts[lo + 1] <= horizon:
+            lo += 1
+        self._lo = max(lo, hi - self.max_samples)
+        if self._lo >= 1024 and 2 * self._lo >= hi:
+            del ts[:self._lo]
+            del self._v[:self._lo]
+            self._lo = 0
 
     def at(self, t_ref: float):
         """INS value at ``t_ref`` or None (see ``last_reason``)."""
@@ -221,23 +227,26 @@ class StreamingAligner:
             raise CoreError(f"at: stamp must be a number, got {t_ref!r}") from None
         if not math.isfinite(tq):
             raise CoreError(f"at: stamp must be finite, got {t_ref!r}")
-        if not len(self):
+        ts, lo = self._t, self._lo
+        hi = len(ts)
+        if hi == lo:
             self.last_reason = REASON_EMPTY
             return None
-        ts = self._t[self._lo:self._hi]
-        code, values = interpolate_at(ts, self._v[self._lo:self._hi], np.array([tq]),
-                                      self.max_gap_s)
-        c = int(code[0])
-        if c == OK:
+        i = bisect_right(ts, tq, lo, hi) - 1  # ts[i] <= tq < ts[i + 1], as in interpolate_at
+        if i < lo:
+            self.last_reason = REASON_TOO_OLD
+            return None
+        if ts[i] == tq:
             self.last_reason = REASON_OK
-            val = values[0]
-            return float(val) if val.ndim == 0 else val
-        if c == AFTER_SPAN:
+            return self._v[i]
+        if i == hi - 1:
             # the next sample comes after t_ref: once the stamp is further than max_gap_s from
             # the newest sample, no future sample can give a valid bracket
             self.last_reason = REASON_GAP if tq - ts[-1] > self.max_gap_s else REASON_WAITING
-        elif c == GAP:
+            return None
+        t0, t1 = ts[i], ts[i + 1]
+        if (t1 - t0) > self.max_gap_s:
             self.last_reason = REASON_GAP
-        else:
-            self.last_reason = REASON_TOO_OLD
-        return None
+            return None
+        self.last_reason = REASON_OK
+        return _lerp(self._v[i], self._v[i + 1], t0, t1, tq)

@@ -763,6 +763,8 @@ class KalmanFilter:
         self._sm = scaled_model(model)
         self._update1 = self._sm.update1_for(self._sm.H) if model.m == 1 else None
         self._h = self._sm.H[0].tolist()
+        self._h_pattern = tuple(bool(v) for v in self._sm.H[0] != 0)
+        self._threshold1 = gate.threshold(1)
         self._alarm = AlarmLogic(gate.alarm_m, gate.alarm_n)
         self._reject = gate.action == "reject"
         self.reset(x0, P0)
@@ -910,16 +912,36 @@ class KalmanFilter:
             _check_u(self.model, u)
             self.predict(dt, u)
             return self.update(zv, Rm)
-        dt = _check_dt(dt)
-        uv = _check_u(self.model, u)
+        return self._step1(_check_dt(dt), zv.item(), Rm.item(), _check_u(self.model, u))
+
+    def step1(self, dt: float, z: float, r: float) -> UpdateResult:
+        """:meth:`step` of a one-row model without a control input, on plain numbers: the
+        same generated code, for a node's per-message path (NumPy's checks of a one-element
+        z and R cost more than the step itself). CoreError, filter unchanged, on bad input."""
+        if self.model.m != 1:
+            raise CoreError(f"step1 needs a one-row model; {self.model.name!r} has "
+                            f"{self.model.m} rows")
+        try:
+            zf, rf = float(z), float(r)
+        except (TypeError, ValueError):
+            raise CoreError(f"step1: z and r must be numbers, got {z!r}, {r!r}") from None
+        if not math.isfinite(zf):
+            raise CoreError(f"measurement z contains NaN or Inf: [{zf!r}]")
+        if not math.isfinite(rf):
+            raise CoreError("measurement covariance R contains NaN or Inf")
+        if rf < 0:
+            raise CoreError(f"measurement covariance R = {rf:.3g} is negative")
+        return self._step1(_check_dt(dt), zf, rf, None)
+
+    def _step1(self, dt: float, z: float, r: float, uv: np.ndarray | None) -> UpdateResult:
+        """The one-row prediction + update on validated inputs."""
         sm = self._sm
         mt = sm.matrices(dt)
         bu = None if uv is None else tuple(mt.Bd.dot(uv).tolist())
-        thr = self.gate.threshold(1)
-        step = sm.step1_for(mt, sm.H, bu is not None)
+        thr = self._threshold1
+        step = _compiled("step", *mt.pattern, bu is not None, self._h_pattern)
         _, _, x, P, nu, s, _, beta2, exceeded, fused = step(
-            self._x, self._P, mt.Phi_t, mt.Qd_t, bu, self._h, Rm.item(), zv.item(), thr,
-            self._reject)
+            self._x, self._P, mt.Phi_t, mt.Qd_t, bu, self._h, r, z, thr, self._reject)
         _check_finite_update(x, P, beta2, (nu,))
         self._x, self._P = x, P
         self.steps += 1

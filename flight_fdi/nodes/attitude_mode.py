@@ -389,7 +389,7 @@ class AttitudeMode:
         self.inputs.seen(self.angle_name)
         self.counters.inc("received_angle")
         t, v = convert.vector3_values(msg)
-        if self.node._bad_stamp("angle", t, msg):
+        if self.node._bad_stamp("angle", t, *convert.header_parts(msg)):
             return
         order = self._order("angle", t, self._last_angle_t)
         if order == "drop":
@@ -419,7 +419,7 @@ class AttitudeMode:
         self.inputs.seen(self.rate_name)
         self.counters.inc("received_rate")
         t, v = convert.vector3_values(msg)
-        if self.node._bad_stamp("rate", t, msg):
+        if self.node._bad_stamp("rate", t, *convert.header_parts(msg)):
             return
         order = self._order("rate", t, self._last_rate_t)
         if order == "drop":
@@ -452,7 +452,7 @@ class AttitudeMode:
         self.inputs.seen(self.control_name)
         self.counters.inc("received_control")
         t, v = convert.vector3_values(msg)
-        if self.node._bad_stamp("control", t, msg):
+        if self.node._bad_stamp("control", t, *convert.header_parts(msg)):
             return
         if not np.all(np.isfinite(v[self._axes])):
             self.node._drop("control_nonfinite", f"control at t={t:.3f} s: non-finite command "

@@ -11,6 +11,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from . import wire
+
 AXES = ("x", "y", "z")
 AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 
@@ -19,7 +21,7 @@ AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 
 def stamp_to_s(stamp: Any) -> float:
     """builtin_interfaces/Time -> float seconds."""
-    return stamp.sec + stamp.nanosec * 1e-9
+    return parts_to_s(stamp.sec, stamp.nanosec)
 
 
 #: seconds a builtin_interfaces/Time can hold (int32 sec, nanosec in [0, 1e9))
@@ -36,15 +38,32 @@ def stamp_fits(t: float) -> bool:
     return STAMP_MIN_S * 1_000_000_000 <= int(round(t * 1e9)) < 2**31 * 1_000_000_000
 
 
-def s_to_stamp(t: float):
-    """float seconds -> builtin_interfaces/Time (nanoseconds rounded). Negative times (sec < 0,
-    nanosec >= 0) are valid stamps; ValueError when ``t`` does not fit (``stamp_fits``)."""
-    from builtin_interfaces.msg import Time
-
+def stamp_parts(t: float) -> tuple[int, int]:
+    """float seconds -> (sec, nanosec) of a builtin_interfaces/Time (nanoseconds rounded).
+    Negative times (sec < 0, nanosec >= 0) are valid stamps; ValueError when ``t`` does not
+    fit (``stamp_fits``)."""
     if not stamp_fits(t):
         raise ValueError(f"cannot convert {t!r} s to a ROS time stamp")
-    ns = int(round(t * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    return divmod(int(round(t * 1e9)), 1_000_000_000)
+
+
+def header_parts(msg: Any) -> tuple[int, int]:
+    """(sec, nanosec) of a stamped message's header."""
+    st = msg.header.stamp
+    return st.sec, st.nanosec
+
+
+def parts_to_s(sec: int, nanosec: int) -> float:
+    """(sec, nanosec) of a received stamp -> float seconds (as :func:`stamp_to_s`)."""
+    return sec + nanosec * 1e-9
+
+
+def s_to_stamp(t: float):
+    """float seconds -> builtin_interfaces/Time (see :func:`stamp_parts`)."""
+    from builtin_interfaces.msg import Time
+
+    sec, nanosec = stamp_parts(t)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def header(stamp, frame_id: str = ""):
@@ -70,6 +89,21 @@ def twist_cov_velocity(msg: Any) -> tuple[float, np.ndarray, np.ndarray]:
     cov = tw.covariance
     var = np.array([cov[0], cov[7], cov[14]], dtype=float)
     return stamp_to_s(msg.header.stamp), np.array([lin.x, lin.y, lin.z], dtype=float), var
+
+
+def twist_velocity_raw(data: bytes) -> tuple[int, int, tuple[float, float, float]]:
+    """Serialized geometry_msgs/TwistStamped -> (sec, nanosec, linear velocity (x, y, z)),
+    straight from the CDR bytes (:mod:`.wire`; WireError when malformed)."""
+    sec, nanosec, x, y, z = wire.decode_twist_stamped(data)
+    return sec, nanosec, (x, y, z)
+
+
+def twist_cov_velocity_raw(data: bytes) -> tuple[int, int, tuple[float, float, float],
+                                                  tuple[float, float, float]]:
+    """Serialized geometry_msgs/TwistWithCovarianceStamped -> (sec, nanosec, linear velocity,
+    variance of each linear axis) -- what :func:`twist_cov_velocity` gives, from the bytes."""
+    sec, nanosec, x, y, z, c0, c7, c14 = wire.decode_twist_cov_stamped(data)
+    return sec, nanosec, (x, y, z), (c0, c7, c14)
 
 
 def twist_stamped(t: float, v: Sequence[float], frame_id: str = ""):
@@ -113,6 +147,25 @@ def _flat(a: Any) -> array.array:
     return array.array("d", np.ascontiguousarray(a, dtype=float).reshape(-1).tobytes())
 
 
+def _innovation_fields(channel: str, row_names: Sequence[str], result: Any,
+                       row_failed: Sequence[bool] | None,
+                       row_excluded: Sequence[bool] | None) -> dict:
+    """The fields of flight_fdi_msgs/Innovation after the header (plain Python values)."""
+    nu = np.asarray(result.nu, dtype=float).reshape(-1)
+    m = nu.size
+    S = np.asarray(result.S, dtype=float).reshape(m, m)
+    failed = [False] * m if row_failed is None else [bool(f) for f in row_failed]
+    excluded = [False] * m if row_excluded is None else [bool(f) for f in row_excluded]
+    if len(row_names) != m or len(failed) != m or len(excluded) != m:
+        raise ValueError(f"innovation: {m} rows but {len(row_names)} names, "
+                         f"{len(failed)} failed and {len(excluded)} excluded flags")
+    return dict(channel=channel, row_names=list(row_names), innovation=nu.tolist(),
+                innovation_covariance=S.reshape(-1).tolist(), beta2=float(result.beta2),
+                gate_threshold=float(result.threshold), gate_exceeded=bool(result.exceeded),
+                alarm_state=int(result.alarm_state), row_beta2=(nu**2 / np.diag(S)).tolist(),
+                row_excluded=excluded, row_failed=failed)
+
+
 def innovation_msg(stamp, channel: str, row_names: Sequence[str], result: Any,
                    row_failed: Sequence[bool] | None = None,
                    row_excluded: Sequence[bool] | None = None):
@@ -122,20 +175,30 @@ def innovation_msg(stamp, channel: str, row_names: Sequence[str], result: Any,
     out or inflated in this update (see filter_node)."""
     from flight_fdi_msgs.msg import Innovation
 
-    nu = np.asarray(result.nu, dtype=float).reshape(-1)
-    S = np.asarray(result.S, dtype=float).reshape(nu.size, nu.size)
-    m = nu.size
-    failed = [False] * m if row_failed is None else [bool(f) for f in row_failed]
-    excluded = [False] * m if row_excluded is None else [bool(f) for f in row_excluded]
-    if len(row_names) != m or len(failed) != m or len(excluded) != m:
-        raise ValueError(f"innovation_msg: {m} rows but {len(row_names)} names, "
-                         f"{len(failed)} failed and {len(excluded)} excluded flags")
-    return Innovation(
-        header=header(stamp), channel=channel, row_names=list(row_names),
-        innovation=_flat(nu), innovation_covariance=_flat(S),
-        beta2=float(result.beta2), gate_threshold=float(result.threshold),
-        gate_exceeded=bool(result.exceeded), alarm_state=int(result.alarm_state),
-        row_beta2=_flat(nu**2 / np.diag(S)), row_excluded=excluded, row_failed=failed)
+    return Innovation(header=header(stamp),
+                      **_innovation_fields(channel, row_names, result, row_failed, row_excluded))
+
+
+def innovation_bytes(stamp: tuple[int, int], channel: str, row_names: Sequence[str],
+                     result: Any, row_failed: Sequence[bool] | None = None,
+                     row_excluded: Sequence[bool] | None = None) -> bytes:
+    """:func:`innovation_msg` serialized (``stamp`` = (sec, nanosec)), without building the
+    message: what the filter node publishes per update (the same bytes rclpy would send)."""
+    return wire.encode_innovation(stamp[0], stamp[1], "", **_innovation_fields(
+        channel, row_names, result, row_failed, row_excluded))
+
+
+def _floats(a: Any) -> list[float]:
+    return np.asarray(a, dtype=float).reshape(-1).tolist()
+
+
+def _filter_state_fields(channel: str, state_names: Sequence[str], x: Any, P: Any, z: Any,
+                         R: Any, H: Any, u: Any, dt: float, fused: bool, gated: bool,
+                         reset: bool) -> dict:
+    """The fields of flight_fdi_msgs/FilterState after the header (plain Python values)."""
+    return dict(channel=channel, state_names=list(state_names), x=_floats(x), p=_floats(P),
+                z=_floats(z), r=_floats(R), h=_floats(H), u=_floats(u), dt=float(dt),
+                fused=bool(fused), gated=bool(gated), reset=bool(reset))
 
 
 def filter_state_msg(stamp, channel: str, state_names: Sequence[str], x: Any, P: Any,
@@ -144,10 +207,18 @@ def filter_state_msg(stamp, channel: str, state_names: Sequence[str], x: Any, P:
     """flight_fdi_msgs/FilterState: x(i/i), P(i/i) and the measurement step that produced them."""
     from flight_fdi_msgs.msg import FilterState
 
-    return FilterState(
-        header=header(stamp), channel=channel, state_names=list(state_names),
-        x=_flat(x), p=_flat(P), z=_flat(z), r=_flat(R), h=_flat(H), u=_flat(u),
-        dt=float(dt), fused=bool(fused), gated=bool(gated), reset=bool(reset))
+    return FilterState(header=header(stamp), **_filter_state_fields(
+        channel, state_names, x, P, z, R, H, u, dt, fused, gated, reset))
+
+
+def filter_state_bytes(stamp: tuple[int, int], channel: str, state_names: Sequence[str],
+                       x: Any, P: Any, z: Any = (), R: Any = (), H: Any = (), u: Any = (),
+                       dt: float = 0.0, fused: bool = False, gated: bool = False,
+                       reset: bool = False) -> bytes:
+    """:func:`filter_state_msg` serialized (``stamp`` = (sec, nanosec)), without building
+    the message."""
+    return wire.encode_filter_state(stamp[0], stamp[1], "", **_filter_state_fields(
+        channel, state_names, x, P, z, R, H, u, dt, fused, gated, reset))
 
 
 def model_info_msg(stamp, channel: str, model: Any, gate: Any):

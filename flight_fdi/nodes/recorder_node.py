@@ -54,6 +54,7 @@ from rclpy.node import Node
 
 from flight_fdi.bagio.errors import BagError
 
+from .clockutil import ClockReader
 from .params import ParamSpec, declare_parameters, fail
 
 if sys.version_info >= (3, 14):  # pragma: no cover
@@ -663,6 +664,8 @@ class RecorderNode(Node):
         except BagError as exc:
             fail("output", p["output"], f"a path where a new bag can be created ({exc})")
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._steady_reader = ClockReader(self._steady)
+        self._clock_reader = ClockReader(self.get_clock())  # receive times: node clock
         self.error = ""          # first write error; recording stops after it
         self.topic_errors: dict[str, str] = {}   # topics that cannot be recorded, and why
         self.last_receive = float("nan")
@@ -734,10 +737,10 @@ class RecorderNode(Node):
                 if not qos:  # graph not updated yet: store what the subscription asked for
                     qos = [offered_qos(self._subs[topic].qos_profile)]
                 self.bag.add_topic(topic, msgtype, qos)
-            self.bag.write(topic, self.get_clock().now().nanoseconds, data)
+            self.bag.write(topic, self._clock_reader.now_ns(), data)
         except BagError as exc:
             self._fail(str(exc))
-        self.last_receive = self._steady.now().nanoseconds * 1e-9
+        self.last_receive = self._steady_reader.now_s()
 
     def _fail(self, message: str) -> None:
         if not self.error:

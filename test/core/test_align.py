@@ -69,11 +69,12 @@ def test_bad_max_gap_raises(gap):
         StreamingAligner(max_gap_s=gap)
 
 
-def test_streaming_equals_batch():
+@pytest.mark.parametrize("vector", [True, False])
+def test_streaming_equals_batch(vector):
     rng = np.random.default_rng(7)
     t_ins = np.cumsum(0.02 + 0.002 * rng.standard_normal(3000).clip(-5, 5))
     t_ins = np.delete(t_ins, np.r_[400:450, 1500:1530])  # two dropouts (1.0 s and 0.6 s)
-    v_ins = np.column_stack([np.sin(t_ins), np.cos(0.3 * t_ins)])
+    v_ins = np.column_stack([np.sin(t_ins), np.cos(0.3 * t_ins)]) if vector else np.sin(t_ins)
     t_ref = np.arange(t_ins[0] - 0.2, t_ins[-1] + 0.3, 0.1)
     valid, v_batch = align_to_reference(t_ins, v_ins, t_ref, max_gap_s=0.5)
     assert (~valid).sum() >= 10  # the dropouts and the ends
@@ -83,7 +84,7 @@ def test_streaming_equals_batch():
     got = {}
     reasons = {}
     for ti, vi in zip(t_ins, v_ins):
-        aligner.add_ins(ti, vi)
+        aligner.add_ins(ti, vi if vector else float(vi))
         # a node answers a reference stamp as soon as it can (value, or a final "gap")
         while pending:
             value = aligner.at(pending[0])
@@ -99,7 +100,8 @@ def test_streaming_equals_batch():
     for tr, ok, vb in zip(t_ref, valid, v_batch):
         if ok:
             assert reasons[tr] == "ok"
-            np.testing.assert_array_equal(got[tr], vb)
+            np.testing.assert_array_equal(got[tr], vb)  # bit for bit
+            assert isinstance(got[tr], np.ndarray if vector else float)
         else:
             assert got[tr] is None
             assert reasons[tr] in ("gap", "too_old", "waiting")

@@ -331,3 +331,37 @@ def test_streaming_bad_input_raises_and_leaves_the_filter_unchanged():
     kf.reset()
     np.testing.assert_array_equal(kf.P, model.P0)
     assert not kf.alarm_active
+
+
+def test_step1_on_plain_numbers_equals_step_and_validates():
+    from flight_fdi.core.errors import CoreError
+    from flight_fdi.core.kalman import GateConfig, KalmanFilter
+    from flight_fdi.core.models import attitude_axis, ins_channel
+
+    rng = np.random.default_rng(21)
+    model = ins_channel()
+    gate = GateConfig(action="reject")
+    a, b = KalmanFilter(model, gate), KalmanFilter(model, gate)
+    for k in range(300):
+        dt = 0.0 if k == 0 else float(rng.uniform(0.05, 0.15))
+        z = float(rng.normal(0.0, 0.1)) + (5.0 if k % 50 == 49 else 0.0)  # some gated
+        r = float(rng.uniform(0.005, 0.02))
+        ra, rb = a.step(dt, [z], [[r]]), b.step1(dt, z, r)
+        assert (ra.beta2, ra.exceeded, ra.fused, ra.alarm_state) == \
+            (rb.beta2, rb.exceeded, rb.fused, rb.alarm_state)
+        np.testing.assert_array_equal(ra.nu, rb.nu)
+        np.testing.assert_array_equal(ra.S, rb.S)
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.P, b.P)
+    x_before = b.x
+    for args, match in [((0.1, float("nan"), 0.01), "NaN or Inf"),
+                        ((0.1, 0.0, float("inf")), "NaN or Inf"),
+                        ((0.1, 0.0, -1.0), "negative"), ((-0.1, 0.0, 0.01), "dt must be >= 0"),
+                        ((0.1, "a", 0.01), "must be numbers")]:
+        with pytest.raises(CoreError, match=match):
+            b.step1(*args)
+    np.testing.assert_array_equal(b.x, x_before)
+    two_rows = attitude_axis(sigma_rate=1e-3)
+    assert two_rows.m == 2
+    with pytest.raises(CoreError, match="one-row model"):
+        KalmanFilter(two_rows).step1(0.1, 0.0, 0.01)
