@@ -765,6 +765,7 @@ class KalmanFilter:
         self._h = self._sm.H[0].tolist()
         self._h_pattern = tuple(bool(v) for v in self._sm.H[0] != 0)
         self._threshold1 = gate.threshold(1)
+        self._lists: tuple | None = None  # (s, SS row-major, tri index per entry) of state_lists
         self._alarm = AlarmLogic(gate.alarm_m, gate.alarm_n)
         self._reject = gate.action == "reject"
         self.reset(x0, P0)
@@ -787,6 +788,20 @@ class KalmanFilter:
     def P(self) -> np.ndarray:
         """Current covariance, physical units."""
         return _tri_to_full(self._P, self._sm.n) * self._sm.SS
+
+    def state_lists(self) -> tuple[list[float], list[float]]:
+        """(x, P row-major) in physical units as plain lists: the same numbers as ``x`` and
+        ``P.ravel()`` (the same products), for a node's per-message output without NumPy."""
+        n = self._sm.n
+        if self._lists is None:
+            iu, ju = _triu(n)
+            k_of = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(iu, ju))}
+            self._lists = (self._sm.s.tolist(), self._sm.SS.ravel().tolist(),
+                           [k_of[min(i, j), max(i, j)] for i in range(n) for j in range(n)])
+        s, ss, index = self._lists
+        x, P = self._x, self._P
+        return ([x[i] * s[i] for i in range(n)],
+                [P[k] * ss[a] for a, k in enumerate(index)])
 
     @property
     def alarm_active(self) -> bool:

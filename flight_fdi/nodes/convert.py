@@ -147,22 +147,39 @@ def _flat(a: Any) -> array.array:
     return array.array("d", np.ascontiguousarray(a, dtype=float).reshape(-1).tobytes())
 
 
+def _floats(a: Any) -> list[float]:
+    """Row-major float values as a list (a list of floats is taken as it is)."""
+    if type(a) is list and all(type(v) is float for v in a):
+        return a
+    return np.asarray(a, dtype=float).reshape(-1).tolist()
+
+
+def _over(a: float, b: float) -> float:
+    """a / b with NumPy's result for b = 0 (inf, or NaN for 0 / 0) instead of an exception."""
+    if b == 0.0:
+        return math.nan if a == 0.0 or math.isnan(a) else math.copysign(math.inf, a)
+    return a / b
+
+
 def _innovation_fields(channel: str, row_names: Sequence[str], result: Any,
                        row_failed: Sequence[bool] | None,
                        row_excluded: Sequence[bool] | None) -> dict:
     """The fields of flight_fdi_msgs/Innovation after the header (plain Python values)."""
-    nu = np.asarray(result.nu, dtype=float).reshape(-1)
-    m = nu.size
-    S = np.asarray(result.S, dtype=float).reshape(m, m)
+    nu = _floats(result.nu)
+    m = len(nu)
+    S = _floats(result.S)
+    if len(S) != m * m:
+        raise ValueError(f"innovation: S has {len(S)} entries for {m} rows")
     failed = [False] * m if row_failed is None else [bool(f) for f in row_failed]
     excluded = [False] * m if row_excluded is None else [bool(f) for f in row_excluded]
     if len(row_names) != m or len(failed) != m or len(excluded) != m:
         raise ValueError(f"innovation: {m} rows but {len(row_names)} names, "
                          f"{len(failed)} failed and {len(excluded)} excluded flags")
-    return dict(channel=channel, row_names=list(row_names), innovation=nu.tolist(),
-                innovation_covariance=S.reshape(-1).tolist(), beta2=float(result.beta2),
+    return dict(channel=channel, row_names=list(row_names), innovation=nu,
+                innovation_covariance=S, beta2=float(result.beta2),
                 gate_threshold=float(result.threshold), gate_exceeded=bool(result.exceeded),
-                alarm_state=int(result.alarm_state), row_beta2=(nu**2 / np.diag(S)).tolist(),
+                alarm_state=int(result.alarm_state),
+                row_beta2=[_over(nu[k] ** 2, S[k * m + k]) for k in range(m)],
                 row_excluded=excluded, row_failed=failed)
 
 
@@ -188,8 +205,6 @@ def innovation_bytes(stamp: tuple[int, int], channel: str, row_names: Sequence[s
         channel, row_names, result, row_failed, row_excluded))
 
 
-def _floats(a: Any) -> list[float]:
-    return np.asarray(a, dtype=float).reshape(-1).tolist()
 
 
 def _filter_state_fields(channel: str, state_names: Sequence[str], x: Any, P: Any, z: Any,

@@ -484,6 +484,7 @@ class FilterNode(Node):
         self._axes = np.array([convert.AXIS_INDEX[a] for a in axes])
         self._axes_list = self._axes.tolist()
         self._h = np.asarray(self.model.H, dtype=float)
+        self._h_list = self._h.reshape(-1).tolist()
         self._new_aligner()
         self._pending: deque[_Epoch] = deque()
         self._last_ref_t: float | None = None     # newest reference stamp (any topic)
@@ -847,9 +848,10 @@ class FilterNode(Node):
             self._count(ch, t, res, now)
             self.pub_innovation.publish(
                 convert.innovation_bytes(stamp, ch.name, self._row_names, res))
+            x, P = ch.kf.state_lists()
             states.append(convert.filter_state_bytes(
-                stamp, ch.name, self.model.state_names, ch.kf.x, ch.kf.P, z=(z,), R=(r,),
-                H=self._h, dt=dt, fused=res.fused, gated=res.exceeded, reset=reset))
+                stamp, ch.name, self.model.state_names, x, P, z=[z], R=[r], H=self._h_list,
+                dt=dt, fused=res.fused, gated=res.exceeded, reset=reset))
         for msg in states:
             self.pub_state.publish(msg)
 

@@ -353,6 +353,8 @@ def test_step1_on_plain_numbers_equals_step_and_validates():
         np.testing.assert_array_equal(ra.S, rb.S)
     np.testing.assert_array_equal(a.x, b.x)
     np.testing.assert_array_equal(a.P, b.P)
+    xl, Pl = b.state_lists()  # the node's plain-list view: the same numbers
+    assert xl == b.x.tolist() and Pl == b.P.ravel().tolist()
     x_before = b.x
     for args, match in [((0.1, float("nan"), 0.01), "NaN or Inf"),
                         ((0.1, 0.0, float("inf")), "NaN or Inf"),

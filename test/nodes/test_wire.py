@@ -349,3 +349,32 @@ def test_bad_filter_state_value_is_a_wire_error(field, value, match):
     wire.encode_filter_state(0, 0, **OK_FILTER_STATE)
     with pytest.raises(wire.WireError, match=match):
         wire.encode_filter_state(0, 0, **{**OK_FILTER_STATE, field: value})
+
+
+def test_convert_bytes_equal_the_messages_the_node_used_to_build():
+    """convert.innovation_bytes / filter_state_bytes decode to innovation_msg / filter_state_msg
+    (one field mapping), including a row with S = 0 (row beta2 as NumPy gives it: inf, NaN)."""
+    from types import SimpleNamespace
+
+    from flight_fdi.nodes import convert
+
+    res = SimpleNamespace(nu=np.array([0.5, 0.0, 2.0]), S=np.diag([0.25, 0.0, 0.0]), beta2=1.0,
+                          threshold=9.0, exceeded=False, alarm_state=0)
+    stamp = convert.s_to_stamp(12.5)
+    want = convert.innovation_msg(stamp, "x", ["a", "b", "c"], res, row_failed=[0, 1, 0])
+    got = deserialize_message(convert.innovation_bytes((12, 500_000_000), "x", ["a", "b", "c"],
+                                                       res, row_failed=[0, 1, 0]), Innovation)
+    assert got.header.stamp == want.header.stamp and got.row_failed == want.row_failed
+    for name in ("innovation", "innovation_covariance", "row_beta2"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    np.testing.assert_array_equal(got.row_beta2, [1.0, np.nan, np.inf])
+    x, P = [1.0, 2.0], np.array([[1.0, 0.5], [0.5, 2.0]])
+    want = convert.filter_state_msg(stamp, "x", ["p", "v"], x, P, z=[0.1], R=[[0.01]],
+                                    H=[[1.0, 0.0]], dt=0.1, fused=True)
+    got = deserialize_message(convert.filter_state_bytes(
+        (12, 500_000_000), "x", ["p", "v"], x, P, z=[0.1], R=[[0.01]], H=[[1.0, 0.0]], dt=0.1,
+        fused=True), FilterState)
+    for name in ("x", "p", "z", "r", "h", "u"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    assert (got.dt, got.fused, got.gated, got.reset) == (want.dt, want.fused, want.gated,
+                                                        want.reset)
