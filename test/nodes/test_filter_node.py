@@ -14,6 +14,7 @@ import sys
 
 import numpy as np
 import pytest
+from rclpy.serialization import serialize_message
 from scipy.stats import norm
 
 from flight_fdi.nodes import convert
@@ -332,6 +333,27 @@ def test_bad_input_is_dropped_counted_and_survived(ros):
     n_before = len(rig.states)
     rig.feed(events(*flight(1.0, seed=4, t0=T0 + 10.0)))
     ros.spin_until(lambda: len(rig.states) >= n_before + 18, what="filtering after bad input")
+
+    # bytes that are not the message type (only a broken publisher sends them; the node reads
+    # the raw CDR): dropped, counted, reported, survived
+    good_ins = bytes(serialize_message(convert.twist_stamped(T0 + 20.0, [1.0, 2.0, 3.0])))
+    good_ref = bytes(serialize_message(convert.twist_cov_stamped(T0 + 20.0, [1.0, 2.0, 3.0],
+                                                                 0.01)))
+    for data in (good_ins[:30], b"\x07\x01\x00\x00" + good_ins[4:]):
+        rig.pub_ins.publish(data)
+    rig.pub_ref.publish(good_ref[:60])
+    rig.sent_ins += 2
+    rig.sent_ref += 1
+    ros.spin_until(lambda: c["dropped_ins_malformed"] == 2
+                   and c["dropped_reference_malformed"] == 1, what="malformed bytes counted")
+    for _ in range(5):  # (a diagnostics message already on its way may predate them)
+        v = _values(rig.next_diagnostics()["filter_node: inputs"])
+        if "dropped_ins_malformed" in v:
+            break
+    assert v["dropped_ins_malformed"] == "2" and v["dropped_reference_malformed"] == "1"
+    n_before = len(rig.states)
+    rig.feed(events(*flight(1.0, seed=5, t0=T0 + 30.0)))
+    ros.spin_until(lambda: len(rig.states) >= n_before + 8, what="filtering after bad bytes")
 
 
 def test_reference_dropout_warns_then_recovers(ros):
