@@ -68,10 +68,16 @@ class PipelineRun:
 
 @contextmanager
 def _private_context(log_args: list[str]) -> Iterator[Any]:
-    """An rclpy Context whose nodes discover nothing outside this process."""
+    """An rclpy Context whose nodes discover nothing outside this process.
+
+    ``log_args`` (e.g. ``--log-level warn``) set rcutils' *process-wide* default logger level;
+    it is put back when the context ends, so that nodes created later in the same process (a
+    test run, a notebook) log as before."""
     import rclpy
+    import rclpy.logging
     from rclpy.context import Context
 
+    default_level = rclpy.logging.get_logger_effective_level("")
     ctx = Context()
     key = "ROS_AUTOMATIC_DISCOVERY_RANGE"
     saved = os.environ.get(key)
@@ -88,6 +94,7 @@ def _private_context(log_args: list[str]) -> Iterator[Any]:
     finally:
         if ctx.ok():
             rclpy.shutdown(context=ctx)
+        rclpy.logging.set_logger_level("", default_level)
 
 
 def _make_executor(kind: str, ctx: Any):

@@ -201,3 +201,18 @@ def test_filter_and_recorder_as_separate_processes(ros, short_bag, tmp_path):
     assert not smoother.last.error
     res = dict(smoother.last.result, bag=str(short_bag))
     assert_same_result(res, expected_result(short_bag))
+
+
+def test_the_pipeline_log_level_does_not_outlive_its_context():
+    """``--log-level`` sets rcutils' process-wide default level: the private context puts it
+    back, or every node created later in the process (e.g. the next test's filter_node) would
+    stay silent on /rosout below that level."""
+    import rclpy.logging
+
+    from flight_fdi.nodes.pipeline import _private_context
+
+    before = rclpy.logging.get_logger_effective_level("filter_node")
+    with _private_context(["--log-level", "fatal"]):
+        assert rclpy.logging.get_logger_effective_level("filter_node") == \
+            rclpy.logging.LoggingSeverity.FATAL
+    assert rclpy.logging.get_logger_effective_level("filter_node") == before
