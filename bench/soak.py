@@ -126,14 +126,15 @@ def run_soak(n_messages: int = 1_000_000, block: int = 50_000, executor: str = "
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     from flight_fdi.nodes.filter_node import FilterNode
-    from flight_fdi.nodes.pipeline import _make_executor, _private_context
+    from flight_fdi.nodes.pipeline import _private_context
+    from flight_fdi.nodes.runner import make_executor
     from flight_fdi.nodes.recorder_node import RecorderNode
 
     tmp = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="fdi_soak_"))
     bag = tmp / "soak_bag"
     rows: list[dict] = []
     with _private_context(["--log-level", "error"]) as ctx:
-        ex = _make_executor(executor, ctx)
+        ex = make_executor(executor, ctx)
         kw = {"context": ctx, "start_parameter_services": False}
         flt = FilterNode(parameter_overrides=[Parameter("input_qos", value="reliable"),
                                               Parameter("input_queue_depth", value=1000)], **kw)

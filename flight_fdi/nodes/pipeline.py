@@ -41,6 +41,7 @@ from typing import Any, Iterator
 from flight_fdi.bagio.errors import BagError
 
 from .errors import ParameterError
+from .runner import make_executor
 
 
 class PipelineError(RuntimeError):
@@ -95,20 +96,6 @@ def _private_context(log_args: list[str]) -> Iterator[Any]:
         if ctx.ok():
             rclpy.shutdown(context=ctx)
         rclpy.logging.set_logger_level("", default_level)
-
-
-def _make_executor(kind: str, ctx: Any):
-    from rclpy.executors import SingleThreadedExecutor
-
-    if kind == "events":
-        try:
-            from rclpy.experimental import EventsExecutor
-        except ImportError:  # an rclpy without it: the Python executor works, slower
-            return SingleThreadedExecutor(context=ctx)
-        return EventsExecutor(context=ctx)
-    if kind == "single":
-        return SingleThreadedExecutor(context=ctx)
-    raise ParameterError(f"invalid executor {kind!r}; allowed: events, single")
 
 
 def filter_parameters(config: Any, channel: str, model: str) -> dict[str, Any]:
@@ -167,7 +154,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
 
     node_kwargs = {"start_parameter_services": False}
     with _private_context(["--log-level", log_level]) as ctx:
-        ex = _make_executor(executor, ctx)
+        ex = make_executor(executor, ctx)
         nodes: list[Any] = []
 
         def add(node: Any) -> Any:

@@ -556,3 +556,33 @@ def test_counters_levels_and_status():
     s = diag.make_status("n", diag.WARN, "msg", {"a": 1.5, "b": None, "c": math.nan, "d": True})
     assert s.level == diag.WARN and [(kv.key, kv.value) for kv in s.values] == [
         ("a", "1.5"), ("b", "never"), ("c", "nan"), ("d", "true")]
+
+
+@pytest.mark.parametrize("executor", ["single", "events"])
+def test_main_runs_on_the_chosen_executor_until_sigint(repo_root, executor):
+    import signal
+
+    env = dict(os.environ, PYTHONPATH=str(repo_root), ROS_AUTOMATIC_DISCOVERY_RANGE="OFF")
+    proc = subprocess.Popen(
+        [sys.executable, "-u", "-m", "flight_fdi.nodes.filter_node", "--executor", executor,
+         "--ros-args", "-p", "diagnostics_period_s:=0.2"], stderr=subprocess.PIPE, text=True,
+        env=env, cwd=repo_root)
+    try:
+        for line in proc.stderr:  # the node logs its configuration once it spins
+            if "filtering channels" in line:
+                break
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stderr.close()
+
+
+def test_main_refuses_an_unknown_executor(repo_root):
+    env = dict(os.environ, PYTHONPATH=str(repo_root))
+    proc = subprocess.run([sys.executable, "-m", "flight_fdi.nodes.filter_node", "--executor",
+                           "threads"], capture_output=True, text=True, timeout=60, env=env,
+                          cwd=repo_root)
+    assert proc.returncode == 2
+    assert "invalid choice: 'threads'" in proc.stderr and "Traceback" not in proc.stderr
