@@ -70,12 +70,12 @@ def default_jobs() -> int:
 
 def analyze_bag(bag: str, args: argparse.Namespace) -> dict:
     from flight_fdi.bagio import read_flight
-    from flight_fdi.core.forked import fork_call
+    from flight_fdi.core.forked import ForkedCall
 
     # with two jobs the bag is read in a forked child while this process imports the estimation
     # core (SciPy: ~0.5 s); errors of either side come out here, the child never outlives this
-    reading = fork_call if getattr(args, "jobs", 1) == 2 else _call_here
-    with reading(read_flight, bag, channel=args.channel, with_truth=False) as job:
+    with ForkedCall(read_flight, (bag,), {"channel": args.channel, "with_truth": False},
+                    fork=getattr(args, "jobs", 1) == 2) as job:
         from flight_fdi.core.analysis import analyze_flight
         from flight_fdi.core.models import get_model
 
@@ -85,12 +85,6 @@ def analyze_bag(bag: str, args: argparse.Namespace) -> dict:
     # times relative to the first INS/reference message, exact from integer nanoseconds
     return analyze_flight(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
                           flight.r_ref, config, bag=str(bag), channel=args.channel, t0=0.0)
-
-
-def _call_here(fn, *args, **kwargs):
-    from flight_fdi.core.forked import ForkedCall
-
-    return ForkedCall(fn, args, kwargs, fork=False)
 
 
 def _fmt(value, spec: str = ".3g", none: str = "-") -> str:

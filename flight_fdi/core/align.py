@@ -10,8 +10,8 @@ A stamp that coincides with an INS sample takes that sample. No value is produce
 the bracketing samples are more than ``max_gap_s`` apart (a dropout: interpolating across it would
 invent data), or when the stamp is outside the span of the INS samples (no extrapolation).
 
-Two front ends share that one algorithm (the bracket rule of :func:`_bracket` and the arithmetic
-of :func:`_lerp`):
+Two front ends apply that one rule (bracket ``t_i <= t < t_{i+1}``, an exact stamp takes the
+sample, a bracket wider than ``max_gap_s`` gives nothing) with the one formula :func:`_lerp`:
 
 * :func:`align_to_reference` -- a whole record (post-flight, bag replay), vectorised
   (:func:`interpolate_at`);

@@ -765,7 +765,12 @@ class KalmanFilter:
         self._h = self._sm.H[0].tolist()
         self._h_pattern = tuple(bool(v) for v in self._sm.H[0] != 0)
         self._threshold1 = gate.threshold(1)
-        self._lists: tuple | None = None  # (s, SS row-major, tri index per entry) of state_lists
+        # for state_lists: s, SS row-major, and the upper-triangle index of every P entry
+        iu, ju = _triu(model.n)
+        k_of = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(iu, ju))}
+        self._lists = (self._sm.s.tolist(), self._sm.SS.ravel().tolist(),
+                       [k_of[min(i, j), max(i, j)] for i in range(model.n)
+                        for j in range(model.n)])
         self._alarm = AlarmLogic(gate.alarm_m, gate.alarm_n)
         self._reject = gate.action == "reject"
         self.reset(x0, P0)
@@ -793,11 +798,6 @@ class KalmanFilter:
         """(x, P row-major) in physical units as plain lists: the same numbers as ``x`` and
         ``P.ravel()`` (the same products), for a node's per-message output without NumPy."""
         n = self._sm.n
-        if self._lists is None:
-            iu, ju = _triu(n)
-            k_of = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(iu, ju))}
-            self._lists = (self._sm.s.tolist(), self._sm.SS.ravel().tolist(),
-                           [k_of[min(i, j), max(i, j)] for i in range(n) for j in range(n)])
         s, ss, index = self._lists
         x, P = self._x, self._P
         return ([x[i] * s[i] for i in range(n)],

@@ -74,23 +74,6 @@ def header(stamp, frame_id: str = ""):
 
 # --- inputs ------------------------------------------------------------------------------------
 
-def twist_velocity(msg: Any) -> tuple[float, np.ndarray]:
-    """geometry_msgs/TwistStamped -> (t [s], linear velocity (3,) [m/s])."""
-    lin = msg.twist.linear
-    return stamp_to_s(msg.header.stamp), np.array([lin.x, lin.y, lin.z], dtype=float)
-
-
-def twist_cov_velocity(msg: Any) -> tuple[float, np.ndarray, np.ndarray]:
-    """geometry_msgs/TwistWithCovarianceStamped -> (t [s], linear velocity (3,) [m/s],
-    variance of each linear axis (3,) [m^2/s^2], the diagonal of the 6x6 covariance; not
-    checked here — the caller decides what a valid variance is)."""
-    tw = msg.twist
-    lin = tw.twist.linear
-    cov = tw.covariance
-    var = np.array([cov[0], cov[7], cov[14]], dtype=float)
-    return stamp_to_s(msg.header.stamp), np.array([lin.x, lin.y, lin.z], dtype=float), var
-
-
 def twist_velocity_raw(data: bytes) -> tuple[int, int, tuple[float, float, float]]:
     """Serialized geometry_msgs/TwistStamped -> (sec, nanosec, linear velocity (x, y, z)),
     straight from the CDR bytes (:mod:`.wire`; WireError when malformed)."""
@@ -101,7 +84,8 @@ def twist_velocity_raw(data: bytes) -> tuple[int, int, tuple[float, float, float
 def twist_cov_velocity_raw(data: bytes) -> tuple[int, int, tuple[float, float, float],
                                                   tuple[float, float, float]]:
     """Serialized geometry_msgs/TwistWithCovarianceStamped -> (sec, nanosec, linear velocity,
-    variance of each linear axis) -- what :func:`twist_cov_velocity` gives, from the bytes."""
+    variance of each linear axis: the diagonal of the 6x6 covariance, not checked here -- the
+    caller decides what a valid variance is), from the bytes."""
     sec, nanosec, x, y, z, c0, c7, c14 = wire.decode_twist_cov_stamped(data)
     return sec, nanosec, (x, y, z), (c0, c7, c14)
 
@@ -203,8 +187,6 @@ def innovation_bytes(stamp: tuple[int, int], channel: str, row_names: Sequence[s
     message: what the filter node publishes per update (the same bytes rclpy would send)."""
     return wire.encode_innovation(stamp[0], stamp[1], "", **_innovation_fields(
         channel, row_names, result, row_failed, row_excluded))
-
-
 
 
 def _filter_state_fields(channel: str, state_names: Sequence[str], x: Any, P: Any, z: Any,

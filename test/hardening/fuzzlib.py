@@ -21,7 +21,7 @@ import math
 import os
 from typing import Any, Callable, Iterable, Sequence
 
-from hypothesis import HealthCheck, Phase
+from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 #: common hypothesis settings: reproducible (derandomized, no example database), no deadline
@@ -247,3 +247,18 @@ class NodeUnderTest:
             self.ros.executor.remove_node(self.node)
             self.node.destroy_node()
             self.node = None
+
+
+def run_examples(rig: Any, strategy: st.SearchStrategy, max_examples: int) -> None:
+    """Run ``rig.run(example)`` for ``max_examples`` drawn examples (``SETTINGS``), then
+    ``rig.close()`` whatever happened."""
+
+    @settings(max_examples=max_examples, **SETTINGS)
+    @given(strategy)
+    def run(example):
+        rig.run(example)
+
+    try:
+        run()
+    finally:
+        rig.close()

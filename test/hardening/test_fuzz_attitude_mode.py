@@ -18,7 +18,6 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hardening import fuzzlib as fz
@@ -136,14 +135,5 @@ class AttitudeFuzz:
 
 def test_fuzzed_attitude_inputs_never_crash_publish_only_finite_numbers_and_are_counted(ros):
     fuzz = AttitudeFuzz(ros)
-
-    @settings(max_examples=30, **fz.SETTINGS)
-    @given(flights)
-    def run(msgs):
-        fuzz.run(msgs)
-
-    try:
-        run()
-    finally:
-        fuzz.close()
+    fz.run_examples(fuzz, flights, 30)
     assert fuzz.total > 30 * 20, fuzz.total  # the fuzzing reached the filters

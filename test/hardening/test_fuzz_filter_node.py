@@ -23,7 +23,6 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hardening import fuzzlib as fz
@@ -193,16 +192,7 @@ def _ints(d: dict, keys) -> int:
 @pytest.mark.parametrize("gate_action", ["flag", "reject"])
 def test_fuzzed_inputs_never_crash_publish_only_finite_numbers_and_are_counted(ros, gate_action):
     fuzz = FilterFuzz(ros, gate_action=gate_action)
-
-    @settings(max_examples=40, **fz.SETTINGS)
-    @given(flights(fuzz.ref_topics))
-    def run(msgs):
-        fuzz.run(msgs)
-
-    try:
-        run()
-    finally:
-        fuzz.close()
+    fz.run_examples(fuzz, flights(fuzz.ref_topics), 40)
     assert fuzz.total_states > 40 * 10, fuzz.total_states  # the fuzzing reached the filter
 
 
@@ -210,14 +200,5 @@ def test_fuzzed_inputs_never_crash_publish_only_finite_numbers_and_are_counted(r
 def test_fuzzed_redundant_references(ros, mode):
     fuzz = FilterFuzz(ros, ref_topics=("/gnss/velocity", "/doppler/velocity"),
                       reference_mode=mode)
-
-    @settings(max_examples=25, **fz.SETTINGS)
-    @given(flights(fuzz.ref_topics))
-    def run(msgs):
-        fuzz.run(msgs)
-
-    try:
-        run()
-    finally:
-        fuzz.close()
+    fz.run_examples(fuzz, flights(fuzz.ref_topics), 25)
     assert fuzz.total_states > 25 * 10, fuzz.total_states

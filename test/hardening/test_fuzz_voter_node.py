@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from flight_fdi.core.voting import PAIRS, QUANTITIES, ThresholdTable, save_table
@@ -136,14 +135,5 @@ def check(rig: VoterRig, inputs: dict) -> None:
 def test_fuzzed_imu_inputs_never_crash_publish_only_finite_numbers_and_are_counted(
         ros, table_file, sticky):
     rig = VoterRig(ros, table_file, sticky=sticky)
-
-    @settings(max_examples=30, **fz.SETTINGS)
-    @given(flight)
-    def run(msgs):
-        rig.run(msgs)
-
-    try:
-        run()
-    finally:
-        rig.close()
+    fz.run_examples(rig, flight, 30)
     assert rig.total_votes > 30 * 20, rig.total_votes  # the fuzzing reached the vote
