@@ -483,33 +483,28 @@ class BagPlayer(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """``ros2 run flight_fdi bag_player --ros-args -p bag:=flight -p rate:=2.0``."""
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    """``ros2 run flight_fdi bag_player [--executor {single,events}] --ros-args -p bag:=flight
+    -p rate:=2.0``; with ``exit_when_done`` the process ends after the bag (exit 1 when the replay
+    stopped on an error), otherwise it spins until Ctrl-C; exit 1 on an invalid parameter."""
+    from .runner import executor_option, run_node
 
-    rclpy.init(args=args)
-    try:
+    argv = list(sys.argv if args is None else args)
+    kind = executor_option(argv, NODE_NAME)
+
+    def build() -> BagPlayer:
         node = BagPlayer()
-    except ParameterError as exc:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(exc))
-        rclpy.try_shutdown()
-        return 1
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    status = 0
-    try:
-        if node.params["exit_when_done"]:
-            executor.spin_until_future_complete(node.done)
-            status = 1 if node.error else 0
-        else:
-            executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+        if kind == "events" and node._pump_gc is not None:
+            node.destroy_node()
+            raise ParameterError(
+                "fast replay without 'ack_topic' paces one message per executor cycle with a "
+                "guard condition, which rclpy's EventsExecutor does not support: use "
+                "--executor single, or set 'ack_topic'")
+        return node
 
+    return run_node(build, NODE_NAME, argv,
+                    exit_status=lambda node: 1 if (node.params["exit_when_done"]
+                                                   and node.error) else 0,
+                    until=lambda node: node.done if node.params["exit_when_done"] else None)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -32,6 +32,7 @@ sentence.
 from __future__ import annotations
 
 import os
+import signal
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -41,7 +42,7 @@ from typing import Any, Iterator
 from flight_fdi.bagio.errors import BagError
 
 from .errors import ParameterError
-from .runner import make_executor
+from .runner import StopSignals, make_executor
 
 
 class PipelineError(RuntimeError):
@@ -77,6 +78,7 @@ def _private_context(log_args: list[str]) -> Iterator[Any]:
     import rclpy
     import rclpy.logging
     from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
 
     default_level = rclpy.logging.get_logger_effective_level("")
     ctx = Context()
@@ -84,7 +86,9 @@ def _private_context(log_args: list[str]) -> Iterator[Any]:
     saved = os.environ.get(key)
     os.environ[key] = "OFF"  # read by rcl_init: applies to this context only
     try:
-        rclpy.init(context=ctx, args=["flight_fdi_pipeline", "--ros-args", *log_args])
+        # no rclpy signal handler: Ctrl-C is StopSignals' request, acted on between callbacks
+        rclpy.init(context=ctx, args=["flight_fdi_pipeline", "--ros-args", *log_args],
+                   signal_handler_options=SignalHandlerOptions.NO)
     finally:
         if saved is None:
             os.environ.pop(key, None)
@@ -108,8 +112,13 @@ def filter_parameters(config: Any, channel: str, model: str) -> dict[str, Any]:
             "buffer_s": max(2.0, 4.0 * float(config.max_gap_s))}
 
 
-def _spin_until(executor: Any, done: Any, deadline: float, what: str) -> None:
+def _spin_until(executor: Any, done: Any, deadline: float, what: str,
+                stop: StopSignals) -> None:
+    """Spin until ``done()``; PipelineError at the deadline, KeyboardInterrupt once Ctrl-C was
+    pressed (raised here, between callbacks, never inside a node's callback)."""
     while not done():
+        if stop.stop:
+            raise KeyboardInterrupt
         left = deadline - time.monotonic()
         if left <= 0:
             raise PipelineError(f"pipeline timed out while {what}")
@@ -153,7 +162,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     deadline = time.monotonic() + timeout_s
 
     node_kwargs = {"start_parameter_services": False}
-    with _private_context(["--log-level", log_level]) as ctx:
+    with StopSignals((signal.SIGINT,)) as stop, \
+            _private_context(["--log-level", log_level]) as ctx:
         ex = make_executor(executor, ctx)
         nodes: list[Any] = []
 
@@ -176,7 +186,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                                        "overwrite": overwrite})
             player = build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
                                        "publish_clock": False})
-            _spin_until(ex, player.done.done, deadline, "replaying the bag")
+            _spin_until(ex, player.done.done, deadline, "replaying the bag", stop)
             if player.error:
                 raise BagError(player.error)
             state_topic = rec.resolve_topic_name("fdi/state")
@@ -192,7 +202,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                 return (rec.counts()[state_topic] >= player.acks
                         and now - last[1] >= settle_s)
 
-            _spin_until(ex, settled, deadline, "recording the filter's last outputs")
+            _spin_until(ex, settled, deadline, "recording the filter's last outputs", stop)
             replay_s = last[1] - player.started_at
             rec.close()
             if rec.error:
@@ -210,7 +220,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
             smoother = build(SmootherNode, {
                 "bag": str(recording), "channel": channel, "output_json": str(result_json),
                 "flight_start_s": flight_start, "publish_smoothed": False}, config=config)
-            _spin_until(ex, smoother.done.done, deadline, "analysing the recording")
+            _spin_until(ex, smoother.done.done, deadline, "analysing the recording", stop)
             run = smoother.last
             if run is None or run.error:
                 raise PipelineError(f"analysis of {recording} failed: "

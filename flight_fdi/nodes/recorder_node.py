@@ -800,28 +800,13 @@ class RecorderNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """``ros2 run flight_fdi recorder_node --ros-args -p output:=my_bag``. SIGINT / SIGTERM close
-    the bag cleanly (exit 0); exit 1 on an invalid parameter or a write error."""
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
+    """``ros2 run flight_fdi recorder_node [--executor {single,events}] --ros-args -p
+    output:=my_bag``. SIGINT / SIGTERM close the bag cleanly (exit 0); exit 1 on an invalid
+    parameter or a write error."""
+    from .runner import run_node
 
-    from .errors import ParameterError
-
-    rclpy.init(args=args)
-    try:
-        node = RecorderNode()
-    except ParameterError as exc:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(exc))
-        rclpy.try_shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()  # completes the bag
-        rclpy.try_shutdown()
-    return 1 if node.error else 0
+    return run_node(RecorderNode, NODE_NAME, args,
+                    exit_status=lambda node: 1 if node.error else 0)
 
 
 if __name__ == "__main__":

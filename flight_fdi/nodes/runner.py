@@ -8,16 +8,20 @@ Jazzy: several times the throughput and lower latency, docs/performance.md).
 
 An invalid parameter (``ParameterError`` from the node's constructor) is logged as FATAL and the
 process exits 1 without spinning; an invalid ``--executor`` is an argparse error (exit 2);
-Ctrl-C and an external shutdown end the spin normally.
+SIGINT / SIGTERM (at any point after ``rclpy.init``) and an external shutdown end the process
+normally; a second SIGINT / SIGTERM gets the default action.
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from typing import Any, Callable
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.signals import SignalHandlerOptions
 
 from .errors import ParameterError
 
@@ -50,32 +54,78 @@ def executor_option(argv: list[str], prog: str) -> str:
     return known.executor
 
 
+class StopSignals:
+    """SIGINT / SIGTERM as a request to stop, handled in Python between callbacks.
+
+    rclpy's own handler (a C++ thread that shuts the context down and then triggers every
+    executor's guard condition) races with the executor's teardown: the thread can trigger a
+    guard condition the main thread has just destroyed, a segfault seen under load. Here a signal
+    only sets :attr:`signum`; the spin loop sees it within one ``spin_once`` timeout, the callback
+    in progress completes, and the node is torn down in order. A second signal of the same kind
+    gets the default action (a hung shutdown can still be killed with another Ctrl-C).
+    Installed in the main thread only (elsewhere Python cannot handle signals: a no-op).
+    """
+
+    def __init__(self, signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> None:
+        self.signals = signals
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> "StopSignals":
+        if threading.current_thread() is threading.main_thread():
+            for signum in self.signals:
+                self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous)
+        self._previous.clear()
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.signum = signum
+        signal.signal(signum, signal.SIG_DFL)
+
+    @property
+    def stop(self) -> bool:
+        return self.signum is not None
+
+
 def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = None,
-             exit_status: Callable[[Any], int] = lambda node: 0) -> int:
-    """Run the node ``factory()`` until shutdown; ``exit_status(node)`` is the return code."""
+             exit_status: Callable[[Any], int] = lambda node: 0,
+             until: Callable[[Any], Any] = lambda node: None) -> int:
+    """Run the node ``factory()`` until SIGINT / SIGTERM or an external shutdown, or until the
+    future ``until(node)`` (None: no such future) completes; ``exit_status(node)`` is then the
+    return code.
+
+    A signal at any point after ``rclpy.init`` -- while the node is being built, before the
+    first spin, or while it spins -- ends the process normally (:class:`StopSignals`): the node
+    is destroyed (a recorder completes its bag), the context shut down, and the return code is
+    ``exit_status(node)`` (0 when no node was built).
+    """
     argv = list(sys.argv if args is None else args)
     kind = executor_option(argv, name)
-    rclpy.init(args=argv)
-    try:
-        node = factory()
-    except ParameterError as exc:
-        rclpy.logging.get_logger(name).fatal(str(exc))
-        rclpy.try_shutdown()
-        return 1
-    except KeyboardInterrupt:  # Ctrl-C while the node was being built
-        rclpy.try_shutdown()
-        return 0
-    executor = make_executor(kind)
-    try:
-        executor.add_node(node)
-        # spin_once in a loop rather than spin(): the EventsExecutor's spin() does not return
-        # when Ctrl-C shuts the context down
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_status(node)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node = executor = None
+    with StopSignals() as signals:
+        try:
+            executor = make_executor(kind)
+            try:
+                node = factory()
+            except ParameterError as exc:
+                rclpy.logging.get_logger(name).fatal(str(exc))
+                return 1
+            executor.add_node(node)
+            done = until(node)
+            # spin_once in a loop rather than spin(): the stop request is seen between calls
+            while not signals.stop and rclpy.ok() and not (done is not None and done.done()):
+                executor.spin_once(timeout_sec=0.1)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            if executor is not None:
+                executor.shutdown()
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+    return 0 if node is None else exit_status(node)

@@ -526,40 +526,31 @@ class SmootherNode(Node):
         return [d.make_status(f"{self.get_name()}: post-flight analysis", level, msg, values)]
 
 
-def main(args: list[str] | None = None) -> int:
-    """``ros2 run flight_fdi smoother_node --ros-args -p bag:=recording -p output_json:=r.json``."""
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
-    rclpy.init(args=args)
-    try:
-        node = SmootherNode()
-    except ParameterError as exc:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(exc))
-        rclpy.try_shutdown()
-        return 1
+def _checked_node() -> "SmootherNode":
+    """A SmootherNode whose ``exit_when_done`` has something to finish (ParameterError if not)."""
+    node = SmootherNode()
     if node.params["exit_when_done"] and not (node.params["bag"] and
                                               node.params["analyze_on_start"]):
-        rclpy.logging.get_logger(NODE_NAME).fatal(
-            "exit_when_done needs a 'bag' and analyze_on_start: true")
         node.destroy_node()
-        rclpy.try_shutdown()
-        return 1
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    status = 0
-    try:
-        if node.params["exit_when_done"]:
-            executor.spin_until_future_complete(node.done)
-            status = 1 if (node.last is None or node.last.error) else 0
-        else:
-            executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+        raise ParameterError("exit_when_done needs a 'bag' and analyze_on_start: true")
+    return node
+
+
+def _exit_status(node: "SmootherNode") -> int:
+    """1 when ``exit_when_done`` finished without a result or with an error, else 0."""
+    if not (node.params["exit_when_done"] and node.done.done()):
+        return 0
+    return 1 if (node.last is None or node.last.error) else 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """``ros2 run flight_fdi smoother_node [--executor {single,events}] --ros-args -p bag:=recording
+    -p output_json:=r.json``; exit 1 on an invalid parameter or, with ``exit_when_done``, on a
+    failed analysis."""
+    from .runner import run_node
+
+    return run_node(_checked_node, NODE_NAME, args, exit_status=_exit_status,
+                    until=lambda node: node.done if node.params["exit_when_done"] else None)
 
 
 if __name__ == "__main__":

@@ -125,7 +125,8 @@ def test_sigkill_under_load_keeps_all_but_the_last_flush_and_sigint_closes(ros, 
         for name in interrupted:
             procs[name].send_signal(signal.SIGINT)
         for name in interrupted:
-            assert procs[name].wait(timeout=30) == 0
+            rc = procs[name].wait(timeout=30)
+            assert rc == 0, _stop(procs[name])[-4000:]
         for name in killed:
             procs[name].wait(timeout=10)
     finally:

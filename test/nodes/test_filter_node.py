@@ -558,21 +558,30 @@ def test_counters_levels_and_status():
         ("a", "1.5"), ("b", "never"), ("c", "nan"), ("d", "true")]
 
 
+@pytest.mark.parametrize("sigint_at_start", ["default", "ignored"])
 @pytest.mark.parametrize("executor", ["single", "events"])
-def test_main_runs_on_the_chosen_executor_until_sigint(repo_root, executor):
+def test_main_runs_on_the_chosen_executor_until_sigint(repo_root, executor, sigint_at_start):
+    """SIGINT right after the node logs its configuration (before or after the first spin) ends
+    it cleanly -- also when the process started with SIGINT ignored (a background job of a
+    non-interactive shell, as in CI), where only rclpy's handler sees the signal."""
     import signal
+
+    def ignore_sigint():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     env = dict(os.environ, PYTHONPATH=str(repo_root), ROS_AUTOMATIC_DISCOVERY_RANGE="OFF")
     proc = subprocess.Popen(
         [sys.executable, "-u", "-m", "flight_fdi.nodes.filter_node", "--executor", executor,
          "--ros-args", "-p", "diagnostics_period_s:=0.2"], stderr=subprocess.PIPE, text=True,
-        env=env, cwd=repo_root)
+        env=env, cwd=repo_root, preexec_fn=ignore_sigint if sigint_at_start == "ignored" else None)
     try:
-        for line in proc.stderr:  # the node logs its configuration once it spins
+        for line in proc.stderr:  # the node logs its configuration at the end of its constructor
             if "filtering channels" in line:
                 break
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=30) == 0
+        rest = proc.stderr.read()
+        assert proc.wait(timeout=30) == 0, rest
+        assert "Traceback" not in rest and "Exception ignored" not in rest, rest
     finally:
         if proc.poll() is None:
             proc.kill()

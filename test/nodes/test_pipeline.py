@@ -216,3 +216,28 @@ def test_the_pipeline_log_level_does_not_outlive_its_context():
         assert rclpy.logging.get_logger_effective_level("filter_node") == \
             rclpy.logging.LoggingSeverity.FATAL
     assert rclpy.logging.get_logger_effective_level("filter_node") == before
+
+
+def test_ctrl_c_during_flight_fdi_run_is_one_line_and_exit_130(tmp_path):
+    """SIGINT in the middle of the replay (after the first in-flight alarm is logged) stops the
+    run between callbacks: exit 130 and one line, no callback traceback from the executor."""
+    proc = subprocess.Popen([str(REPO / ".venv" / "bin" / "flight-fdi"), "run",
+                             str(REPO / "bags" / "accel_fault_500s"), "--out", str(tmp_path),
+                             "--no-report"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        for line in proc.stderr:
+            if "alarm raised" in line:
+                break
+        else:
+            pytest.fail("the run ended without logging an alarm")
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=20)
+    assert proc.returncode == 130
+    lines = [ln for ln in err.splitlines() if "alarm raised" not in ln]
+    assert lines == ["flight-fdi: interrupted"], err
+    assert "post flight" not in out

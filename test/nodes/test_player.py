@@ -283,3 +283,37 @@ def test_a_bag_corrupt_inside_stops_the_replay_with_an_error(ros, tmp_path):
     assert player.published < 120
     status = player._statuses()[0]
     assert status.level == b"\x02" and "corrupt" in status.message
+
+
+def test_the_executable_exits_after_the_bag_with_its_status(tmp_path):
+    """``bag_player`` with exit_when_done (the default): 0 after a good bag, 1 and an error line
+    for a bag corrupt inside, 1 (FATAL) for a missing one or for the guard-condition pacing on
+    the EventsExecutor -- no traceback in any case."""
+    import os
+    import subprocess
+    import sys
+
+    from mcap.reader import make_reader
+
+    repo = Path(__file__).resolve().parents[2]
+    _write_flight(tmp_path / "good", seconds=0.5)
+    _write_flight(tmp_path / "bad", seconds=2.0, compression="zstd")
+    mcap = tmp_path / "bad" / "bad.mcap"
+    with open(mcap, "rb") as f:
+        chunk = make_reader(f).get_summary().chunk_indexes[0]
+    data = bytearray(mcap.read_bytes())
+    mid = chunk.chunk_start_offset + chunk.chunk_length // 2
+    data[mid:mid + 32] = bytes(32)
+    mcap.write_bytes(bytes(data))
+    env = dict(os.environ, PYTHONPATH=str(repo), ROS_AUTOMATIC_DISCOVERY_RANGE="OFF")
+    for bag, executor, status, text in (
+            (tmp_path / "good", "single", 0, ""), (tmp_path / "bad", "single", 1, "is corrupt"),
+            (tmp_path / "missing", "single", 1, "does not exist"),
+            (tmp_path / "good", "events", 1, "EventsExecutor does not support")):
+        proc = subprocess.run(
+            [sys.executable, "-m", "flight_fdi.nodes.bag_player", "--executor", executor,
+             "--ros-args", "-p", f"bag:={bag}", "-p", "fast:=true", "-p",
+             "wait_for_subscribers:=false", "-p", "publish_clock:=false"],
+            capture_output=True, text=True, timeout=60, env=env, cwd=tmp_path)
+        assert proc.returncode == status, proc.stderr
+        assert text in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

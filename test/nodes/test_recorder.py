@@ -375,6 +375,9 @@ def test_sigkill_keeps_what_is_older_than_the_flush_interval(ros, tmp_path, stor
     assert len(got) <= len(sent_at)  # (a flush just before the kill may have saved them all)
     meta = _metadata(bag)
     assert meta["custom_data"]["closed_cleanly"] == "false"
-    assert meta["message_count"] == len(got)
+    # metadata.yaml is replaced after each flush's data: a kill between the two leaves it one
+    # flush behind (seen: 131 counted, 143 in the file), never ahead, and never behind what was
+    # received a second before the kill
+    assert reported <= meta["message_count"] <= len(got), (meta["message_count"], len(got))
     if storage == "mcap":  # ... and by the independent mcap reader
         assert [d for _, _, d in _mcap_messages(bag / "rec_0.mcap")] == got

@@ -270,6 +270,11 @@ def test_batch_mode_exit_status(flight, tmp_path):
         else:
             assert "failure of accel_bias" in proc.stderr
             assert math.isfinite(res["post_flight"]["glr"]["statistic"])
+    proc = subprocess.run([sys.executable, "-m", "flight_fdi.nodes.smoother_node", "--ros-args",
+                           "-p", "exit_when_done:=true"], capture_output=True, text=True,
+                          timeout=60, env=env, cwd=tmp_path)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert "exit_when_done needs a 'bag'" in proc.stderr
 
 
 def test_stacked_reference_rows_merge_into_the_information_equivalent_row():

@@ -1,0 +1,163 @@
+"""nodes/runner.py: the shared ``main()`` of the node executables, in process.
+
+SIGINT / SIGTERM can arrive at any moment after ``rclpy.init``; these tests deliver them (and
+KeyboardInterrupt) at each stage -- inside the node's constructor, between construction and the
+first spin, while spinning -- and check that the node is destroyed, the default context shut down
+and the return code is the node's exit status: never an escaping KeyboardInterrupt (which kills
+the process with SIGINT) nor a teardown racing rclpy's signal thread.
+"""
+from __future__ import annotations
+
+import os
+import signal
+
+import harness  # noqa: F401  (private domain, localhost discovery)
+import pytest
+import rclpy
+from rclpy.node import Node
+from rclpy.task import Future
+
+from flight_fdi.nodes import runner
+from flight_fdi.nodes.errors import ParameterError
+
+
+class _Probe(Node):
+    """A node that records whether it was destroyed; optionally completes ``done`` from a timer."""
+
+    instances: list["_Probe"] = []
+
+    def __init__(self, finish_after: int | None = None, interrupt_in_spin: bool = False) -> None:
+        super().__init__("runner_probe")
+        self.destroyed = False
+        self.ticks = 0
+        self.done = Future()
+        self._finish_after = finish_after
+        self._interrupt = interrupt_in_spin
+        self.create_timer(0.001, self._tick)
+        _Probe.instances.append(self)
+
+    def _tick(self) -> None:
+        self.ticks += 1
+        if self._interrupt:
+            raise KeyboardInterrupt
+        if self._finish_after is not None and self.ticks >= self._finish_after:
+            self.done.set_result(self.ticks)
+
+    def destroy_node(self) -> None:
+        self.destroyed = True
+        super().destroy_node()
+
+
+@pytest.fixture(autouse=True)
+def _clean():
+    _Probe.instances.clear()
+    yield
+    rclpy.try_shutdown()  # a failing test must not leave the default context up
+
+
+def _run(factory, **kwargs) -> int:
+    return runner.run_node(factory, "runner_probe", ["prog"], **kwargs)
+
+
+def test_ctrl_c_between_construction_and_the_first_spin_exits_with_the_node_status(monkeypatch):
+    real = runner.make_executor
+
+    def interrupted_on_add(kind, context=None):
+        executor = real(kind, context)
+
+        def add_node(node):
+            raise KeyboardInterrupt
+
+        executor.add_node = add_node
+        return executor
+
+    monkeypatch.setattr(runner, "make_executor", interrupted_on_add)
+    assert _run(_Probe, exit_status=lambda node: 7) == 7
+    (node,) = _Probe.instances
+    assert node.destroyed and not rclpy.ok()
+
+
+def test_a_signal_while_the_node_is_built_stops_it_before_the_first_spin():
+    def signalled_half_way():
+        node = _Probe()
+        os.kill(os.getpid(), signal.SIGINT)  # the handler runs here, in this (main) thread
+        return node
+
+    before = signal.getsignal(signal.SIGINT)
+    assert _run(signalled_half_way, exit_status=lambda node: 10 + node.ticks) == 10
+    (node,) = _Probe.instances
+    assert node.destroyed and not rclpy.ok()
+    assert signal.getsignal(signal.SIGINT) is before  # the caller's handler is back
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_spinning_ends_after_the_callback_in_progress(signum):
+    class Signalling(_Probe):
+        def _tick(self):
+            super()._tick()
+            if self.ticks == 3:
+                os.kill(os.getpid(), signum)
+
+    assert _run(Signalling, exit_status=lambda node: node.ticks) == 3
+    (node,) = _Probe.instances
+    assert node.destroyed and not rclpy.ok()
+
+
+def test_a_second_signal_gets_the_default_action():
+    before = signal.getsignal(signal.SIGTERM)
+    with runner.StopSignals() as signals:
+        assert not signals.stop
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert signals.signum == signal.SIGTERM
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_an_error_while_the_context_is_up_is_not_swallowed():
+    def broken():
+        raise RuntimeError("bug in the constructor")
+
+    with pytest.raises(RuntimeError, match="bug in the constructor"):
+        _run(broken)
+    assert not rclpy.ok()
+
+
+def test_ctrl_c_while_spinning_destroys_the_node_and_exits_with_its_status():
+    assert _run(lambda: _Probe(interrupt_in_spin=True), exit_status=lambda node: node.ticks) == 1
+    (node,) = _Probe.instances
+    assert node.destroyed and not rclpy.ok()
+
+
+def test_ctrl_c_inside_the_constructor_exits_0():
+    def interrupted():
+        raise KeyboardInterrupt
+
+    assert _run(interrupted, exit_status=lambda node: 5) == 0
+    assert not rclpy.ok()
+
+
+def test_an_invalid_parameter_exits_1_without_spinning():
+    def invalid():
+        raise ParameterError("rate must be > 0")
+
+    assert _run(invalid) == 1
+    assert not rclpy.ok()
+
+
+@pytest.mark.parametrize("kind", runner.EXECUTORS)
+def test_spins_until_the_nodes_future_completes(kind):
+    status = runner.run_node(lambda: _Probe(finish_after=3), "runner_probe",
+                             ["prog", "--executor", kind], until=lambda node: node.done,
+                             exit_status=lambda node: 40 + node.done.result())
+    assert status == 43
+    (node,) = _Probe.instances
+    assert node.destroyed and not rclpy.ok()
+
+
+def test_executor_option_reads_only_the_non_ros_arguments():
+    assert runner.executor_option(["prog"], "p") == "single"
+    assert runner.executor_option(["prog", "--executor", "events", "--ros-args", "-p",
+                                   "a:=1"], "p") == "events"
+    assert runner.executor_option(["prog", "--ros-args", "-p", "executor:=events"], "p") == "single"
+    with pytest.raises(ParameterError, match="invalid executor 'threads'"):
+        runner.make_executor("threads")
