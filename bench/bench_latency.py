@@ -2,7 +2,8 @@
 
 A driver node publishes a synthetic flight (INS TwistStamped at 50 Hz, reference
 TwistWithCovarianceStamped at 10 Hz, both x ``--speed``) on a wall-clock schedule; filter_node
-(channels x and y) runs in the same SingleThreadedExecutor; a subscriber receives
+(channels x and y) runs in the same executor (``--executor``: the EventsExecutor, filter_node's
+default, or the SingleThreadedExecutor); a subscriber receives
 ``fdi/innovation``. The latency of an innovation is its receive time minus the publish time of
 the input message that made it computable (the reference message, or the INS sample after the
 reference stamp when that came later). It spans two publish -> callback hops (input -> node,
@@ -13,7 +14,10 @@ main thread. Baseline, measured in the same run under the same load: a raw Twist
 publish -> callback on a side topic, one per reference message, half a reference period after it
 (when the executor is otherwise idle: one pure hop).
 
-    .venv/bin/python bench/bench_latency.py [--seconds 300] [--speed 10] [--qos sensor_data]
+    .venv/bin/python bench/bench_latency.py [--executor {events,single}] [--seconds 300]
+        [--speed 10] [--qos sensor_data]
+
+The verdict (p99 <= 2 ms) is on the worse of the two channels.
 """
 from __future__ import annotations
 
@@ -81,9 +85,10 @@ def main() -> int:
                          "message triggers it)")
     ap.add_argument("--qos", choices=("sensor_data", "reliable"), default="sensor_data")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--executor", choices=("single", "events"), default="single",
-                    help="single: rclpy's SingleThreadedExecutor (what rclpy.spin uses); "
-                         "events: rclpy.experimental.EventsExecutor (C++ event queue)")
+    ap.add_argument("--executor", choices=("single", "events"), default="events",
+                    help="events (filter_node's default): rclpy.experimental.EventsExecutor "
+                         "(C++ event queue); single: rclpy's SingleThreadedExecutor (what "
+                         "rclpy.spin uses)")
     args = ap.parse_args()
 
     from geometry_msgs.msg import TwistStamped, TwistWithCovarianceStamped
@@ -203,8 +208,10 @@ def main() -> int:
     if both and raw:
         print(f"  ratio p99 innovation / p99 raw: "
               f"{np.percentile(both, 99) / np.percentile(raw, 99):.2f}")
-    p99 = np.percentile(lat["x"], 99) * 1e3 if lat["x"] else float("inf")
-    print(f"  target p99 <= 2 ms: {'met' if p99 <= 2.0 else 'NOT met'} ({p99:.3f} ms, channel x)")
+    # the verdict on the later of the two channels (its innovation is published second)
+    p99 = max(np.percentile(lat[ch], 99) * 1e3 if lat[ch] else float("inf") for ch in lat)
+    print(f"  target p99 <= 2 ms: {'met' if p99 <= 2.0 else 'NOT met'} ({p99:.3f} ms, the "
+          f"worse channel)")
     ex.shutdown()
     filt.destroy_node()
     drv.destroy_node()

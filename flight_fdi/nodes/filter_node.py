@@ -994,10 +994,11 @@ class FilterNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """``ros2 run flight_fdi filter_node [--ros-args ...]``; exit 1 on invalid parameters."""
+    """``ros2 run flight_fdi filter_node [--executor {events,single}] [--ros-args ...]``
+    (EventsExecutor by default: the latency target); exit 1 on invalid parameters."""
     from .runner import run_node
 
-    return run_node(FilterNode, NODE_NAME, args)
+    return run_node(FilterNode, NODE_NAME, args, default_executor="events")
 
 
 if __name__ == "__main__":

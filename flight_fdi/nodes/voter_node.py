@@ -541,10 +541,11 @@ class VoterNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """``ros2 run flight_fdi voter_node [--ros-args ...]``; exit 1 on invalid parameters."""
+    """``ros2 run flight_fdi voter_node [--executor {events,single}] [--ros-args ...]``
+    (EventsExecutor by default: the latency target); exit 1 on invalid parameters."""
     from .runner import run_node
 
-    return run_node(VoterNode, NODE_NAME, args)
+    return run_node(VoterNode, NODE_NAME, args, default_executor="events")
 
 
 if __name__ == "__main__":

@@ -156,6 +156,8 @@ def test_spins_until_the_nodes_future_completes(kind):
 
 def test_executor_option_reads_only_the_non_ros_arguments():
     assert runner.executor_option(["prog"], "p") == "single"
+    assert runner.executor_option(["prog"], "p", default="events") == "events"
+    assert runner.executor_option(["prog", "--executor", "single"], "p", "events") == "single"
     assert runner.executor_option(["prog", "--executor", "events", "--ros-args", "-p",
                                    "a:=1"], "p") == "events"
     assert runner.executor_option(["prog", "--ros-args", "-p", "executor:=events"], "p") == "single"

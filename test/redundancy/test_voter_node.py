@@ -317,3 +317,36 @@ def test_voter_yaml_is_the_generated_params_file(repo_root):
 
     text = (repo_root / "config" / "voter.yaml").read_text(encoding="utf-8")
     assert text == render_module("flight_fdi.nodes.voter_node")
+
+
+@pytest.mark.parametrize("executor", [None, "single"])
+def test_the_executable_spins_until_sigint(table_file, tmp_path, executor):
+    """``voter_node`` on its default executor (EventsExecutor) and on the single-threaded one:
+    it starts, spins, and exits 0 on SIGINT without a traceback."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=str(repo), ROS_AUTOMATIC_DISCOVERY_RANGE="OFF")
+    cmd = [sys.executable, "-u", "-m", "flight_fdi.nodes.voter_node"]
+    cmd += ["--executor", executor] if executor else []
+    proc = subprocess.Popen(cmd + ["--ros-args", "-p", f"thresholds_file:={table_file}", "-p",
+                                   "diagnostics_period_s:=0.2"],
+                            stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    try:
+        for line in proc.stderr:  # logged at the end of the constructor
+            if "voting " in line:
+                break
+        else:
+            pytest.fail("the voter never started")
+        proc.send_signal(signal.SIGINT)
+        rest = proc.stderr.read()
+        assert proc.wait(timeout=30) == 0, rest
+        assert "Traceback" not in rest, rest
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stderr.close()
