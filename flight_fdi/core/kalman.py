@@ -352,9 +352,11 @@ def _predict_lines(n: int, phi_mask: tuple, q_mask: tuple, with_bu: bool) -> lis
 
 
 def _update_lines(n: int, h_mask: tuple, xn: str, Pn: str, x_tuple: str, P_tuple: str,
-                  head: str = "") -> list[str]:
+                  head: str = "", emit: Any = None) -> list[str]:
     """The one-row Joseph update on the scalars ``{xn}i`` and ``{Pn}i_j`` (upper triangle);
-    returns ``{head}(x+), (P+), nu, S, (K), beta2, exceeded, fused``."""
+    returns ``{head}(x+), (P+), nu, S, (K), beta2, exceeded, fused``. ``emit(rejected)``, when
+    given, supplies the statements of the two exits instead of the ``return``s (the posterior
+    is then ``{xn}i + Ki*nu`` and ``Ni_j``, or the prior when rejected)."""
     r = range(n)
     hz = [k for k in r if h_mask[k]]
     P = lambda i, j: f"{Pn}{min(i, j)}_{max(i, j)}"  # noqa: E731
@@ -369,8 +371,11 @@ def _update_lines(n: int, h_mask: tuple, xn: str, Pn: str, x_tuple: str, P_tuple
     lines.append("    beta2 = nu * nu / s")
     lines.append("    exceeded = beta2 > threshold")
     lines.append("    if exceeded and reject:")
-    lines.append(f"        return {head}{x_tuple}, {P_tuple}, nu, s, ({'0.0, ' * n}), beta2, True, "
-                 "False")
+    if emit is None:
+        lines.append(f"        return {head}{x_tuple}, {P_tuple}, nu, s, ({'0.0, ' * n}), beta2, "
+                     "True, False")
+    else:
+        lines += [f"        {line}" for line in emit(True)]
     # K = c / S
     lines.append("    si = 1.0 / s")
     for i in r:
@@ -408,9 +413,12 @@ def _update_lines(n: int, h_mask: tuple, xn: str, Pn: str, x_tuple: str, P_tuple
                     terms.append(f"U{i}_{k}*{a}")
             terms.append(f"K{i}*r*K{j}")
             lines.append(f"    N{i}_{j} = {_sum(terms)}")
-    lines.append(f"    return {head}({''.join(f'{xn}{i} + K{i}*nu, ' for i in r)}), "
-                 f"({_tri_names('N', n)}), nu, s, ({''.join(f'K{i}, ' for i in r)}), beta2, "
-                 "exceeded, True")
+    if emit is None:
+        lines.append(f"    return {head}({''.join(f'{xn}{i} + K{i}*nu, ' for i in r)}), "
+                     f"({_tri_names('N', n)}), nu, s, ({''.join(f'K{i}, ' for i in r)}), beta2, "
+                     "exceeded, True")
+    else:
+        lines += [f"    {line}" for line in emit(False)]
     return lines
 
 
@@ -444,8 +452,61 @@ def _step_source(n: int, phi_mask: tuple, q_mask: tuple, with_bu: bool, h_mask: 
     return "\n".join(lines) + "\n"
 
 
+def forward_row_width(n: int) -> int:
+    """Floats per step in the output of a generated ``run``: x- (n), P- (n(n+1)/2), x+ (n),
+    P+ (n(n+1)/2), K (n), nu, S, beta2, fused."""
+    return 3 * n + n * (n + 1) + 4
+
+
+def _run_source(n: int, phi_mask: tuple, q_mask: tuple, with_bu: bool, h_mask: tuple,
+                constant: bool) -> str:
+    """``run(x, P, Phi, Qd, bus, h, rs, zs, threshold, reject, out) -> (x, P)``: ``step`` over a
+    whole record in one generated loop -- the same statements (hence the same bits) with the
+    state in local variables. ``constant``: Phi and Qd are one pair for every step (unpacked
+    once), else sequences; ``bus`` a sequence when ``with_bu``. Each step calls ``out`` once with
+    the :func:`forward_row_width` floats of the step (fused: 1.0 or 0.0)."""
+    r = range(n)
+    xs = "".join(f"x{i}, " for i in r)
+    Ps = _tri_names("P", n)
+    unpack_phi = [f"({''.join(f'F{i}_{j}, ' for i in r for j in r)}) = Phi",
+                  f"({''.join(f'Q{i}_{j}, ' for i in r for j in r)}) = Qd"]
+    lines = ["def run(x, P, Phi, Qd, bus, h, rs, zs, threshold, reject, out):",
+             f"    ({xs}) = x", f"    ({Ps}) = P", f"    ({''.join(f'h{i}, ' for i in r)}) = h"]
+    seqs = ["rs", "zs"]
+    names = ["r", "z"]
+    if constant:
+        lines += [f"    {line}" for line in unpack_phi]
+    else:
+        seqs[:0], names[:0] = ["Phi", "Qd"], ["Phi", "Qd"]
+    if with_bu:
+        seqs.append("bus")
+        names.append("bu")
+    body = [] if constant else list(unpack_phi)
+    if with_bu:
+        body.append(f"({''.join(f'b{i}, ' for i in r)}) = bu")
+    body += [line[4:] for line in _predict_lines(n, phi_mask, q_mask, with_bu)]
+    prior = f"{''.join(f'y{i}, ' for i in r)}{_tri_names('M', n)}"
+
+    def emit(rejected: bool) -> list[str]:
+        if rejected:
+            return [f"out(({prior}{prior}{'0.0, ' * n}nu, s, beta2, 0.0))",
+                    f"({xs}) = ({''.join(f'y{i}, ' for i in r)})",
+                    f"({Ps}) = ({_tri_names('M', n)})", "continue"]
+        return [f"({xs}) = ({''.join(f'y{i} + K{i}*nu, ' for i in r)})",
+                f"({Ps}) = ({_tri_names('N', n)})",
+                f"out(({prior}{xs}{Ps}{''.join(f'K{i}, ' for i in r)}nu, s, beta2, 1.0))"]
+
+    update = _update_lines(n, h_mask, "y", "M", "", "", emit=emit)
+    body += [line[4:] for line in update[1:]]  # without the unpacking of h (done once)
+    lines.append(f"    for {', '.join(names)} in zip({', '.join(seqs)}):")
+    lines += [f"        {line}" for line in body]
+    lines.append(f"    return ({xs}), ({Ps})")
+    return "\n".join(lines) + "\n"
+
+
 _GENERATED: dict[tuple, Any] = {}
-_SOURCES = {"predict": _predict_source, "update": _update1_source, "step": _step_source}
+_SOURCES = {"predict": _predict_source, "update": _update1_source, "step": _step_source,
+            "run": _run_source}
 
 
 def _compiled(kind: str, *key: Any):
@@ -1193,12 +1254,6 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
     x0v, P0m = _check_prior(model, x0, P0)
 
     mats, idx = sm.matrices_for(dt)
-    steps = [mats[i] for i in idx.tolist()]
-    if ua is None:
-        bus = [None] * N
-    else:
-        Bd = np.stack([mt.Bd for mt in mats])[idx]
-        bus = [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua).tolist()]
     thr = gate.threshold(m)
     reject = gate.action == "reject"
 
@@ -1208,42 +1263,15 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
     xp_l, Pp_l, x_l, P_l, nu_l, S_l, K_l, b2_l, fus_l = [], [], [], [], [], [], [], [], []
     with _gc_paused():
         if m == 1:
-            update1 = sm.update1_for(sm.H)
-            with_bu = ua is not None
-            fused_steps = [sm.step1_for(mt, sm.H, with_bu) for mt in mats]
-            step_fn = [fused_steps[i] for i in idx.tolist()]
-            h = sm.H[0].tolist()
-            zl = za[:, 0].tolist()
-            rl = Ra[:, 0, 0].tolist()
-            xp_add, Pp_add, x_add, P_add, K_add = (xp_l.extend, Pp_l.extend, x_l.extend,
-                                                   P_l.extend, K_l.extend)
-            nu_add, S_add, b2_add, fus_add = (nu_l.append, S_l.append, b2_l.append,
-                                              fus_l.append)
-            # step 0: an update on the prior; then predict + update in one generated call
-            xp_add(x)
-            Pp_add(P)
-            x, P, nu, s, K, b2, _, fus = update1(x, P, h, rl[0], zl[0], thr, reject)
-            x_add(x)
-            P_add(P)
-            K_add(K)
-            nu_add(nu)
-            S_add(s)
-            b2_add(b2)
-            fus_add(fus)
-            for k in range(1, N):
-                mt = steps[k]
-                xp, Pp, x, P, nu, s, K, b2, _, fus = step_fn[k](
-                    x, P, mt.Phi_t, mt.Qd_t, bus[k], h, rl[k], zl[k], thr, reject)
-                xp_add(xp)
-                Pp_add(Pp)
-                x_add(x)
-                P_add(P)
-                K_add(K)
-                nu_add(nu)
-                S_add(s)
-                b2_add(b2)
-                fus_add(fus)
+            flat = _forward1(sm, mats, idx, ua, x, P, za[:, 0].tolist(),
+                             Ra[:, 0, 0].tolist(), thr, reject)
         else:
+            steps = [mats[i] for i in idx.tolist()]
+            if ua is None:
+                bus = [None] * N
+            else:
+                Bd = np.stack([mt.Bd for mt in mats])[idx]
+                bus = [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua).tolist()]
             for k in range(N):
                 if k:
                     mt = steps[k]
@@ -1270,13 +1298,57 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
     def arr(values: list, *shape: int) -> np.ndarray:
         return np.fromiter(values, dtype=float, count=len(values)).reshape(N, *shape)
 
-    beta2 = arr(b2_l)
+    if m == 1:  # one row per step: x- P- x+ P+ K nu S beta2 fused
+        rows = arr(flat, forward_row_width(n))
+        cut = np.cumsum([0, n, nt, n, nt, n, 1, 1, 1, 1])
+        xp_a, Pp_a, x_a, P_a, K_a, nu_a, S_a, b2_a, fus_a = (
+            rows[:, cut[i]:cut[i + 1]] for i in range(9))
+        K_a, nu_a, S_a = K_a[:, :, None], nu_a, S_a[:, :, None]
+        beta2, fused = b2_a[:, 0].copy(), fus_a[:, 0] != 0.0
+    else:
+        xp_a, Pp_a, x_a, P_a = arr(xp_l, n), arr(Pp_l, nt), arr(x_l, n), arr(P_l, nt)
+        nu_a, S_a, K_a = arr(nu_l, m), arr(S_l, m, m), arr(K_l, n, m)
+        beta2, fused = arr(b2_l), np.array(fus_l, dtype=bool)
     exceeded = beta2 > thr
     return ForwardResult(
         t=tt, dt=dt, z=za, R=Ra, H=record.H,
-        x_prior=arr(xp_l, n) * s, P_prior=_tri_to_full(arr(Pp_l, nt), n) * SS,
-        x=arr(x_l, n) * s, P=_tri_to_full(arr(P_l, nt), n) * SS,
-        nu=arr(nu_l, m), S=arr(S_l, m, m), K=arr(K_l, n, m) * s[None, :, None],
+        x_prior=xp_a * s, P_prior=_tri_to_full(Pp_a, n) * SS,
+        x=x_a * s, P=_tri_to_full(P_a, n) * SS,
+        nu=np.ascontiguousarray(nu_a), S=np.ascontiguousarray(S_a), K=K_a * s[None, :, None],
         beta2=beta2, threshold=np.full(N, thr), exceeded=exceeded,
-        fused=np.array(fus_l, dtype=bool), alarm_state=alarm_states(exceeded, gate), u=ua,
-        gate=gate)
+        fused=fused, alarm_state=alarm_states(exceeded, gate), u=ua, gate=gate)
+
+
+def _forward1(sm: ScaledModel, mats: list, idx: np.ndarray, ua: np.ndarray | None,
+              x: tuple, P: tuple, zl: list, rl: list, thr: float, reject: bool) -> list:
+    """The one-row forward pass over a record, as one flat list of :func:`forward_row_width`
+    floats per step: the update on the prior, then one generated ``run`` loop for the rest
+    (``_run_source``; for jittered dt over per-step matrices, on the union of their sparsity
+    patterns: a term with an exact-zero factor changes no bit)."""
+    n, N = sm.n, len(zl)
+    h = sm.H[0].tolist()
+    x1, P1, nu, s, K, b2, _, fus = sm.update1_for(sm.H)(x, P, h, rl[0], zl[0], thr, reject)
+    flat = [*x, *P, *x1, *P1, *K, nu, s, b2, 1.0 if fus else 0.0]
+    if N == 1:
+        return flat
+    steps = idx[1:].tolist()
+    used = [mats[i] for i in sorted(set(steps))]
+    h_mask = tuple(bool(v) for v in sm.H[0] != 0)
+    bus = None
+    if ua is not None:
+        Bd = np.stack([mt.Bd for mt in mats])[idx[1:]]
+        bus = [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua[1:]).tolist()]
+    if len(used) == 1:
+        mt = used[0]
+        run = _compiled("run", *mt.pattern, ua is not None, h_mask, True)
+        Phi, Qd = mt.Phi_t, mt.Qd_t
+    else:
+        phi_mask = tuple(tuple(any(mt.pattern[1][i][j] for mt in used) for j in range(n))
+                         for i in range(n))
+        q_mask = tuple(tuple(any(mt.pattern[2][i][j] for mt in used) for j in range(n))
+                       for i in range(n))
+        run = _compiled("run", n, phi_mask, q_mask, ua is not None, h_mask, False)
+        Phi = [mats[i].Phi_t for i in steps]
+        Qd = [mats[i].Qd_t for i in steps]
+    run(x1, P1, Phi, Qd, bus, h, rl[1:], zl[1:], thr, reject, flat.extend)
+    return flat
