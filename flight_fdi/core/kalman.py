@@ -1263,7 +1263,7 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
     xp_l, Pp_l, x_l, P_l, nu_l, S_l, K_l, b2_l, fus_l = [], [], [], [], [], [], [], [], []
     with _gc_paused():
         if m == 1:
-            flat = _forward1(sm, mats, idx, ua, x, P, za[:, 0].tolist(),
+            rows = _forward1(sm, mats, idx, ua, x, P, za[:, 0].tolist(),
                              Ra[:, 0, 0].tolist(), thr, reject)
         else:
             steps = [mats[i] for i in idx.tolist()]
@@ -1299,7 +1299,6 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
         return np.fromiter(values, dtype=float, count=len(values)).reshape(N, *shape)
 
     if m == 1:  # one row per step: x- P- x+ P+ K nu S beta2 fused
-        rows = arr(flat, forward_row_width(n))
         cut = np.cumsum([0, n, nt, n, nt, n, 1, 1, 1, 1])
         xp_a, Pp_a, x_a, P_a, K_a, nu_a, S_a, b2_a, fus_a = (
             rows[:, cut[i]:cut[i + 1]] for i in range(9))
@@ -1319,18 +1318,54 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
         fused=fused, alarm_state=alarm_states(exceeded, gate), u=ua, gate=gate)
 
 
+#: steps per call of the generated forward loop: its output list (36 Python floats per step for
+#: the INS channel, ~1.2 kB) is turned into an array chunk by chunk, not for a whole 10-hour flight
+_FORWARD_CHUNK = 16384
+
+
 def _forward1(sm: ScaledModel, mats: list, idx: np.ndarray, ua: np.ndarray | None,
-              x: tuple, P: tuple, zl: list, rl: list, thr: float, reject: bool) -> list:
-    """The one-row forward pass over a record, as one flat list of :func:`forward_row_width`
-    floats per step: the update on the prior, then one generated ``run`` loop for the rest
+              x: tuple, P: tuple, zl: list, rl: list, thr: float, reject: bool) -> np.ndarray:
+    """The one-row forward pass over a record: (N, :func:`forward_row_width`) floats per step.
+    The update on the prior, then the generated ``run`` loop over the rest, chunk by chunk
     (``_run_source``; for jittered dt over per-step matrices, on the union of their sparsity
     patterns: a term with an exact-zero factor changes no bit)."""
     n, N = sm.n, len(zl)
+    W = forward_row_width(n)
+    rows = np.empty((N, W))
     h = sm.H[0].tolist()
     x1, P1, nu, s, K, b2, _, fus = sm.update1_for(sm.H)(x, P, h, rl[0], zl[0], thr, reject)
-    flat = [*x, *P, *x1, *P1, *K, nu, s, b2, 1.0 if fus else 0.0]
+    rows[0] = [*x, *P, *x1, *P1, *K, nu, s, b2, 1.0 if fus else 0.0]
+    x, P = x1, P1
     if N == 1:
-        return flat
+        return rows
+    steps = idx.tolist()
+    used = [mats[i] for i in sorted(set(steps[1:]))]
+    h_mask = tuple(bool(v) for v in sm.H[0] != 0)
+    bus: list | None = None
+    if ua is not None:
+        Bd = np.stack([mt.Bd for mt in mats])[idx]
+        bus = [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua).tolist()]
+    constant = len(used) == 1
+    if constant:
+        mt = used[0]
+        run = _compiled("run", *mt.pattern, ua is not None, h_mask, True)
+        Phi, Qd = mt.Phi_t, mt.Qd_t
+    else:
+        phi_mask = tuple(tuple(any(mt.pattern[1][i][j] for mt in used) for j in range(n))
+                         for i in range(n))
+        q_mask = tuple(tuple(any(mt.pattern[2][i][j] for mt in used) for j in range(n))
+                       for i in range(n))
+        run = _compiled("run", n, phi_mask, q_mask, ua is not None, h_mask, False)
+    for a in range(1, N, _FORWARD_CHUNK):
+        b = min(N, a + _FORWARD_CHUNK)
+        if not constant:
+            Phi = [mats[i].Phi_t for i in steps[a:b]]
+            Qd = [mats[i].Qd_t for i in steps[a:b]]
+        flat: list = []
+        x, P = run(x, P, Phi, Qd, None if bus is None else bus[a:b], h, rl[a:b], zl[a:b], thr,
+                   reject, flat.extend)
+        rows[a:b] = np.fromiter(flat, dtype=float, count=len(flat)).reshape(b - a, W)
+    return rows
     steps = idx[1:].tolist()
     used = [mats[i] for i in sorted(set(steps))]
     h_mask = tuple(bool(v) for v in sm.H[0] != 0)

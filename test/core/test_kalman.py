@@ -191,6 +191,16 @@ def test_streaming_equals_batch(which):
     assert not fwd.fused.all()  # the reject path was exercised
 
 
+def _run_in_chunks_of(chunk, *args):
+    model, t, z, R, u, gate = args
+    saved = kalman._FORWARD_CHUNK
+    kalman._FORWARD_CHUNK = chunk
+    try:
+        return run_forward(model, t, z, R, u=u, gate=gate)
+    finally:
+        kalman._FORWARD_CHUNK = saved
+
+
 @pytest.mark.parametrize("dt_kind", ["constant", "jittered"])
 @pytest.mark.parametrize("with_u", [False, True])
 def test_generated_forward_loop_is_bit_identical_to_the_streaming_step(dt_kind, with_u):
@@ -215,6 +225,9 @@ def test_generated_forward_loop_is_bit_identical_to_the_streaming_step(dt_kind, 
         assert res.beta2 == fwd.beta2[k] and res.fused == fwd.fused[k]
         assert np.array_equal(res.nu, fwd.nu[k]) and np.array_equal(res.S, fwd.S[k])
     assert 0 < (~fwd.fused).sum() < N
+    chunked = _run_in_chunks_of(7, model, t, z, R, u, gate)  # 57 chunks and a short last one
+    for name in ("x_prior", "P_prior", "x", "P", "nu", "S", "K", "beta2", "fused"):
+        assert np.array_equal(getattr(chunked, name), getattr(fwd, name)), name
     one = run_forward(model, t[:1], z[:1], R[:1], u=None if u is None else u[:1], gate=gate)
     assert np.array_equal(one.x[0], fwd.x[0]) and one.K.shape == (1, model.n, 1)
 
