@@ -199,11 +199,6 @@ class ScaledModel:
         """The generated one-row update for a scaled H row ``Hs`` (1, n)."""
         return _compiled("update", self.n, tuple(bool(v) for v in np.asarray(Hs)[0] != 0))
 
-    def step1_for(self, mt: "StepMatrices", Hs: np.ndarray, with_bu: bool):
-        """The generated prediction + one-row update for ``mt``'s pattern and H row ``Hs``."""
-        return _compiled("step", *mt.pattern, with_bu,
-                         tuple(bool(v) for v in np.asarray(Hs)[0] != 0))
-
     def matrices(self, dt: float) -> StepMatrices:
         key = round(float(dt), 9)
         hit = self._cache.get(key)
@@ -1259,13 +1254,15 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
 
     xs, Ps = sm.to_scaled(x0v, P0m)
     x, P = tuple(xs.tolist()), tuple(_full_to_tri(Ps).tolist())
-    # outputs are collected in flat lists of floats (the cheapest way to get them into arrays)
-    xp_l, Pp_l, x_l, P_l, nu_l, S_l, K_l, b2_l, fus_l = [], [], [], [], [], [], [], [], []
     with _gc_paused():
         if m == 1:
             rows = _forward1(sm, mats, idx, ua, x, P, za[:, 0].tolist(),
                              Ra[:, 0, 0].tolist(), thr, reject)
         else:
+            # outputs in flat lists of floats (the cheapest way to get them into arrays)
+            xp_l, Pp_l, x_l, P_l, nu_l, S_l, K_l = [], [], [], [], [], [], []
+            b2_l: list = []
+            fus_l: list = []
             steps = [mats[i] for i in idx.tolist()]
             if ua is None:
                 bus = [None] * N
@@ -1366,24 +1363,3 @@ def _forward1(sm: ScaledModel, mats: list, idx: np.ndarray, ua: np.ndarray | Non
                    reject, flat.extend)
         rows[a:b] = np.fromiter(flat, dtype=float, count=len(flat)).reshape(b - a, W)
     return rows
-    steps = idx[1:].tolist()
-    used = [mats[i] for i in sorted(set(steps))]
-    h_mask = tuple(bool(v) for v in sm.H[0] != 0)
-    bus = None
-    if ua is not None:
-        Bd = np.stack([mt.Bd for mt in mats])[idx[1:]]
-        bus = [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua[1:]).tolist()]
-    if len(used) == 1:
-        mt = used[0]
-        run = _compiled("run", *mt.pattern, ua is not None, h_mask, True)
-        Phi, Qd = mt.Phi_t, mt.Qd_t
-    else:
-        phi_mask = tuple(tuple(any(mt.pattern[1][i][j] for mt in used) for j in range(n))
-                         for i in range(n))
-        q_mask = tuple(tuple(any(mt.pattern[2][i][j] for mt in used) for j in range(n))
-                       for i in range(n))
-        run = _compiled("run", n, phi_mask, q_mask, ua is not None, h_mask, False)
-        Phi = [mats[i].Phi_t for i in steps]
-        Qd = [mats[i].Qd_t for i in steps]
-    run(x1, P1, Phi, Qd, bus, h, rl[1:], zl[1:], thr, reject, flat.extend)
-    return flat
