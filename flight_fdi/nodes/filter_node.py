@@ -490,7 +490,9 @@ class FilterNode(Node):
         self._last_ref_t: float | None = None     # newest reference stamp (any topic)
         self._last_epoch_t: float | None = None   # stamp of the last update processed
         self._last_ins_t: float | None = None
-        self.counters = diag.Counters(("received_ins", "received_reference", "time_jump_resets"))
+        # published: filter steps published (one Innovation and one FilterState each)
+        self.counters = diag.Counters(("received_ins", "received_reference", "published",
+                                       "time_jump_resets"))
 
         from geometry_msgs.msg import TwistStamped, TwistWithCovarianceStamped
 
@@ -854,6 +856,7 @@ class FilterNode(Node):
                 dt=dt, fused=res.fused, gated=res.exceeded, reset=reset))
         for msg in states:
             self.pub_state.publish(msg)
+        self.counters.inc("published", len(states))
 
     def _step_redundant(self, t: float, rows: list) -> None:
         """One update per channel at stamp ``t`` with the rows of the references present
@@ -892,6 +895,7 @@ class FilterNode(Node):
                 reset=reset))
         for msg in states:
             self.pub_state.publish(msg)
+        self.counters.inc("published", len(states))
 
     def _reference_event(self, ch: _Channel, ev: Any) -> None:
         mode = self.ref_config.mode

@@ -128,16 +128,15 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
 def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "x", *,
                           config: Any = None, model: str = "ins_channel", storage: str = "mcap",
                           overwrite: bool = False, timeout_s: float = 600.0,
-                          executor: str = "events", log_level: str = "warn",
-                          settle_s: float = 0.2) -> PipelineRun:
+                          executor: str = "events", log_level: str = "warn") -> PipelineRun:
     """Replay ``bag`` through the node pipeline; see the module docstring.
 
     ``config``: the core's AnalysisConfig (default: its defaults), used by the filter (gate,
     alarm rule, gate action, max_gap_s) and by the smoother. ``model``: the filter's ``model``
     parameter (built-in name or model YAML). ``log_level``: of the nodes' loggers (rcutils'
-    default level is process-wide). ``settle_s``: after the replay, the recorder must
-    have received nothing new for this long before the bag is closed (all outputs were published
-    by then; this only lets the last deliveries land).
+    default level is process-wide). The recording is closed once the filter has received every
+    played message and the recorder holds every step the filter published (its ``published``
+    counter) and its model -- exact counts, no waiting for quiet.
     """
     from rclpy.parameter import Parameter
 
@@ -189,21 +188,21 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
             _spin_until(ex, player.done.done, deadline, "replaying the bag", stop)
             if player.error:
                 raise BagError(player.error)
-            state_topic = rec.resolve_topic_name("fdi/state")
-            # the filter answered the last messages; let the recorder take the last outputs
-            last = [-1, time.monotonic()]
+            # the replay is over once the filter has taken every played message and the
+            # recorder holds every step the filter published (and its model): exact counts
+            topics = [rec.resolve_topic_name(t) for t in ("fdi/state", "fdi/innovation")]
+            model_topic = rec.resolve_topic_name("fdi/model")
 
             def settled() -> bool:
-                n = sum(rec.counts().values())
-                now = time.monotonic()
-                if n != last[0]:
-                    last[0], last[1] = n, now
+                c = flt.counters
+                if c["received_ins"] + c["received_reference"] < player.published:
                     return False
-                return (rec.counts()[state_topic] >= player.acks
-                        and now - last[1] >= settle_s)
+                counts = rec.counts()
+                return (all(counts.get(t, 0) >= c["published"] for t in topics)
+                        and counts.get(model_topic, 0) >= 1)
 
             _spin_until(ex, settled, deadline, "recording the filter's last outputs", stop)
-            replay_s = last[1] - player.started_at
+            replay_s = time.monotonic() - player.started_at
             rec.close()
             if rec.error:
                 raise PipelineError(f"recording failed: {rec.error}")

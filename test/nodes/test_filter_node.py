@@ -228,6 +228,7 @@ def test_nominal_flight(ros):
                 "/reference/velocity age_s", "received_ins", "received_reference"):
         assert key in v, key
     assert v["received_reference"] == str(N) and v["received_ins"] == str(t_ins.size)
+    assert v["published"] == str(2 * N)  # steps published: one per channel and reference sample
     assert 40.0 <= float(v["/ins/velocity rate_hz"]) <= 62.0
     assert 8.0 <= float(v["/reference/velocity rate_hz"]) <= 12.5
     vx = _values(chx)
