@@ -463,10 +463,10 @@ def _run_source(n: int, phi_mask: tuple, q_mask: tuple, with_bu: bool, h_mask: t
     r = range(n)
     xs = "".join(f"x{i}, " for i in r)
     Ps = _tri_names("P", n)
-    unpack_phi = [f"({''.join(f'F{i}_{j}, ' for i in r for j in r)}) = Phi",
-                  f"({''.join(f'Q{i}_{j}, ' for i in r for j in r)}) = Qd"]
-    lines = ["def run(x, P, Phi, Qd, bus, h, rs, zs, threshold, reject, out):",
-             f"    ({xs}) = x", f"    ({Ps}) = P", f"    ({''.join(f'h{i}, ' for i in r)}) = h"]
+    unpack = [line[4:] for line in _unpack_lines(n, with_bu)]  # x, P, Phi, Qd (, bu)
+    unpack_x_P, unpack_phi, unpack_bu = unpack[:2], unpack[2:4], unpack[4:]
+    lines = ["def run(x, P, Phi, Qd, bus, h, rs, zs, threshold, reject, out):"]
+    lines += [f"    {line}" for line in unpack_x_P + [f"({''.join(f'h{i}, ' for i in r)}) = h"]]
     seqs = ["rs", "zs"]
     names = ["r", "z"]
     if constant:
@@ -476,9 +476,7 @@ def _run_source(n: int, phi_mask: tuple, q_mask: tuple, with_bu: bool, h_mask: t
     if with_bu:
         seqs.append("bus")
         names.append("bu")
-    body = [] if constant else list(unpack_phi)
-    if with_bu:
-        body.append(f"({''.join(f'b{i}, ' for i in r)}) = bu")
+    body = ([] if constant else unpack_phi) + unpack_bu
     body += [line[4:] for line in _predict_lines(n, phi_mask, q_mask, with_bu)]
     prior = f"{''.join(f'y{i}, ' for i in r)}{_tri_names('M', n)}"
 
@@ -1264,11 +1262,7 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
             b2_l: list = []
             fus_l: list = []
             steps = [mats[i] for i in idx.tolist()]
-            if ua is None:
-                bus = [None] * N
-            else:
-                Bd = np.stack([mt.Bd for mt in mats])[idx]
-                bus = [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua).tolist()]
+            bus = [None] * N if ua is None else _control_terms(mats, idx, ua)
             for k in range(N):
                 if k:
                     mt = steps[k]
@@ -1315,6 +1309,12 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
         fused=fused, alarm_state=alarm_states(exceeded, gate), u=ua, gate=gate)
 
 
+def _control_terms(mats: list, idx: np.ndarray, ua: np.ndarray) -> list[tuple]:
+    """Bd u of every step (scaled), as float tuples for the generated prediction."""
+    Bd = np.stack([mt.Bd for mt in mats])[idx]
+    return [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua).tolist()]
+
+
 #: steps per call of the generated forward loop: its output list (36 Python floats per step for
 #: the INS channel, ~1.2 kB) is turned into an array chunk by chunk, not for a whole 10-hour flight
 _FORWARD_CHUNK = 16384
@@ -1338,10 +1338,7 @@ def _forward1(sm: ScaledModel, mats: list, idx: np.ndarray, ua: np.ndarray | Non
     steps = idx.tolist()
     used = [mats[i] for i in sorted(set(steps[1:]))]
     h_mask = tuple(bool(v) for v in sm.H[0] != 0)
-    bus: list | None = None
-    if ua is not None:
-        Bd = np.stack([mt.Bd for mt in mats])[idx]
-        bus = [tuple(row) for row in np.einsum("kip,kp->ki", Bd, ua).tolist()]
+    bus = None if ua is None else _control_terms(mats, idx, ua)
     constant = len(used) == 1
     if constant:
         mt = used[0]

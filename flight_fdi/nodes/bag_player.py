@@ -486,25 +486,13 @@ def main(args: list[str] | None = None) -> int:
     """``ros2 run flight_fdi bag_player [--executor {single,events}] --ros-args -p bag:=flight
     -p rate:=2.0``; with ``exit_when_done`` the process ends after the bag (exit 1 when the replay
     stopped on an error), otherwise it spins until Ctrl-C; exit 1 on an invalid parameter."""
-    from .runner import executor_option, run_node
+    from .runner import run_node
 
-    argv = list(sys.argv if args is None else args)
-    kind = executor_option(argv, NODE_NAME)
-
-    def build() -> BagPlayer:
-        node = BagPlayer()
-        if kind == "events" and node._pump_gc is not None:
-            node.destroy_node()
-            raise ParameterError(
-                "fast replay without 'ack_topic' paces one message per executor cycle with a "
-                "guard condition, which rclpy's EventsExecutor does not support: use "
-                "--executor single, or set 'ack_topic'")
-        return node
-
-    return run_node(build, NODE_NAME, argv,
+    return run_node(BagPlayer, NODE_NAME, args,
                     exit_status=lambda node: 1 if (node.params["exit_when_done"]
                                                    and node.error) else 0,
                     until=lambda node: node.done if node.params["exit_when_done"] else None)
+
 
 if __name__ == "__main__":
     sys.exit(main())

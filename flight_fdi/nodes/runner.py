@@ -8,8 +8,9 @@ throughput and half the latency, docs/performance.md). The in-flight monitors (f
 voter_node) default to ``events``: with ``single`` the filter's input -> innovation latency misses
 its p99 <= 2 ms target at 10x real time. The other nodes default to ``single``.
 
-An invalid parameter (``ParameterError`` from the node's constructor) is logged as FATAL and the
-process exits 1 without spinning; an invalid ``--executor`` is an argparse error (exit 2);
+An invalid parameter (``ParameterError`` from the node's constructor), or a node with guard
+conditions on the EventsExecutor (which does not support them: bag_player's fast replay without
+``ack_topic``), is logged as FATAL and the process exits 1 without spinning; an invalid ``--executor`` is an argparse error (exit 2);
 SIGINT / SIGTERM (at any point after ``rclpy.init``) and an external shutdown end the process
 normally; a second SIGINT / SIGTERM gets the default action.
 """
@@ -117,6 +118,10 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
             executor = make_executor(kind)
             try:
                 node = factory()
+                if kind == "events" and any(True for _ in node.guards):
+                    raise ParameterError(
+                        f"{name} uses a guard condition in this configuration, which rclpy's "
+                        "EventsExecutor does not support: use --executor single")
             except ParameterError as exc:
                 rclpy.logging.get_logger(name).fatal(str(exc))
                 return 1
