@@ -18,6 +18,9 @@ doubles are 8-byte aligned relative to the payload start)::
 
 Both encapsulations are decoded: CDR_LE (``00 01``) and CDR_BE (``00 00``). Encoding writes CDR_LE.
 The tests check both directions against rosbags' own serializer.
+
+Encoding only (the 3-D simulator's topics): ``encode_doubles`` for any type that is a header
+followed by doubles (``sensor_msgs/Imu``: 37), ``encode_navsatfix`` for ``sensor_msgs/NavSatFix``.
 """
 from __future__ import annotations
 
@@ -29,9 +32,13 @@ from .errors import BagError
 
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 TWIST_COV_STAMPED = "geometry_msgs/msg/TwistWithCovarianceStamped"
+IMU = "sensor_msgs/msg/Imu"
+NAVSATFIX = "sensor_msgs/msg/NavSatFix"
 
 #: number of doubles after the header for each supported type
 _DOUBLES = {TWIST_STAMPED: 6, TWIST_COV_STAMPED: 6 + 36}
+#: header + doubles types that are only encoded here
+_ENCODE_ONLY = {IMU: 4 + 9 + 3 + 9 + 3 + 9}
 _NS = 1_000_000_000
 
 
@@ -41,15 +48,6 @@ def supported(msgtype: str) -> bool:
 
 def _align8(n: np.ndarray | int):
     return (n + 7) & ~7
-
-
-def _layout(frame_id: str, msgtype: str) -> tuple[int, bytes, int]:
-    """(offset of the doubles in the payload, encoded frame_id with NUL, message size in bytes)."""
-    raw = frame_id.encode("utf-8") + b"\x00"
-    if b"\x00" in raw[:-1]:
-        raise BagError(f"frame_id {frame_id!r} contains a NUL character")
-    off = _align8(12 + len(raw))
-    return off, raw, 4 + off + 8 * _DOUBLES[msgtype]
 
 
 def encode(msgtype: str, stamp_ns: np.ndarray, frame_id: str, twist: np.ndarray,
@@ -66,7 +64,28 @@ def encode(msgtype: str, stamp_ns: np.ndarray, frame_id: str, twist: np.ndarray,
     twist = np.asarray(twist, dtype=np.float64)
     if twist.shape != (n, 6):
         raise BagError(f"encode {msgtype}: twist must have shape ({n}, 6), got {twist.shape}")
-    off, raw, size = _layout(frame_id, msgtype)
+    values = twist
+    if msgtype == TWIST_COV_STAMPED:
+        if covariance is None:
+            covariance = np.zeros(36)
+        cov = np.asarray(covariance, dtype=np.float64)
+        if cov.shape == (36,):
+            cov = np.broadcast_to(cov, (n, 36))
+        if cov.shape != (n, 36):
+            raise BagError(f"encode {msgtype}: covariance must have shape (36,) or ({n}, 36)")
+        values = np.concatenate([twist, cov], axis=1)
+    elif covariance is not None:
+        raise BagError(f"encode {msgtype}: this type has no covariance")
+    return encode_doubles(msgtype, stamp_ns, frame_id, values)
+
+
+def _header_rows(stamp_ns: np.ndarray, frame_id: str, size: int) -> tuple[np.ndarray, int]:
+    """(n, size) zero buffer with the encapsulation and header written; payload offset after
+    the frame_id's NUL."""
+    raw = frame_id.encode("utf-8") + b"\x00"
+    if b"\x00" in raw[:-1]:
+        raise BagError(f"frame_id {frame_id!r} contains a NUL character")
+    n = stamp_ns.size
     buf = np.zeros((n, size), dtype=np.uint8)
     buf[:, 1] = 1  # CDR_LE encapsulation: 00 01 00 00
     sec, nsec = np.divmod(stamp_ns, _NS)
@@ -76,22 +95,57 @@ def encode(msgtype: str, stamp_ns: np.ndarray, frame_id: str, twist: np.ndarray,
     buf[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
     buf[:, 12:16] = np.frombuffer(np.uint32(len(raw)).astype("<u4").tobytes(), dtype=np.uint8)
     buf[:, 16:16 + len(raw)] = np.frombuffer(raw, dtype=np.uint8)
-    start = 4 + off
-    buf[:, start:start + 48] = twist.astype("<f8").view(np.uint8).reshape(n, 48)
-    if msgtype == TWIST_COV_STAMPED:
-        if covariance is None:
-            covariance = np.zeros(36)
-        cov = np.asarray(covariance, dtype=np.float64)
-        if cov.shape == (36,):
-            cov = np.broadcast_to(cov, (n, 36))
-        if cov.shape != (n, 36):
-            raise BagError(f"encode {msgtype}: covariance must have shape (36,) or ({n}, 36)")
-        buf[:, start + 48:start + 336] = np.ascontiguousarray(cov, dtype="<f8").view(
-            np.uint8).reshape(n, 288)
-    elif covariance is not None:
-        raise BagError(f"encode {msgtype}: this type has no covariance")
+    return buf, 12 + len(raw)
+
+
+def rows(buf: np.ndarray) -> list[bytes]:
+    """The rows of an (n, size) uint8 array as n ``bytes`` payloads."""
+    n, size = buf.shape
     flat = buf.tobytes()
     return [flat[i:i + size] for i in range(0, n * size, size)]
+
+
+def encode_doubles(msgtype: str, stamp_ns: np.ndarray, frame_id: str,
+                   values: np.ndarray) -> list[bytes]:
+    """Serialize a type made of a header and doubles; ``values`` (N, number of doubles) in
+    declaration order (e.g. Imu: orientation x y z w, its covariance, angular_velocity, ...)."""
+    ndouble = _DOUBLES.get(msgtype, _ENCODE_ONLY.get(msgtype))
+    if ndouble is None:
+        raise BagError(f"fast CDR encoding does not support {msgtype!r}")
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64).reshape(-1)
+    n = stamp_ns.size
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape != (n, ndouble):
+        raise BagError(f"encode {msgtype}: values must have shape ({n}, {ndouble}), "
+                       f"got {values.shape}")
+    off = _align8(12 + len(frame_id.encode("utf-8")) + 1)
+    buf, _ = _header_rows(stamp_ns, frame_id, 4 + off + 8 * ndouble)
+    buf[:, 4 + off:] = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).reshape(n, -1)
+    return rows(buf)
+
+
+def encode_navsatfix(stamp_ns: np.ndarray, frame_id: str, status: int, service: int,
+                     llh: np.ndarray, covariance: np.ndarray, covariance_type: int
+                     ) -> list[bytes]:
+    """Serialize sensor_msgs/NavSatFix messages: ``llh`` (N, 3) latitude, longitude (deg),
+    altitude (m); ``covariance`` (9,) or (N, 9) ENU m^2, row-major."""
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64).reshape(-1)
+    n = stamp_ns.size
+    llh = np.asarray(llh, dtype=np.float64)
+    cov = np.broadcast_to(np.asarray(covariance, dtype=np.float64), (n, 9))
+    if llh.shape != (n, 3):
+        raise BagError(f"encode {NAVSATFIX}: llh must have shape ({n}, 3), got {llh.shape}")
+    p = 12 + len(frame_id.encode("utf-8")) + 1      # status (int8) at p
+    ps = (p + 1 + 1) & ~1                           # service (uint16), 2-aligned
+    pd = _align8(ps + 2)                            # 12 doubles, 8-aligned
+    buf, _ = _header_rows(stamp_ns, frame_id, 4 + pd + 96 + 1)
+    buf[:, 4 + p] = np.uint8(np.int8(status).view(np.uint8))
+    buf[:, 4 + ps:4 + ps + 2] = np.frombuffer(np.uint16(service).astype("<u2").tobytes(),
+                                              dtype=np.uint8)
+    doubles = np.ascontiguousarray(np.concatenate([llh, cov], axis=1), dtype="<f8")
+    buf[:, 4 + pd:4 + pd + 96] = doubles.view(np.uint8).reshape(n, 96)
+    buf[:, 4 + pd + 96] = np.uint8(covariance_type)
+    return rows(buf)
 
 
 class Payloads:

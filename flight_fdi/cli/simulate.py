@@ -32,6 +32,12 @@ topics written: /ins/velocity (geometry_msgs/TwistStamped, x and y channels),
 """
 
 
+def _epilog() -> str:
+    from flight_fdi.cli.simulate3d import EPILOG_3D
+
+    return EPILOG + "\n" + EPILOG_3D
+
+
 def _model_param_names() -> list[str]:
     from flight_fdi.core.models import ins_channel
 
@@ -42,19 +48,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate", help="simulate a flight (INS error model + faults) into a rosbag2 bag",
         description=("Simulate a flight with the single-channel INS error model of seed 000 on "
-                     "two horizontal channels, inject faults, and write a rosbag2 bag."),
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+                     "two horizontal channels (default), or with the 3-D strapdown simulator "
+                     "(--model ins3d), inject faults, and write a rosbag2 bag."),
+        epilog=_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("output", help="bag directory to create")
-    p.add_argument("--duration", type=float, default=1000.0, metavar="S",
-                   help="flight duration in seconds (default 1000)")
-    p.add_argument("--ins-rate", type=float, default=50.0, metavar="HZ",
-                   help="INS velocity rate (default 50)")
-    p.add_argument("--ref-rate", type=float, default=10.0, metavar="HZ",
+    p.add_argument("--model", choices=("channel", "ins3d"), default="channel",
+                   help="channel: the seed-000 INS error model (default); ins3d: the 3-D "
+                        "strapdown simulator")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="flight duration in seconds (default 1000; ins3d 3600)")
+    p.add_argument("--ins-rate", type=float, default=None, metavar="HZ",
+                   help="INS velocity rate (default 50); ins3d: the mechanization rate "
+                        "(default 100)")
+    p.add_argument("--ref-rate", type=float, default=None, metavar="HZ",
                    help="reference velocity rate; must divide the INS rate (default 10)")
     p.add_argument("--truth-rate", type=float, default=1.0, metavar="HZ",
                    help="rate of the /sim/truth messages; must divide the INS rate (default 1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--channel", choices=("x", "y"), default="x",
+    p.add_argument("--channel", choices=("x", "y"), default=None,
                    help="axis the faults act on unless they name one (default x)")
     p.add_argument("--fault", action="append", default=[], metavar="SPEC",
                    help="inject a fault (repeatable; format below)")
@@ -68,6 +79,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epoch", type=int, default=None, metavar="S",
                    help="Unix time of the first message (default 1700000000)")
     p.add_argument("--force", action="store_true", help="overwrite an existing bag")
+    from flight_fdi.cli.simulate3d import add_arguments
+
+    add_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -90,10 +104,33 @@ def _params(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _check_channel_options(args: argparse.Namespace) -> None:
+    """The ins3d options are refused by the single-axis model (unless left at their defaults)."""
+    from flight_fdi.sim.errors import SimError
+
+    probe = argparse.ArgumentParser(add_help=False)
+    from flight_fdi.cli.simulate3d import add_arguments
+
+    add_arguments(probe)
+    changed = [a.option_strings[0] for a in probe._actions
+               if getattr(args, a.dest) != a.default]
+    if changed:
+        raise SimError(f"{', '.join(changed)} apply to --model ins3d only")
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.model == "ins3d":
+        from flight_fdi.cli.simulate3d import run3d
+
+        return run3d(args)
     from flight_fdi.sim import SimConfig, parse_fault, simulate, write_bag
     from flight_fdi.sim.ins import EPOCH_S
 
+    _check_channel_options(args)
+    args.duration = 1000.0 if args.duration is None else args.duration
+    args.ins_rate = 50.0 if args.ins_rate is None else args.ins_rate
+    args.ref_rate = 10.0 if args.ref_rate is None else args.ref_rate
+    args.channel = "x" if args.channel is None else args.channel
     faults = tuple(parse_fault(s) for s in args.fault)
     config = SimConfig(duration_s=args.duration, ins_rate_hz=args.ins_rate,
                        ref_rate_hz=args.ref_rate, truth_rate_hz=args.truth_rate, seed=args.seed,

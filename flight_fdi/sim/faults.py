@@ -37,6 +37,12 @@ Command-line form, one fault per ``--fault``::
 
 Magnitude units (optional suffix): accel m/s^2 (default), mg, ug; gyro rad/s (default), deg/h,
 deg/s; ref m/s; scale: none (default), ppm, %. For a ramp the unit is per second.
+
+The 3-D simulator (``ins3d``) uses ``FaultSpec3D``: body axes x, y, z for the instruments, ENU
+axes x (East), y (North), z (Up) for the reference, and one more reference fault, ``latency``:
+the reference reports the velocity of m seconds earlier than its stamp over [start, end)
+(added to the nominal latency; units s (default) or ms). Parse with
+``parse_fault(text, FaultSpec3D)``.
 """
 from __future__ import annotations
 
@@ -56,6 +62,8 @@ INSTRUMENT_TYPES = ("step", "ramp", "sine", "square", "stuck", "scale")
 REFERENCE_TYPES = ("jump", "outliers", "dropout")
 TARGETS = {"accel": INSTRUMENT_TYPES, "gyro": INSTRUMENT_TYPES, "ref": REFERENCE_TYPES}
 AXES = ("x", "y")
+TARGETS_3D = {**TARGETS, "ref": REFERENCE_TYPES + ("latency",)}
+AXES_3D = ("x", "y", "z")
 ELEMENTS = {"accel": "accel_bias", "gyro": "gyro_drift", "ref": "reference"}
 #: the GLR hypothesis that describes each fault exactly (None: no exact hypothesis)
 HYPOTHESES = {("accel", "step"): "accel_bias_step", ("gyro", "step"): "gyro_drift_step",
@@ -67,6 +75,7 @@ _UNITS = {
              "deg/s": math.pi / 180.0},
     "ref": {"": 1.0, "m/s": 1.0},
     "scale": {"": 1.0, "ppm": 1e-6, "%": 1e-2},
+    "latency": {"": 1.0, "s": 1.0, "ms": 1e-3},
 }
 _NUMBER = re.compile(r"^([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)(.*)$")
 SI_UNITS = {"accel": "m/s^2", "gyro": "rad/s", "ref": "m/s"}
@@ -84,14 +93,20 @@ class FaultSpec:
     freq_hz: float | None = None   # sine/square frequency; outliers per second
     axis: str | None = None        # x | y; None: the simulation's channel
 
+    #: the axes and fault types this kind of fault accepts (class attributes, not fields)
+    _axes = AXES
+    _targets = TARGETS
+
     def __post_init__(self) -> None:
-        if self.target not in TARGETS:
-            raise SimError(f"fault target must be one of {', '.join(TARGETS)}, got {self.target!r}")
-        if self.type not in TARGETS[self.target]:
+        targets = self._targets
+        if self.target not in targets:
+            raise SimError(f"fault target must be one of {', '.join(targets)}, got {self.target!r}")
+        if self.type not in targets[self.target]:
             raise SimError(f"fault type {self.type!r} does not apply to {self.target}; choose "
-                           f"one of {', '.join(TARGETS[self.target])}")
-        if self.axis is not None and self.axis not in AXES:
-            raise SimError(f"fault axis must be x or y, got {self.axis!r}")
+                           f"one of {', '.join(targets[self.target])}")
+        if self.axis is not None and self.axis not in self._axes:
+            raise SimError(f"fault axis must be {', '.join(self._axes[:-1])} or "
+                           f"{self._axes[-1]}, got {self.axis!r}")
         if not math.isfinite(self.start_s) or self.start_s < 0:
             raise SimError(f"{self.label}: start must be a time >= 0 s, got {self.start_s!r}")
         if self.end_s is not None and (not math.isfinite(self.end_s)
@@ -179,7 +194,7 @@ class FaultSpec:
         d["axis"] = self.axis or default_axis
         d["element"] = self.element
         d["hypothesis"] = self.hypothesis
-        d["unit"] = ("1" if self.type == "scale" else
+        d["unit"] = ("1" if self.type == "scale" else "s" if self.type == "latency" else
                      SI_UNITS[self.target] + ("/s" if self.type == "ramp" else ""))
         return d
 
@@ -200,7 +215,8 @@ class FaultSpec:
         span = f"at {self.start_s:g} s"
         if self.end_s is not None:
             span += f" to {self.end_s:g} s"
-        mag = ("" if self.type == "dropout" else f", scale-factor change {self.magnitude:.6g}"
+        mag = ("" if self.type == "dropout" else f", latency +{self.magnitude:.6g} s"
+               if self.type == "latency" else f", scale-factor change {self.magnitude:.6g}"
                if self.type == "scale" else f", {self.magnitude:.6g} {unit}")
         if self.type not in ("dropout", "scale") and self.target != "ref":
             unit_name, factor = ("mg", 1e-3 * G0) if self.target == "accel" else ("deg/h",
@@ -209,6 +225,15 @@ class FaultSpec:
             mag += f" ({self.magnitude / factor:.4g} {unit_name}{per_s})"
         freq = "" if self.freq_hz is None else f", {self.freq_hz:g} Hz"
         return f"{self.target} {self.type} on {self.axis or default_axis} {span}{mag}{freq}"
+
+
+@dataclass(frozen=True)
+class FaultSpec3D(FaultSpec):
+    """A fault of the 3-D simulator: axes x, y, z (body for accel/gyro, ENU for ref) and the
+    reference ``latency`` fault (magnitude in s)."""
+
+    _axes = AXES_3D
+    _targets = TARGETS_3D
 
 
 def _number(text: str, what: str) -> float:
@@ -222,7 +247,7 @@ def _number(text: str, what: str) -> float:
 
 
 def _magnitude(text: str, target: str, ftype: str, what: str) -> float:
-    table = _UNITS["scale" if ftype == "scale" else target]
+    table = _UNITS[ftype if ftype in ("scale", "latency") else target]
     match = _NUMBER.match(text.strip())
     if not match:
         raise SimError(f"{what}: magnitude {text!r} does not start with a number")
@@ -236,8 +261,11 @@ def _magnitude(text: str, target: str, ftype: str, what: str) -> float:
     return _number(number, what) * table[unit]
 
 
-def parse_fault(text: str) -> FaultSpec:
-    """Parse ``TARGET:TYPE:key=value[,key=value...]`` (see the module docstring)."""
+def parse_fault(text: str, cls: type[FaultSpec] = None) -> FaultSpec:  # type: ignore[assignment]
+    """Parse ``TARGET:TYPE:key=value[,key=value...]`` (see the module docstring) into a ``cls``
+    (default ``FaultSpec``; ``FaultSpec3D`` for the 3-D simulator)."""
+    cls = FaultSpec if cls is None else cls
+    TARGETS = cls._targets  # noqa: N806 -- the kind's own catalogue
     what = f"--fault {text!r}"
     parts = text.strip().split(":", 2)
     if len(parts) < 2 or not parts[0] or not parts[1]:
@@ -270,7 +298,7 @@ def parse_fault(text: str) -> FaultSpec:
     if freq is not None and freq.lower().endswith("hz"):
         freq = freq[:-2]
     try:
-        return FaultSpec(
+        return cls(
             target=target, type=ftype,
             start_s=_number(values["t"].rstrip("s"), what),
             end_s=None if "end" not in values else _number(values["end"].rstrip("s"), what),

@@ -1,0 +1,221 @@
+"""Writing a 3-D simulated flight as a rosbag2 bag: the input contract of the 3-D estimator.
+
+Frames (REP 103): navigation ``enu`` (x East, y North, z Up), body ``base_link`` (x forward,
+y left, z up), GNSS antenna ``gnss``. Header stamps are the times the values belong to (the
+GNSS stamp is the receiver's, late by its latency); bag receive time = header stamp.
+
+==================  ==========================================  =============================
+topic               type                                        content
+==================  ==========================================  =============================
+/ins/velocity       geometry_msgs/TwistStamped (``enu``)        INS velocity v_E, v_N, v_U in
+                                                                twist.linear; angular 0
+/ins/imu            sensor_msgs/Imu (``base_link``)             orientation = INS attitude
+                                                                q_b^n (body -> ENU); angular_
+                                                                velocity, linear_acceleration
+                                                                = the measured body rate and
+                                                                specific force (gravity
+                                                                included as an accelerometer
+                                                                senses it: ~ +9.8 on z when
+                                                                level), *mean over the interval
+                                                                since the previous message*;
+                                                                covariances 0 (unknown)
+/ins/fix            sensor_msgs/NavSatFix (``base_link``)       INS latitude, longitude (deg),
+                                                                ellipsoidal height (m);
+                                                                covariance type UNKNOWN
+/reference/velocity geometry_msgs/TwistWithCovarianceStamped    GNSS velocity, ENU; covariance
+                    (``enu``)                                   diagonal [0, 7, 14] = white^2 +
+                                                                markov^2, angular 1e6
+/reference/fix      sensor_msgs/NavSatFix (``gnss``)            GNSS position, ENU covariance
+                                                                (DIAGONAL_KNOWN)
+/sim/truth          flight_fdi_msgs/FilterState, channel        named truth values (TRUTH_NAMES)
+                    ``truth3d``
+/sim/fault          std_msgs/String (transient local, once)     JSON: ``Flight3D.description``
+==================  ==========================================  =============================
+
+/ins/velocity, /ins/imu, /ins/fix and /sim/truth are decimations of the INS states (the rates
+must divide the mechanization rate); the IMU message at state k averages the increments of the
+intervals since the previous message, so the sum of rate x interval over the messages is the
+total increment.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from .errors import SimError
+from .imu3d import AXES
+from .ins3d import Flight3D
+from .rotation import attitude_error_array
+
+EPOCH_S = 1_700_000_000
+_NS = 1_000_000_000
+ENU_FRAME, BODY_FRAME, GNSS_FRAME = "enu", "base_link", "gnss"
+FILTER_STATE = "flight_fdi_msgs/msg/FilterState"
+STRING = "std_msgs/msg/String"
+TOPICS = {"ins_velocity": "/ins/velocity", "ins_imu": "/ins/imu", "ins_fix": "/ins/fix",
+          "ref_velocity": "/reference/velocity", "ref_fix": "/reference/fix",
+          "truth": "/sim/truth", "fault": "/sim/fault"}
+TRUTH_CHANNEL = "truth3d"
+#: /sim/truth state_names: true position (rad, m), velocity (ENU m/s), attitude (q_b^n, w x y
+#: z), accelerometer and gyro bias (body; turn-on + Gauss-Markov), the fault errors the
+#: catalogue added, the total systematic instrument error ((S + M) r + bias + fault), and the
+#: INS errors: velocity v_INS - v_true (ENU) and attitude phi (C_INS = (I - [phi x]) C_true)
+TRUTH_NAMES = (["lat", "lon", "h", "v_e", "v_n", "v_u", "q_w", "q_x", "q_y", "q_z"]
+               + [f"{s}_{a}" for s in ("accel_bias", "gyro_bias", "accel_fault", "gyro_fault",
+                                        "accel_error", "gyro_error") for a in AXES]
+               + ["dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u"])
+UNMEASURED_VARIANCE = 1e6
+
+
+def _every(rate_hz: float, base_hz: float, what: str) -> int:
+    k = base_hz / rate_hz
+    if rate_hz <= 0 or abs(k - round(k)) > 1e-9 * k or round(k) < 1:
+        raise SimError(f"the {what} rate ({rate_hz:g} Hz) must divide the mechanization rate "
+                       f"({base_hz:g} Hz)")
+    return int(round(k))
+
+
+def truth_matrix(flight: Flight3D, index: np.ndarray | None = None) -> np.ndarray:
+    """(len(index), len(TRUTH_NAMES)) the truth at INS states ``index`` (default all); the
+    instrument errors are those of the interval starting at the state (the last state repeats
+    the last interval)."""
+    nav = flight.truth.nav
+    k = np.arange(nav.lat.size) if index is None else np.asarray(index)
+    ki = np.minimum(k, flight.gyro.rate.shape[0] - 1)
+    dt = flight.dt
+    cols = [nav.lat[k, None], nav.lon[k, None], nav.h[k, None], nav.v[k], nav.q[k],
+            flight.accel.bias[ki], flight.gyro.bias[ki], flight.accel.fault[ki],
+            flight.gyro.fault[ki], flight.accel.systematic(flight.ideal_dv[ki] / dt, ki),
+            flight.gyro.systematic(flight.ideal_dtheta[ki] / dt, ki),
+            flight.ins.v[k] - nav.v[k], attitude_error_array(flight.ins.q[k], nav.q[k])]
+    return np.concatenate(cols, axis=1)
+
+
+def _truth_payloads(x: np.ndarray, stamps: np.ndarray, dt_truth: float) -> list[bytes]:
+    """FilterState messages (channel ``truth3d``, state_names TRUTH_NAMES, x rows) for a series.
+
+    One message is serialized by rosbags; the others are that template with the stamp, x and dt
+    bytes replaced (every other field is identical), which a test checks against rosbags."""
+    from flight_fdi.bagio import cdr
+    from flight_fdi.bagio.typestore import get_typestore
+
+    store = get_typestore()
+    FilterState = store.types[FILTER_STATE]
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    empty = np.zeros(0)
+    sentinel = np.pi * (1.0 + np.arange(x.shape[1]))
+    dt_sentinel = np.e * 1e5
+    msg = FilterState(header=Header(stamp=Time(sec=0, nanosec=0), frame_id=ENU_FRAME),
+                      channel=TRUTH_CHANNEL, state_names=list(TRUTH_NAMES), x=sentinel, p=empty,
+                      z=empty, r=empty, h=empty, u=empty, dt=dt_sentinel, fused=False,
+                      gated=False, reset=False)
+    template = bytes(store.serialize_cdr(msg, FILTER_STATE))
+    ox = template.find(sentinel.astype("<f8").tobytes())
+    odt = template.find(np.float64(dt_sentinel).astype("<f8").tobytes())
+    n = stamps.size
+    buf = np.tile(np.frombuffer(template, dtype=np.uint8), (n, 1))
+    sec, nsec = np.divmod(np.asarray(stamps, dtype=np.int64), _NS)
+    buf[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+    buf[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
+    buf[:, ox:ox + 8 * x.shape[1]] = np.ascontiguousarray(x, "<f8").view(np.uint8).reshape(n, -1)
+    dts = np.full(n, dt_truth)
+    dts[:1] = 0.0
+    buf[:, odt:odt + 8] = dts.astype("<f8").view(np.uint8).reshape(n, 8)
+    return cdr.rows(buf)
+
+
+def _imu_values(flight: Flight3D, every: int) -> tuple[np.ndarray, np.ndarray]:
+    """(state indices, (M, 37) Imu doubles) for messages at states every, 2 every, ..."""
+    n_int = flight.gyro.rate.shape[0]
+    m = n_int // every
+    idx = every * np.arange(1, m + 1)
+    w = flight.gyro.rate[:m * every].reshape(m, every, 3).mean(axis=1)
+    f = flight.accel.rate[:m * every].reshape(m, every, 3).mean(axis=1)
+    q = flight.ins.q[idx]
+    vals = np.zeros((m, 37))
+    vals[:, 0:3] = q[:, 1:4]
+    vals[:, 3] = q[:, 0]
+    vals[:, 13:16] = w
+    vals[:, 25:28] = f
+    return idx, vals
+
+
+def encode_topics(flight: Flight3D, velocity_rate_hz: float, imu_rate_hz: float,
+                  fix_rate_hz: float, truth_rate_hz: float, epoch_s: int = EPOCH_S
+                  ) -> list[tuple[str, str, np.ndarray, list[bytes]]]:
+    """(topic, type, receive times ns, payloads) per topic, for ``BagWriter.write_series``."""
+    from flight_fdi.bagio import cdr
+
+    base = flight.config.trajectory.rate_hz
+    n = flight.t.size
+    stamp = epoch_s * _NS + np.round(flight.t * _NS).astype(np.int64)
+    series = []
+    k = _every(truth_rate_hz, base, "truth")
+    idx = np.arange(0, n, k)
+    series.append((TOPICS["truth"], FILTER_STATE, stamp[idx],
+                   _truth_payloads(truth_matrix(flight, idx), stamp[idx], 1.0 / truth_rate_hz)))
+    g = flight.gnss
+    g_stamp = epoch_s * _NS + np.round(g.t * _NS).astype(np.int64)
+    twist = np.zeros((g.t.size, 6))
+    twist[:, :3] = g.v
+    cov = np.zeros(36)
+    cov[[0, 7, 14]] = g.vel_var
+    cov[[21, 28, 35]] = UNMEASURED_VARIANCE
+    series.append((TOPICS["ref_velocity"], cdr.TWIST_COV_STAMPED, g_stamp,
+                   cdr.encode(cdr.TWIST_COV_STAMPED, g_stamp, ENU_FRAME, twist, cov)))
+    llh = np.stack([np.degrees(g.lat), np.degrees(g.lon), g.h], axis=1)
+    series.append((TOPICS["ref_fix"], cdr.NAVSATFIX, g_stamp,
+                   cdr.encode_navsatfix(g_stamp, GNSS_FRAME, 0, 1, llh,
+                                        np.diag(g.pos_var).reshape(9), 2)))
+    k = _every(fix_rate_hz, base, "INS fix")
+    idx = np.arange(0, n, k)
+    ins = flight.ins
+    llh = np.stack([np.degrees(ins.lat[idx]), np.degrees(ins.lon[idx]), ins.h[idx]], axis=1)
+    series.append((TOPICS["ins_fix"], cdr.NAVSATFIX, stamp[idx],
+                   cdr.encode_navsatfix(stamp[idx], BODY_FRAME, 0, 0, llh, np.zeros(9), 0)))
+    idx, vals = _imu_values(flight, _every(imu_rate_hz, base, "IMU"))
+    series.append((TOPICS["ins_imu"], cdr.IMU, stamp[idx],
+                   cdr.encode_doubles(cdr.IMU, stamp[idx], BODY_FRAME, vals)))
+    k = _every(velocity_rate_hz, base, "INS velocity")
+    idx = np.arange(0, n, k)
+    twist = np.zeros((idx.size, 6))
+    twist[:, :3] = ins.v[idx]
+    series.append((TOPICS["ins_velocity"], cdr.TWIST_STAMPED, stamp[idx],
+                   cdr.encode(cdr.TWIST_STAMPED, stamp[idx], ENU_FRAME, twist)))
+    return series
+
+
+def write_bag3d(flight: Flight3D, path: str, velocity_rate_hz: float = 50.0,
+                imu_rate_hz: float = 50.0, fix_rate_hz: float = 10.0, truth_rate_hz: float = 1.0,
+                epoch_s: int = EPOCH_S, storage: str = "mcap", compression: str = "zstd",
+                overwrite: bool = False) -> dict[str, int]:
+    """Write the flight (topics in the module docstring); returns the message count per topic."""
+    from flight_fdi.bagio.typestore import get_typestore
+    from flight_fdi.bagio.writer import open_writer
+
+    if not isinstance(epoch_s, (int, np.integer)) or not 0 <= epoch_s < 2**31 - 10**6 or \
+            epoch_s + flight.config.trajectory.duration_s >= 2**31:
+        raise SimError(f"epoch must be whole seconds in [0, 2^31) with the flight ending before "
+                       f"2038, got {epoch_s!r}")
+    for name, rate in (("velocity", velocity_rate_hz), ("IMU", imu_rate_hz),
+                       ("fix", fix_rate_hz), ("truth", truth_rate_hz)):
+        if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+            raise SimError(f"the {name} rate must be a positive number, got {rate!r}")
+    series = encode_topics(flight, velocity_rate_hz, imu_rate_hz, fix_rate_hz, truth_rate_hz,
+                           epoch_s)
+    desc = flight.description()
+    desc["topics"] = {"velocity_rate_hz": velocity_rate_hz, "imu_rate_hz": imu_rate_hz,
+                      "fix_rate_hz": fix_rate_hz, "truth_rate_hz": truth_rate_hz,
+                      "epoch_s": int(epoch_s)}
+    doc = json.dumps(desc, sort_keys=True)
+    payload = bytes(get_typestore().serialize_cdr(get_typestore().types[STRING](data=doc),
+                                                  STRING))
+    with open_writer(path, storage=storage, compression=compression, overwrite=overwrite) as bag:
+        bag.add_topic(TOPICS["fault"], STRING, qos="transient_local")
+        bag.set_metadata("flight_fdi.sim3d", doc)
+        bag.write_series([(TOPICS["fault"], STRING, np.array([epoch_s * _NS]), [payload])]
+                         + series)
+        return dict(bag.counts)
