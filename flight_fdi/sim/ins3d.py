@@ -75,6 +75,9 @@ class Sim3DConfig:
             if not isinstance(f, FaultSpec3D):
                 raise SimError(f"faults must be FaultSpec3D objects, got {f!r}")
             f.check_against(d, rate, self.gnss.rate_hz)
+            if f.type == "latency" and not 0.0 <= self.gnss.latency_s + f.magnitude <= 1.0:
+                raise SimError(f"{f.label}: the reference latency must be within 0..1 s "
+                               f"({self.gnss.latency_s:g} s + {f.magnitude:g} s)")
 
     @property
     def imu_grade(self) -> ImuGrade:
