@@ -50,12 +50,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="initial attitude error from the sensor errors (default) or none")
     g.add_argument("--quantize", action="store_true",
                    help="quantize the IMU increments (the grade's quanta)")
-    g.add_argument("--velocity-rate", type=float, default=50.0, metavar="HZ",
-                   help="/ins/velocity rate; divides --ins-rate (default 50)")
-    g.add_argument("--imu-rate", type=float, default=50.0, metavar="HZ",
-                   help="/ins/imu rate; divides --ins-rate (default 50)")
-    g.add_argument("--fix-rate", type=float, default=10.0, metavar="HZ",
-                   help="/ins/fix rate; divides --ins-rate (default 10)")
+    g.add_argument("--velocity-rate", type=float, default=20.0, metavar="HZ",
+                   help="/ins/velocity rate; divides --ins-rate (default 20)")
+    g.add_argument("--imu-rate", type=float, default=20.0, metavar="HZ",
+                   help="/ins/imu rate (mean rates over each interval); divides --ins-rate "
+                        "(default 20)")
+    g.add_argument("--fix-rate", type=float, default=5.0, metavar="HZ",
+                   help="/ins/fix rate; divides --ins-rate (default 5)")
     g.add_argument("--gnss", action="append", default=[], metavar="NAME=VALUE",
                    help="GNSS reference parameter (repeatable): " + ", ".join(
                        f.name for f in _gnss_fields()))

@@ -188,8 +188,8 @@ def encode_topics(flight: Flight3D, velocity_rate_hz: float, imu_rate_hz: float,
     return series
 
 
-def write_bag3d(flight: Flight3D, path: str, velocity_rate_hz: float = 50.0,
-                imu_rate_hz: float = 50.0, fix_rate_hz: float = 10.0, truth_rate_hz: float = 1.0,
+def write_bag3d(flight: Flight3D, path: str, velocity_rate_hz: float = 20.0,
+                imu_rate_hz: float = 20.0, fix_rate_hz: float = 5.0, truth_rate_hz: float = 1.0,
                 epoch_s: int = EPOCH_S, storage: str = "mcap", compression: str = "zstd",
                 overwrite: bool = False) -> dict[str, int]:
     """Write the flight (topics in the module docstring); returns the message count per topic."""

@@ -73,11 +73,14 @@ class Schedule:
     legs: list[tuple[float, Leg]] = field(default_factory=list)
 
     def evaluate(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """The controls at the (sorted) times t."""
         out = {}
         for c in CONTROLS:
             y = np.full(t.shape, float(self.initial[c]))
             for t0, t1, d in self.steps[c]:
-                y += d * smoothstep((t - t0) / (t1 - t0))
+                i0, i1 = np.searchsorted(t, [t0, t1])
+                y[i0:i1] += d * smoothstep((t[i0:i1] - t0) / (t1 - t0))
+                y[i1:] += d
             out[c] = y
         return out
 
