@@ -86,22 +86,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _params(items: list[str]) -> dict[str, float]:
-    from flight_fdi.sim.errors import SimError
+    from flight_fdi.cli.simulate3d import name_values
 
-    names = _model_param_names()
-    out: dict[str, float] = {}
-    for item in items:
-        if "=" not in item:
-            raise SimError(f"--param {item!r}: expected NAME=VALUE")
-        name, value = (s.strip() for s in item.split("=", 1))
-        if name not in names:
-            raise SimError(f"--param {item!r}: unknown parameter {name!r}; parameters are "
-                           + ", ".join(names))
-        try:
-            out[name] = float(value)
-        except ValueError:
-            raise SimError(f"--param {item!r}: {value!r} is not a number") from None
-    return out
+    return name_values(items, "--param", _model_param_names())
 
 
 def _check_channel_options(args: argparse.Namespace) -> None:

@@ -68,24 +68,30 @@ def _gnss_fields():
     return [f for f in dataclasses.fields(GnssConfig) if f.name != "rate_hz"]
 
 
-def _gnss(items: list[str], rate_hz: float):
+def name_values(items: list[str], option: str, names: list[str]) -> dict[str, float]:
+    """``NAME=VALUE`` items of a repeatable option as floats (SimError naming the bad one)."""
     from flight_fdi.sim.errors import SimError
-    from flight_fdi.sim.gnss import GnssConfig
 
-    names = [f.name for f in _gnss_fields()]
-    values: dict[str, float] = {"rate_hz": rate_hz}
+    out: dict[str, float] = {}
     for item in items:
         name, sep, value = (s.strip() for s in item.partition("="))
         if not sep:
-            raise SimError(f"--gnss {item!r}: expected NAME=VALUE")
+            raise SimError(f"{option} {item!r}: expected NAME=VALUE")
         if name not in names:
-            raise SimError(f"--gnss {item!r}: unknown parameter {name!r}; parameters are "
+            raise SimError(f"{option} {item!r}: unknown parameter {name!r}; parameters are "
                            + ", ".join(names))
         try:
-            values[name] = float(value)
+            out[name] = float(value)
         except ValueError:
-            raise SimError(f"--gnss {item!r}: {value!r} is not a number") from None
-    return GnssConfig(**values)
+            raise SimError(f"{option} {item!r}: {value!r} is not a number") from None
+    return out
+
+
+def _gnss(items: list[str], rate_hz: float):
+    from flight_fdi.sim.gnss import GnssConfig
+
+    values = name_values(items, "--gnss", [f.name for f in _gnss_fields()])
+    return GnssConfig(rate_hz=rate_hz, **values)
 
 
 def run3d(args: argparse.Namespace) -> int:

@@ -86,6 +86,18 @@ def _mid(y, k):
 
 
 @njit(cache=True)
+def _mid_state(lat, h, v, k, wie, wen):
+    """Mid-interval (lat, h, v_E, v_N, v_U), extrapolated; fills omega_ie, omega_en there."""
+    lat_m = _mid(lat, k)
+    h_m = _mid(h, k)
+    ve_m = _mid(v[:, 0], k)
+    vn_m = _mid(v[:, 1], k)
+    vu_m = _mid(v[:, 2], k)
+    nav_rates(lat_m, h_m, ve_m, vn_m, wie, wen)
+    return lat_m, h_m, ve_m, vn_m, vu_m
+
+
+@njit(cache=True)
 def _position_step(lat, lon, h, vk, v1, dt, lat_m):
     """Trapezoidal position update (the same rule builds the true trajectory)."""
     h1 = h + 0.5 * (vk[2] + v1[2]) * dt
@@ -122,12 +134,7 @@ def _forward_second_order(dth, dv, dt, lat, lon, h, v, q, aid_h, gains):
     k1, k2, k3 = gains[0], gains[1], gains[2]
     integ = 0.0
     for k in range(dth.shape[0]):
-        lat_m = _mid(lat, k)
-        h_m = _mid(h, k)
-        ve_m = _mid(v[:, 0], k)
-        vn_m = _mid(v[:, 1], k)
-        vu_m = _mid(v[:, 2], k)
-        nav_rates(lat_m, h_m, ve_m, vn_m, wie, wen)
+        lat_m, h_m, ve_m, vn_m, vu_m = _mid_state(lat, h, v, k, wie, wen)
         qn = qexp(-(wie[0] + wen[0]) * dt, -(wie[1] + wen[1]) * dt, -(wie[2] + wen[2]) * dt)
         qb = qexp(dth[k, 0], dth[k, 1], dth[k, 2])
         a = qmul(qn[0], qn[1], qn[2], qn[3], q[k, 0], q[k, 1], q[k, 2], q[k, 3])
@@ -231,12 +238,7 @@ def _inverse(lat, h, v, q, dt, dth, dv):
     wen = np.empty(3)
     m = np.empty((3, 3))
     for k in range(dth.shape[0]):
-        lat_m = _mid(lat, k)
-        h_m = _mid(h, k)
-        ve_m = _mid(v[:, 0], k)
-        vn_m = _mid(v[:, 1], k)
-        vu_m = _mid(v[:, 2], k)
-        nav_rates(lat_m, h_m, ve_m, vn_m, wie, wen)
+        lat_m, h_m, ve_m, vn_m, vu_m = _mid_state(lat, h, v, k, wie, wen)
         qn = qexp((wie[0] + wen[0]) * dt, (wie[1] + wen[1]) * dt, (wie[2] + wen[2]) * dt)
         a = qmul(q[k, 0], -q[k, 1], -q[k, 2], -q[k, 3], qn[0], qn[1], qn[2], qn[3])
         b = qmul(a[0], a[1], a[2], a[3], q[k + 1, 0], q[k + 1, 1], q[k + 1, 2], q[k + 1, 3])
