@@ -114,15 +114,18 @@ def _speed(delta_v: float, accel: float = 0.5) -> Leg:
 
 
 def _cruise_turns(speed: float, duration: float, rng: np.random.Generator) -> list[Leg]:
-    cycle = lambda: [  # noqa: E731 -- rebuilt per cycle (speeds change along the flight)
+    dv = min(30.0, speed - 50.0)  # the slow-down keeps the speed >= 50 m/s
+    slow = [_speed(-dv), Leg("straight", 180.0)] if dv >= 1.0 else [Leg("straight", 180.0)]
+    back = [_speed(dv)] if dv >= 1.0 else []
+    v2 = speed - max(dv, 0.0) if dv >= 1.0 else speed
+    cycle = [
         Leg("straight", 300.0), _turn(90, speed, 25), Leg("straight", 240.0),
         _climb(600, speed), Leg("straight", 300.0), _turn(-135, speed, 20),
-        Leg("straight", 240.0), _speed(-30), Leg("straight", 180.0),
-        _turn(180, speed - 30, 30), Leg("straight", 300.0), _climb(-600, speed - 30),
-        Leg("straight", 180.0), _speed(30), _turn(-135, speed, 25)]
+        Leg("straight", 240.0), *slow, _turn(180, v2, 30), Leg("straight", 300.0),
+        _climb(-600, v2), Leg("straight", 180.0), *back, _turn(-135, speed, 25)]
     legs: list[Leg] = []
     while sum(leg.duration_s for leg in legs) < duration:
-        legs += cycle()
+        legs += cycle
     return legs
 
 

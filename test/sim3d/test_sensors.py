@@ -186,6 +186,9 @@ def test_trajectory_configuration_errors_and_profiles():
         v = np.linalg.norm(tr.nav.v, axis=1)
         assert 50 <= v.min() and v.max() <= 250
         assert np.isfinite(tr.nav.q).all()
+    for v in (50.0, 65.0, 250.0):  # cruise_turns slows down by 30 m/s, never below 50
+        s = generate(TrajectoryConfig(duration_s=3600, speed_mps=v)).controls["speed"]
+        assert s.min() == pytest.approx(max(50.0, v - 30.0)) and s.max() == pytest.approx(v)
     grid = generate(TrajectoryConfig(profile="survey_grid", duration_s=1800))
     # 300 s straight, then 180-deg turns (~70 s at 80 m/s, 20 deg bank) every 480 s: three
     assert np.degrees(np.abs(np.diff(grid.controls["heading"])).sum()) == pytest.approx(540,
