@@ -110,7 +110,7 @@ def calibration_meta(config, n_flights: int, first_run: int = 0) -> dict:
 
 def calibrate_from_means(t, means, args: argparse.Namespace, alpha: float, config, quantities,
                          first_run: int = 0):
-    from flight_fdi.core.voting import calibrate
+    from flight_fdi.core.voting_calib import calibrate
 
     return calibrate(means, t, alpha, args.window, config.rate_hz, quantities,
                      ks_alpha=args.ks_alpha, n_segments=args.segments,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from flight_fdi.core.voting import calibrate
+from flight_fdi.core.voting_calib import calibrate
 from flight_fdi.sim.imu import ImuSimConfig, nominal_window_means, parse_imu_fault, simulate_imus
 
 RATE_HZ = 100.0

@@ -11,10 +11,10 @@ import scipy.stats as st
 
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.voting import (HEALTHY, MARGINAL, MULTIPLE_FAULT, PAIRS,
-                                    SINGLE_FAULT, ThresholdTable, bounds_from_samples, calibrate,
-                                    ks_critical, ks_normal, load_table, pair_differences,
-                                    save_table, segment_curve, table_from_dict, vote, vote_array,
-                                    window_means)
+                                    SINGLE_FAULT, ThresholdTable, load_table, pair_differences,
+                                    save_table, table_from_dict, vote, vote_array, window_means)
+from flight_fdi.core.voting_calib import (bounds_from_samples, calibrate, ks_critical, ks_normal,
+                                          segment_curve)
 
 # ------------------------------------------------------------------------ truth table
 
