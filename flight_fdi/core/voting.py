@@ -45,6 +45,10 @@ Threshold table file (JSON, ``format: flight_fdi.voter_thresholds/1``)::
                   segment i holds from t_start[i] to t_start[i+1] (the last to the end);
                   t_start[0] = 0
     calibration   free-form metadata (flights, seed, IMU parameters, profile ...)
+    model         optional (tables calibrated on recordings): the real-sensor model of
+                  flight_fdi.core.voter_core.VoterModel -- prefilter, offset learning, time
+                  offsets, mounting; the bounds then bound the deviation of the statistic from
+                  each pair's learned nominal offset
 """
 from __future__ import annotations
 
@@ -187,6 +191,9 @@ class ThresholdTable:
     #: per quantity and pair: normal_fraction, ks_pvalue_median
     stats: Mapping[str, Mapping[str, Mapping[str, float]]] = field(default_factory=dict)
     calibration: Mapping[str, Any] = field(default_factory=dict)
+    #: the real-sensor model (prefilter, offsets, alignment, mounting; see
+    #: flight_fdi.core.voter_core.VoterModel); empty: the seed's plain window means
+    model: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.quantities:
@@ -293,6 +300,7 @@ class ThresholdTable:
             "time_origin": "first matched sample",
             "entries": entries,
             "calibration": _plain(dict(self.calibration)),
+            **({"model": _plain(dict(self.model))} if self.model else {}),
         }
 
 
@@ -356,8 +364,11 @@ def table_from_dict(data: Any, source: str = "threshold table") -> ThresholdTabl
     except (TypeError, ValueError):
         raise CoreError(f"{source}: rate_hz, alpha and duration_s must be numbers") from None
     try:
+        model = data.get("model") or {}
+        if not isinstance(model, Mapping):
+            raise CoreError("model must be an object")
         return ThresholdTable(tuple(quantities), window, rate, alpha, dur, entries, stats,
-                              dict(data.get("calibration") or {}))
+                              dict(data.get("calibration") or {}), dict(model))
     except CoreError as exc:
         raise CoreError(f"{source}: {str(exc).removeprefix('threshold table: ')}") from None
 
