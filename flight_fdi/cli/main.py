@@ -25,6 +25,8 @@ SUBCOMMANDS = {
     "imu-simulate": "flight_fdi.cli.imu_simulate",
     "voter-calibrate": "flight_fdi.cli.voter_calibrate",
     "voter-experiment": "flight_fdi.cli.voter_experiment",
+    "vote": "flight_fdi.cli.vote",
+    "imu-csv": "flight_fdi.cli.imu_csv",
 }
 
 EXIT_ERROR = 1

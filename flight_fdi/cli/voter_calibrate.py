@@ -7,6 +7,11 @@ x2 = P2 - P3, x3 = P1 - P3 of every quantity (gyro x/y/z, accel x/y/z) are teste
 1 - alpha/2 quantiles; the bound curves are cut into segments at their largest rates of change,
 each segment taking its max / min. The table is written as JSON (schema in
 flight_fdi/core/voting.py and docs/seed002_experiment.md) and loaded by voter_node.
+
+With ``--from-bags BAG...`` the same procedure runs on recorded nominal flights of three real
+IMUs instead (flight_fdi.core.voter_real): time offsets and mounting are estimated, each pair's
+offset is learnt in the first ``--learn`` seconds of every flight and the bounds hold the
+deviation from it (docs/voter_real.md). ``--grade`` picks the simulated IMUs' error presets.
 """
 from __future__ import annotations
 
@@ -18,8 +23,24 @@ import time
 from pathlib import Path
 
 
+#: IMU grade presets of the simulator (ImuErrorModel parameters; --param overrides them):
+#: navigation = the documented defaults (seed 002); tactical and consumer MEMS after typical
+#: data sheets (MEMS: Xsens DOT class -- its per-unit offsets are the turn-on bias)
+GRADES = {
+    "navigation": {},
+    "tactical": {"gyro_bias_dph": 1.0, "gyro_scale_ppm": 100.0, "gyro_arw_dph_rthz": 0.05,
+                 "accel_bias_ug": 300.0, "accel_scale_ppm": 300.0, "accel_vrw_ug_rthz": 50.0},
+    "mems": {"gyro_bias_dph": 500.0, "gyro_scale_ppm": 5000.0, "gyro_arw_dph_rthz": 0.6,
+             "gyro_pulse_arcsec": 0.01, "gyro_full_scale_dps": 2000.0,
+             "accel_bias_ug": 30000.0, "accel_scale_ppm": 5000.0, "accel_vrw_ug_rthz": 120.0,
+             "accel_pulse_mps": 1e-5, "accel_full_scale_g": 16.0},
+}
+
+
 def add_imu_options(p: argparse.ArgumentParser, duration: float = 60.0) -> None:
     """Options of the IMU simulation shared by the voter commands."""
+    p.add_argument("--grade", choices=tuple(GRADES), default="navigation",
+                   help="IMU error presets (default navigation; --param overrides single values)")
     p.add_argument("--duration", type=float, default=duration, metavar="S",
                    help=f"flight duration in seconds (default {duration:g})")
     p.add_argument("--rate", type=float, default=200.0, metavar="HZ",
@@ -41,7 +62,7 @@ def imu_config(args: argparse.Namespace, faults=()):
     from flight_fdi.sim.errors import SimError
     from flight_fdi.sim.imu import ImuErrorModel, ImuSimConfig
 
-    params: dict[str, float] = {}
+    params: dict[str, float] = dict(GRADES[getattr(args, "grade", "navigation")])
     for item in args.param:
         if "=" not in item:
             raise SimError(f"--param {item!r}: expected NAME=VALUE")
@@ -126,6 +147,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "voter", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("output", help="threshold table file to write (JSON)")
+    p.add_argument("--from-bags", nargs="+", metavar="BAG", default=None,
+                   help="calibrate on these recorded nominal flights of three real IMUs "
+                        "(/imu1/data ... /imu3/data) instead of the simulator")
+    p.add_argument("--learn", type=float, default=5.0, metavar="S",
+                   help="recordings: seconds at the start of a flight that learn the offsets "
+                        "and time offsets (default 5)")
+    p.add_argument("--prefilter", type=int, default=12, metavar="K",
+                   help="recordings: moving average of K samples before the window mean "
+                        "(default 12)")
+    p.add_argument("--margin", type=float, default=3.0, metavar="F",
+                   help="recordings: bounds x F for flights of other days (default 3, chosen "
+                        "by leave-one-day-out, docs/voter_real.md)")
+    p.add_argument("--track", type=float, default=0.0, metavar="S",
+                   help="recordings: time constant of the slow offset tracking (0: offsets "
+                        "frozen after the learning; default 0)")
     p.add_argument("--flights", type=int, default=1000, metavar="N",
                    help="Monte Carlo flights (default 1000, as the seed)")
     p.add_argument("--alpha", type=float, default=0.05,
@@ -198,6 +234,8 @@ def run(args: argparse.Namespace) -> int:
         if not math.isfinite(v) or v < 0:
             raise CliError(f"--{name.replace('_', '-')} must be >= 0, got {v!r}")
     quantities = parse_quantities(args.quantities)
+    if args.from_bags:
+        return run_bags(args, out, quantities)
     config = imu_config(args)
     start = time.perf_counter()
     t, means = simulate_means(config, args.flights, args, quantities)
@@ -227,4 +265,58 @@ def run(args: argparse.Namespace) -> int:
             print(f"{q:<8} {pair:<4} {e['segments']:>4} {e['normal_fraction']:>7.2f} "
                   f"{e['lower_min'] / unit:>12.4g} {e['upper_max'] / unit:>12.4g} "
                   f"{'-' if after is None else format(after / unit, '.4g'):>17} {uname}")
+    return 0
+
+
+def run_bags(args: argparse.Namespace, out: Path, quantities) -> int:
+    """``--from-bags``: the calibration on recordings (flight_fdi.core.voter_real)."""
+    import numpy as np
+
+    from flight_fdi.bagio.imu_reader import read_imu_triples
+    from flight_fdi.cli.errors import CliError
+    from flight_fdi.core.voter_real import calibrate_recordings
+    from flight_fdi.core.voting import save_table
+
+    for name in ("learn", "margin", "track"):
+        v = getattr(args, name)
+        if not math.isfinite(v) or v < 0:
+            raise CliError(f"--{name} must be >= 0, got {v!r}")
+    _check_int(args.prefilter, "--prefilter")
+    start = time.perf_counter()
+    recs, rates = [], []
+    for bag in args.from_bags:
+        d = read_imu_triples(bag)
+        recs.append((d.stamp_ns, d.P))
+        rates.append(1e9 / float(np.median(np.diff(d.stamp_ns))))
+    rate = float(np.median(rates))
+    if max(abs(r / rate - 1) for r in rates) > 0.02:
+        raise CliError("the recordings have different sample rates: "
+                       + ", ".join(f"{r:.1f} Hz" for r in rates))
+    rate = round(rate, 3)
+    window = args.window if args.window != 1000 else int(round(5.0 * rate))
+    table, meta = calibrate_recordings(
+        recs, args.alpha, rate, window=window, prefilter=args.prefilter, learn_s=args.learn,
+        track_tau_s=args.track, margin=max(1.0, args.margin), ks_alpha=args.ks_alpha,
+        method=args.method, n_segments=args.segments, quantities=quantities,
+        names=[str(b) for b in args.from_bags])
+    save_table(table, out)
+    info = summary(table, time.perf_counter() - start, str(out))
+    info.update({"recordings": len(recs), "time_offsets_s": meta["time_offsets_s"],
+                 "mounting": meta["mounting"]})
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    print(f"wrote {out}: {len(recs)} recordings at {rate:g} Hz, window {window}, learn "
+          f"{args.learn:g} s, alpha {args.alpha:g}, margin {args.margin:g}, "
+          f"{info['elapsed_s']:.1f} s")
+    for name, tau in meta["time_offsets_s"].items():
+        print(f"  {name}: time offsets IMU2 {1e3 * tau[1]:.1f} ms, IMU3 {1e3 * tau[2]:.1f} ms")
+    for key, m in meta["mounting"].items():
+        print(f"  mounting {key}: rotation {m['rotation_deg']} deg, scale {m['scale_pct']} %")
+    for q in table.quantities:
+        unit, uname = (1.0, "m/s^2") if q.startswith("accel") else (math.pi / 180 / 3600,
+                                                                   "deg/h")
+        ups = [float(table.entries[q][p][2].max()) / unit for p in ("x1", "x2", "x3")]
+        print(f"  {q:<8} largest upper bound x1/x2/x3: "
+              + " / ".join(f"{u:.4g}" for u in ups) + f" {uname}")
     return 0

@@ -16,7 +16,8 @@ lengths and trajectories, and their units disagree by offsets that change from d
    1 - alpha/2 quantiles; the bound curves are cut into segments at their largest rates of change
    (:func:`~flight_fdi.core.voting_calib.segment_curve`); bins held by fewer than
    ``min_recordings`` recordings end the curve (the last segment then holds);
-4. the bounds are multiplied by ``margin`` (>= 1; recordings of other days spread more than the
+4. with ``symmetric`` each bound becomes +- the larger of the two (a set of recordings may drift
+   one way; another day's may drift the other), and the bounds are multiplied by ``margin`` (>= 1; recordings of other days spread more than the
    calibration set: a margin chosen on held-out days, docs/voter_real.md).
 
 The result is a :class:`~flight_fdi.core.voting.ThresholdTable` with a ``model`` section
@@ -65,8 +66,8 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
                          estimate_mount: bool = True, bin_s: float = 1.0, margin: float = 1.0,
                          ks_alpha: float = 0.05, method: str = "auto", n_segments: int = 8,
                          min_segment_s: float = 2.0, min_recordings: int = 5,
-                         quantities: Sequence[str] = QUANTITIES, names: Sequence[str] = ()
-                         ) -> tuple[ThresholdTable, dict[str, Any]]:
+                         quantities: Sequence[str] = QUANTITIES, names: Sequence[str] = (),
+                         symmetric: bool = True) -> tuple[ThresholdTable, dict[str, Any]]:
     """Threshold table from nominal recordings ``[(stamp_ns (T,), P (T, 6, 3)), ...]``."""
     if len(recordings) < 2:
         raise CoreError(f"calibration needs at least 2 recordings, got {len(recordings)}")
@@ -102,6 +103,9 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
         for ip, pair in enumerate(PAIRS):
             ts, l, u = segment_curve(t_bins, lo[:, iq, ip], up[:, iq, ip], n_segments,
                                      min_segment_s, 0.0, (learn_s,))
+            if symmetric:   # other days' deviations are not skewed like this set's
+                u = np.maximum(np.abs(l), np.abs(u))
+                l = -u
             entries[q][pair] = (ts, margin * np.minimum(l, 0.0), margin * np.maximum(u, 0.0))
             stats[q][pair] = {"normal_fraction": float(normal[1:, iq, ip].mean()),
                               "ks_pvalue_median": float(np.median(pval[1:, iq, ip]))}

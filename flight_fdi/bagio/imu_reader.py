@@ -1,0 +1,122 @@
+"""Fast reading of three sensor_msgs/Imu streams for the triple-IMU voter (no rclpy).
+
+``read_imu_triples(bag, topics)`` decodes the header stamps, angular velocities and linear
+accelerations of the three topics with numpy (the message has a fixed layout after the header's
+frame_id) and matches the streams by header stamp: a triple is three samples with the same stamp
+(within ``match_tolerance_ns``). Non-finite samples, duplicate and out-of-order stamps are dropped
+and counted, as voter_node does.
+
+Imu layout after the 4-byte CDR header (little endian; doubles 8-byte aligned in the body)::
+
+    0 int32 stamp.sec, 4 uint32 stamp.nanosec, 8 uint32 len(frame_id) + 1, 12 frame_id ...
+    a = align8(12 + L): orientation (4 doubles), orientation_covariance (9),
+    a + 104: angular_velocity x, y, z;  a + 200: linear_acceleration x, y, z
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import BagError
+from .reader import _open_reader, _read_raw, _topic_list
+
+IMU_MSG = "sensor_msgs/msg/Imu"
+_NS = 1_000_000_000
+
+
+@dataclass
+class ImuTriples:
+    """Matched samples of three IMUs: ``stamp_ns`` (T,) of IMU1, ``P`` (T, 6, 3) (gyro x/y/z
+    rad/s, accel x/y/z m/s^2; IMU1..IMU3) and counts of what was dropped."""
+
+    stamp_ns: np.ndarray
+    P: np.ndarray
+    first_ns: int                       # the first message's receive time in the bag
+    first_stamp_ns: int                 # the earliest header stamp of the three topics
+    received: list[int] = field(default_factory=list)
+    dropped: dict[str, int] = field(default_factory=dict)
+
+
+def decode_imu(payloads, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(stamp_ns (N,), values (N, 6) gyro x/y/z, accel x/y/z) of serialized Imu messages."""
+    buf, st, ln = payloads.buf, payloads.starts, payloads.lengths
+    n = st.size
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 6))
+    if np.any(ln < 16):
+        raise BagError(f"{what}: an Imu message is too short")
+    if np.any(buf[st + 1] != 1) or np.any(buf[st] != 0):
+        raise BagError(f"{what}: only little-endian CDR Imu messages are supported")
+    body = st + 4
+
+    def u32(pos):
+        b = buf[pos[:, None] + np.arange(4)].astype(np.uint32)
+        return b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16) | (b[:, 3] << 24)
+
+    sec = u32(body).astype(np.int32).astype(np.int64)
+    nsec = u32(body + 4).astype(np.int64)
+    L = u32(body + 8).astype(np.int64)
+    a = (12 + L + 7) & ~7
+    if np.any(a + 224 > ln - 4):
+        raise BagError(f"{what}: an Imu message is too short for its frame_id")
+    offs = np.concatenate([a[:, None] + 104 + 8 * np.arange(3), a[:, None] + 200
+                           + 8 * np.arange(3)], axis=1)            # (N, 6)
+    idx = (body[:, None, None] + offs[:, :, None] + np.arange(8)).reshape(n, -1)
+    vals = buf[idx].reshape(n, 6, 8).copy().view("<f8").reshape(n, 6)
+    return sec * _NS + nsec, vals
+
+
+def read_imu_triples(path: str | Path, topics=("/imu1/data", "/imu2/data", "/imu3/data"),
+                     match_tolerance_ns: int = 2_000_000) -> ImuTriples:
+    """The matched triples of a bag (see the module docstring); BagError names the problem."""
+    p = Path(path)
+    reader = _open_reader(p)
+    try:
+        available = {c.topic: c.msgtype for c in reader.connections}
+        for t in topics:
+            if t not in available:
+                raise BagError(f"bag '{p}': no topic {t} (topics: {_topic_list(available)})")
+            if available[t] != IMU_MSG:
+                raise BagError(f"bag '{p}': {t} holds {available[t]}, not {IMU_MSG}")
+        raw = _read_raw(reader, p, set(topics))
+    finally:
+        reader.close()
+    streams, dropped, received = [], {}, []
+    first_ns = min((int(raw[t].log_ns.min()) for t in topics if raw[t].log_ns.size),
+                   default=0)
+    for k, t in enumerate(topics):
+        stamp, v = decode_imu(raw[t].payloads, f"bag '{p}' {t}")
+        received.append(int(stamp.size))
+        ok = np.all(np.isfinite(v), axis=1)
+        dropped[f"imu{k + 1}_nonfinite"] = int((~ok).sum())
+        stamp, v = stamp[ok], v[ok]
+        keep = np.ones(stamp.size, bool)
+        keep[1:] = stamp[1:] > np.maximum.accumulate(stamp)[:-1]
+        dup = np.zeros(stamp.size, bool)
+        dup[1:] = stamp[1:] == stamp[:-1]
+        dropped[f"imu{k + 1}_duplicate"] = int((~keep & dup).sum())
+        dropped[f"imu{k + 1}_out_of_order"] = int((~keep & ~dup).sum())
+        streams.append((stamp[keep], v[keep]))
+    if any(s[0].size == 0 for s in streams):
+        raise BagError(f"bag '{p}': an IMU topic holds no valid message")
+    first_stamp = int(min(s[0][0] for s in streams))
+    s1, v1 = streams[0]
+    P = np.empty((s1.size, 6, 3))
+    P[:, :, 0] = v1
+    matched = np.ones(s1.size, bool)
+    for k in (1, 2):
+        sk, vk = streams[k]
+        j = np.clip(np.searchsorted(sk, s1), 1, max(1, sk.size - 1))
+        j = np.where(np.abs(sk[np.minimum(j, sk.size - 1)] - s1)
+                     < np.abs(sk[j - 1] - s1), np.minimum(j, sk.size - 1), j - 1)
+        near = np.abs(sk[j] - s1) <= match_tolerance_ns
+        matched &= near
+        P[:, :, k] = vk[j]
+    for k in range(3):
+        dropped[f"imu{k + 1}_unmatched"] = int(streams[k][0].size - matched.sum())
+    if matched.sum() < 2:
+        raise BagError(f"bag '{p}': fewer than 2 matched IMU triples (stamps of the three "
+                       "topics do not coincide)")
+    return ImuTriples(s1[matched], P[matched], first_ns, first_stamp, received, dropped)
