@@ -11,7 +11,8 @@ order of :data:`flight_fdi.core.voting.QUANTITIES`) x IMUs (IMU1..IMU3), one row
 triple at the sample rate.
 
 * :func:`estimate_time_offsets`: cross-correlation of the smoothed gyro vectors of IMU1 and IMU k
-  over integer lags +- ``max_lag_s``, refined by a parabola through the peak. tau_k > 0: IMU k's
+  over lags +- ``max_lag_s`` on a 0.01-sample grid (band-limited interpolation of the
+  correlation through its spectrum, exact for whole-sample shifts). tau_k > 0: IMU k's
   sample of an instant comes tau_k after IMU1's.
 * :func:`delay`: IMU k's value at sample index n + tau_k (linear interpolation; clamped at the
   ends), i.e. IMU k moved onto IMU1's time.
@@ -40,14 +41,14 @@ def _check_p(P: Any) -> np.ndarray:
     return P
 
 
-def estimate_time_offsets(P: Any, rate_hz: float, max_lag_s: float = 0.2, smooth: int = 12
-                          ) -> tuple[np.ndarray, np.ndarray]:
+def estimate_time_offsets(P: Any, rate_hz: float, max_lag_s: float = 0.2, smooth: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """(tau (3,) in seconds, tau[0] = 0; peak correlation (3,)) of IMU2 and IMU3 against IMU1.
 
     The gyro vectors are smoothed with a ``smooth``-sample moving average (vibration near the
-    Nyquist frequency is not common to the units), centred, and correlated at every integer lag
-    within +- ``max_lag_s``; the peak is refined with a parabola. Needs at least 4 max lags of
-    data."""
+    Nyquist frequency is not common to the units), centred, and correlated at lags within
+    +- ``max_lag_s`` on a 0.01-sample grid (the correlation of IMU1's interior -- all but
+    max_lag_s at each end -- with IMU k, evaluated from the cross-spectrum of the zero-padded
+    signals, so a whole-sample shift of IMU k moves the estimate by exactly that shift). Needs at least 4 max lags of data."""
     P = _check_p(P)
     L = max(1, int(round(max_lag_s * rate_hz)))
     T = P.shape[0]
@@ -58,20 +59,26 @@ def estimate_time_offsets(P: Any, rate_hz: float, max_lag_s: float = 0.2, smooth
     g = g - g.mean(axis=0)
     tau = np.zeros(3)
     peak = np.ones(3)
-    a = g[:, :, 0]
-    for k in (1, 2):
-        b = g[:, :, k]
-        lags = np.arange(-L, L + 1)
-        c = np.array([np.sum(a[max(0, -l):T - max(0, l)] * b[max(0, l):T - max(0, -l)])
-                      / (T - abs(l)) for l in lags])
+    a = np.zeros_like(g[:, :, 0])
+    a[L:T - L] = g[L:T - L, :, 0]    # IMU1's interior: every lag sees whole IMU k data
+    nfft = 2 * g.shape[0]
+    X = np.fft.rfft(a, n=nfft, axis=0)
+    k = np.arange(X.shape[0])
+    w = np.full(k.size, 2.0)
+    w[0] = w[-1] = 1.0               # nfft even: the zero and Nyquist bins once
+    e1 = np.sum(a ** 2)
+    for j in (1, 2):
+        S = w * np.sum(np.conj(X) * np.fft.rfft(g[:, :, j], n=nfft, axis=0), axis=1)
+        coarse = np.fft.irfft(S / w, n=nfft)                # integer lags
+        ints = np.r_[coarse[:L + 1], coarse[-L:]]
+        il = np.r_[np.arange(L + 1), np.arange(-L, 0)]
+        l0 = il[int(np.argmax(ints))]
+        lags = l0 + np.arange(-1.0, 1.0 + 1e-9, 0.01)   # refined on a 0.01-sample grid
+        c = (np.exp(2j * np.pi * np.outer(lags, k) / nfft) @ S).real / nfft
         i = int(np.argmax(c))
-        off = 0.0
-        if 0 < i < c.size - 1:
-            den = c[i - 1] - 2 * c[i] + c[i + 1]
-            off = 0.5 * (c[i - 1] - c[i + 1]) / den if den < 0 else 0.0
-        tau[k] = (lags[i] + off) / rate_hz
-        norm = np.sqrt(np.sum(a * a) / T * np.sum(b * b) / T)
-        peak[k] = float(c[i] / norm) if norm > 0 else 0.0
+        tau[j] = float(np.clip(lags[i], -L, L)) / rate_hz
+        ej = np.sum(g[L:T - L, :, j] ** 2)
+        peak[j] = float(c[i] / np.sqrt(e1 * ej)) if e1 > 0 and ej > 0 else 0.0
     return tau, peak
 
 
