@@ -65,8 +65,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.validate_topic_name import validate_topic_name
 
 from ..core.errors import CoreError
-from ..core.voting import (HEALTHY, MARGINAL, MULTIPLE_FAULT, PAIRS, QUANTITIES, SINGLE_FAULT,
-                           STATUS_NAMES, TIME_TOL_S, ThresholdTable, load_table, vote_array)
+from ..core.voter_core import DEFAULT_CONFIRM_S, DEFAULT_RELEASE_WINDOWS, VoterCore, VoterModel, \
+    select
+from ..core.voting import (HEALTHY, MULTIPLE_FAULT, PAIRS, QUANTITIES, SINGLE_FAULT,
+                           STATUS_NAMES, ThresholdTable, load_table)
 from . import convert
 from . import diagnostics as diag
 from .errors import ParameterError
@@ -100,12 +102,19 @@ VOTER_PARAMS = (
               min=0.0, max=60.0, min_exclusive=True),
     ParamSpec("sticky", "bool", True,
               "Latch isolations (release only after release_after_windows healthy windows)"),
-    ParamSpec("release_after_windows", "int", 3,
+    ParamSpec("release_after_windows", "int", DEFAULT_RELEASE_WINDOWS,
               "Complete windows of healthy votes in a row that release a latched isolation "
               "(0: never)", "windows", min=0, max=1000000),
     ParamSpec("confirm_decisions", "int", 1,
-              "Consecutive single-fault decisions naming the same IMU that isolate it",
-              "decisions", min=1, max=1000000),
+              "Consecutive single-fault decisions naming the same IMU that isolate it (the "
+              "larger of this and confirm_s counts)", "decisions", min=1, max=1000000),
+    ParamSpec("confirm_s", "double", DEFAULT_CONFIRM_S,
+              "A single fault naming the same IMU must persist this long to isolate it (0: "
+              "confirm_decisions alone)", "s", min=0.0, max=3600.0),
+    ParamSpec("time_offsets_s", "double_array", [0.0, 0.0, 0.0],
+              "Time offsets of IMU1..IMU3 against IMU1 (first 0); all 0: the threshold "
+              "table's (estimated at start-up when the table's model says so)", "s",
+              min=-10.0, max=10.0),
     ParamSpec("status_every", "int", 1,
               "Publish fdi/vote every this many decisions (and on every change)", "decisions",
               min=1, max=1000000),
@@ -133,6 +142,18 @@ def validate(values: dict[str, Any]) -> None:
         fail("imu_topics", topics, "exactly three topics (IMU1, IMU2, IMU3)")
     if values["max_wait_s"] <= values["match_tolerance_s"]:
         fail("max_wait_s", values["max_wait_s"], "more than match_tolerance_s")
+    tau = values["time_offsets_s"]
+    if len(tau) != 3 or tau[0] != 0.0:
+        fail("time_offsets_s", tau, "three offsets [0, tau2, tau3] in seconds")
+
+
+def load_model(table: ThresholdTable, path: str) -> VoterModel:
+    """The table's real-sensor model, or ParameterError naming thresholds_file."""
+    try:
+        return VoterModel.from_table(table)
+    except CoreError as exc:
+        raise ParameterError(f"invalid parameter 'thresholds_file': got {path!r}; {exc}") \
+            from None
 
 
 def load_thresholds(path: str) -> ThresholdTable:
@@ -157,32 +178,6 @@ def imu_values(msg: Any) -> np.ndarray:
     return np.array([w.x, w.y, w.z, a.x, a.y, a.z], dtype=float)
 
 
-class WindowMeans:
-    """Running means of the last N pair differences (growing until N exist), (Q, 3) each."""
-
-    def __init__(self, window: int, shape: tuple[int, int]) -> None:
-        self.window = int(window)
-        self.buf = np.zeros((self.window,) + shape)
-        self.reset()
-
-    def reset(self) -> None:
-        self.buf[:] = 0.0
-        self.sum = np.zeros(self.buf.shape[1:])
-        self.count = 0
-        self.pos = 0
-
-    def push(self, d: np.ndarray) -> np.ndarray:
-        """Add one sample; returns the current mean."""
-        self.sum += d - self.buf[self.pos]
-        self.buf[self.pos] = d
-        self.pos += 1
-        self.count += 1
-        if self.pos == self.window:
-            self.pos = 0
-            self.sum = self.buf.sum(axis=0)  # renew the sum: no drift of the running sum
-        return self.sum / min(self.count, self.window)
-
-
 class VoterNode(Node):
     """The voter node (see the module docstring).
 
@@ -205,7 +200,12 @@ class VoterNode(Node):
         self._qi = np.array([QUANTITIES.index(q) for q in self.quantities])
         Q = len(self.quantities)
         self.window = int(self.table.window)
-        self.means = WindowMeans(self.window, (Q, 3))
+        self.model = load_model(self.table, p["thresholds_file"])
+        self.confirm = max(p["confirm_decisions"],
+                           int(np.ceil(p["confirm_s"] * self.table.rate_hz - 1e-9)))
+        tau = p["time_offsets_s"]
+        self._tau = None if not any(tau) else list(tau)
+        self.core = self._new_core()
         # a pair difference is at most 2 max|v|; a window sum of N of them must stay finite
         self._max_abs = sys.float_info.max / (4 * self.window)
 
@@ -247,14 +247,11 @@ class VoterNode(Node):
         self._queues: list[deque] = [deque() for _ in range(3)]
         self._last_t: list[float | None] = [None, None, None]
         self._t0: int | None = None  # ns stamp of the first triple
-        self._seg = 0
         self._lower, self._upper = self.table.lower_grid[0], self.table.upper_grid[0]
+        self._stamps: deque = deque()   # (triple index, header stamp) awaiting their decision
+        self._n_triples = 0
 
         self.selected = 1
-        self.latched = np.zeros(Q, dtype=np.int8)      # isolated IMU per quantity (0: none)
-        self._candidate = np.zeros(Q, dtype=np.int8)
-        self._candidate_n = np.zeros(Q, dtype=np.int64)
-        self._healthy_run = np.zeros(Q, dtype=np.int64)
         self._last_status = np.full(Q, -1, dtype=np.int8)
         self.last_vote: dict[str, Any] | None = None
         self._since_status = 0
@@ -267,8 +264,20 @@ class VoterNode(Node):
         self.get_logger().info(
             f"voting {', '.join(self.quantities)} of {', '.join(self.topics)} with "
             f"{p['thresholds_file']} (window {self.window}, alpha {self.table.alpha:g}, "
-            f"calibrated at {self.table.rate_hz:g} Hz); sticky={p['sticky']}, release after "
-            f"{p['release_after_windows']} windows")
+            f"calibrated at {self.table.rate_hz:g} Hz); sticky={p['sticky']}, confirm "
+            f"{self.confirm} decisions, release after {p['release_after_windows']} windows")
+
+    def _new_core(self, persistence=None) -> VoterCore:
+        core = VoterCore(self.table, self.confirm, self.p["release_after_windows"],
+                         self.p["sticky"], self._tau, self.model)
+        if persistence is not None:
+            core.persistence = persistence      # a restart keeps the isolations
+        return core
+
+    @property
+    def latched(self) -> np.ndarray:
+        """Isolated IMU per quantity (0: none)."""
+        return np.array(self.core.persistence.isolated, dtype=np.int8)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -315,8 +324,9 @@ class VoterNode(Node):
             q.clear()
         self._last_t = [None, None, None]
         self._t0 = None
-        self._seg = 0
-        self.means.reset()
+        self._stamps.clear()
+        self._n_triples = 0
+        self.core = self._new_core(self.core.persistence)
 
     # ------------------------------------------------------------------ matching
     def _match(self) -> None:
@@ -349,15 +359,6 @@ class VoterNode(Node):
             self.counters.inc("unvoted_published")
 
     # ------------------------------------------------------------------ voting
-    def _bounds(self, t_flight: float) -> None:
-        grid = self.table.grid
-        k = self._seg
-        while k + 1 < grid.size and t_flight + TIME_TOL_S >= grid[k + 1]:
-            k += 1
-        self._seg = k
-        self._lower = self.table.lower_grid[k]
-        self._upper = self.table.upper_grid[k]
-
     def _decide(self, triple: list[tuple]) -> None:
         t = triple[0][0]
         self.counters.inc("matched_triples")
@@ -365,65 +366,48 @@ class VoterNode(Node):
         ns = triple[0][3]
         if self._t0 is None:
             self._t0 = ns
-        t_flight = (ns - self._t0) * 1e-9  # exact integer nanoseconds, then seconds
-        self._bounds(t_flight)
-        P = np.stack([s[2][self._qi] for s in triple], axis=1)          # (Q, 3 IMUs)
-        d = np.stack([P[:, 0] - P[:, 1], P[:, 1] - P[:, 2], P[:, 0] - P[:, 2]], axis=1)
-        mean = self.means.push(d)
-        eps = (mean >= self._lower) & (mean <= self._upper)
-        status, faulty, _ = vote_array(eps)
-        self.counters.inc("decisions")
-        changed = self._update_isolation(status, faulty, t_flight)
-        changed |= self._reselect(f"flight time {t_flight:.3f} s")
-        if np.any(status != self._last_status):
-            changed = True
-            self._last_status = status.astype(np.int8)
-        self.last_vote = {"t": t, "t_flight": t_flight, "mean": mean, "eps": eps,
-                          "status": status, "faulty": faulty}
+        self._stamps.append((self._n_triples, triple[0][1].header.stamp))
+        self._n_triples += 1
+        P = np.stack([s[2] for s in triple], axis=1)                     # (6, 3 IMUs)
+        d = self.core.push(np.array([ns]), P[None])
+        changed = False
+        for i in range(len(d)):
+            changed |= self._decided(d, i)
+        changed |= self._reselect(f"flight time {(ns - self._t0) * 1e-9:.3f} s")
         self.pub_voted.publish(triple[self.selected - 1][1])
         self.counters.inc("voted_published")
-        self._since_status += 1
-        if changed or self._since_status >= self.p["status_every"]:
+        if len(d) and (changed or self._since_status >= self.p["status_every"]):
             self._since_status = 0
-            self.pub_vote.publish(self._vote_msg(triple[0][1].header.stamp, mean, eps, status))
+            v = self.last_vote
+            self.pub_vote.publish(self._vote_msg(v["stamp"], v["mean"], v["eps"], v["status"]))
 
-    def _update_isolation(self, status: np.ndarray, faulty: np.ndarray, t_flight: float) -> bool:
-        """Latch / release isolations per quantity; True when one changed."""
-        changed = False
-        confirm = self.p["confirm_decisions"]
-        release = self.p["release_after_windows"] * self.window
-        single = status == SINGLE_FAULT
-        for i in range(len(self.quantities)):
-            if single[i]:
-                if self._candidate[i] == faulty[i]:
-                    self._candidate_n[i] += 1
-                else:
-                    self._candidate[i] = faulty[i]
-                    self._candidate_n[i] = 1
+    def _decided(self, d, i: int) -> bool:
+        """Book one decision of the engine; True when a status or an isolation changed."""
+        index = int(d.index[i])
+        while self._stamps and self._stamps[0][0] < index:
+            self._stamps.popleft()
+        stamp = self._stamps[0][1] if self._stamps else None
+        self.counters.inc("decisions")
+        self._since_status += 1
+        self._lower, self._upper = d.lower[i], d.upper[i]
+        status = d.status[i]
+        changed = bool(np.any(status != self._last_status))
+        self._last_status = status.astype(np.int8)
+        t_flight = float(d.t_flight[i])
+        for te, q, old, new in d.events:
+            if te != t_flight:
+                continue
+            changed = True
+            if new:
+                self.counters.inc("isolations")
+                self.get_logger().warning(f"t={te:.3f} s: IMU{new} isolated on "
+                                          f"{self.quantities[q]} (single fault by majority)")
             else:
-                self._candidate[i] = 0
-                self._candidate_n[i] = 0
-            self._healthy_run[i] = self._healthy_run[i] + 1 if status[i] == HEALTHY else 0
-            new = self.latched[i]
-            if self._candidate_n[i] >= confirm:
-                new = self._candidate[i]          # a confirmed single fault isolates
-            elif not self.p["sticky"]:
-                if status[i] in (HEALTHY, MARGINAL):
-                    new = 0                       # not sticky: a healthy vote clears it
-            elif release and new and self._healthy_run[i] >= release:
-                new = 0                           # sticky: release_after_windows healthy windows
-            if new != self.latched[i]:
-                changed = True
-                q = self.quantities[i]
-                if new:
-                    self.counters.inc("isolations")
-                    self.get_logger().warning(f"t={t_flight:.3f} s: IMU{new} isolated on {q} "
-                                              "(single fault by majority)")
-                else:
-                    self.counters.inc("releases")
-                    self.get_logger().info(f"t={t_flight:.3f} s: IMU{self.latched[i]} released "
-                                           f"on {q}")
-                self.latched[i] = new
+                self.counters.inc("releases")
+                self.get_logger().info(f"t={te:.3f} s: IMU{old} released on "
+                                       f"{self.quantities[q]}")
+        self.last_vote = {"t_flight": t_flight, "mean": d.deviation[i], "eps": d.eps[i],
+                          "status": status, "faulty": d.faulty[i], "stamp": stamp}
         return changed
 
     def _stale_imus(self) -> set[int]:
@@ -438,14 +422,8 @@ class VoterNode(Node):
     def _reselect(self, when: str) -> bool:
         """Apply the selection rule; log and count a switch. True when the selection changed."""
         before = self.selected
-        isolated = set(int(v) for v in self.latched if v)
         stale = self._stale_imus()
-        for avoid in (isolated | stale, isolated):
-            free = [k for k in (1, 2, 3) if k not in avoid]
-            if free:
-                self.selected = free[0]
-                break
-        # every IMU isolated: keep the current selection
+        self.selected = select(self.core.persistence.isolated, before, stale)
         if self.selected == before:
             return False
         self.counters.inc("selection_switches")
@@ -490,7 +468,9 @@ class VoterNode(Node):
         vals: list[tuple[str, Any]] = [("selected_imu", self.selected),
                                        ("isolated", self._isolated_text())]
         if v is None:
-            level, text = diag.WARN, "no vote yet (waiting for matched triples)"
+            level, text = diag.WARN, ("no vote yet (waiting for matched triples)"
+                                      if self.model.learn_s <= 0 or self._t0 is None else
+                                      f"learning offsets ({self.model.learn_s:g} s)")
         else:
             vals.append(("flight_time_s", v["t_flight"]))
             for i, q in enumerate(self.quantities):
@@ -525,8 +505,12 @@ class VoterNode(Node):
         rate = self._triple_rate.rate(now_t) if now_t is not None else 0.0
         tvals = [("file", self.p["thresholds_file"]), ("window", self.window),
                  ("rate_hz", self.table.rate_hz), ("alpha", self.table.alpha),
-                 ("duration_s", self.table.duration_s), ("segment_start_s",
-                                                        float(self.table.grid[self._seg])),
+                 ("duration_s", self.table.duration_s),
+                 ("segment_start_s", float(self.table.grid[self.table.segment_index(
+                     v["t_flight"])]) if v is not None else 0.0),
+                 ("confirm_decisions", self.confirm), ("learn_s", self.model.learn_s),
+                 ("time_offsets_s", [] if self.core.tau is None
+                  else [float(x) for x in self.core.tau]),
                  ("triple_rate_hz", rate)]
         level, text = diag.OK, "threshold table loaded"
         if v is not None and v["t_flight"] > self.table.duration_s:

@@ -76,8 +76,9 @@ class Rig:
         from flight_fdi.nodes.voter_node import VoterNode
 
         self.ros = ros
+        # confirm_s 0: one decision isolates (the seed-002 experiment's semantics)
         params = {"thresholds_file": str(table_file), "input_qos": "reliable",
-                  "diagnostics_period_s": 0.2, **params}
+                  "diagnostics_period_s": 0.2, "confirm_s": 0.0, **params}
         self.node = ros.node(VoterNode, parameters=params)
         self.drv = ros.node("voter_test_driver")
         self.pubs = [self.drv.create_publisher(Imu, t, 200) for t in IMU_TOPICS]
