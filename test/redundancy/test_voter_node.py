@@ -351,3 +351,89 @@ def test_the_executable_spins_until_sigint(table_file, tmp_path, executor):
         if proc.poll() is None:
             proc.kill()
         proc.stderr.close()
+
+
+# ------------------------------------------------------------------------ the real excerpt
+# voter_node on test/redundancy/data/mimu: the node runs the same engine as flight-fdi vote --
+# same decisions; it learns the offsets, estimates the time offsets and isolates an injected
+# stuck gyro after the confirmation time.
+
+from pathlib import Path  # noqa: E402
+
+REAL = Path(__file__).parent / "data" / "mimu"
+REAL_TABLE = REAL / "thresholds_without_vertical_path_9.json"
+CONFIRM = 60
+
+
+def run(table, ns, P, confirm=CONFIRM):
+    from flight_fdi.core.voter_core import VoterCore
+
+    core = VoterCore(table, confirm=confirm)
+    parts = [core.push(ns, P), core.finish()]
+    status = np.concatenate([d.status for d in parts])
+    t = np.concatenate([d.t_flight for d in parts])
+    return core, t, status, [e for d in parts for e in d.events]
+
+
+N_SAMPLES = 1500     # 12.5 s: learning (5 s), then 7.5 s of decisions
+
+
+def messages(ns, P):
+    from sensor_msgs.msg import Imu
+
+    out = []
+    for i in range(ns.size):
+        triple = []
+        for k in range(3):
+            m = Imu()
+            m.header.stamp.sec, m.header.stamp.nanosec = divmod(int(ns[i]), 1_000_000_000)
+            m.header.frame_id = f"imu{k + 1}"
+            w, a = P[i, :3, k], P[i, 3:, k]
+            m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = map(float, w)
+            m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = \
+                map(float, a)
+            triple.append(m)
+        out.append(tuple(triple))
+    return out
+
+
+@pytest.fixture(scope="module")
+def excerpt():
+    from flight_fdi.cli.imu_csv import read_csv
+
+    t, _ = read_csv(REAL / "IMU_1.csv.gz")
+    P = np.stack([read_csv(REAL / f"IMU_{k}.csv.gz")[1] for k in (1, 2, 3)], axis=-1)
+    ns = np.round((1.7e9 + t) * 1e9).astype(np.int64)
+    return ns[:N_SAMPLES], P[:N_SAMPLES]
+
+
+@pytest.mark.parametrize("stuck", [False, True])
+def test_node_equals_offline_engine_on_real_data(ros, excerpt, stuck):
+    ns, P = excerpt
+    if stuck:
+        P = P.copy()
+        P[(ns - ns[0]) * 1e-9 >= 8.0, 2, 2] = 0.0          # IMU3 gyro z stuck from 8 s
+    from flight_fdi.core.voting import load_table
+
+    table = load_table(REAL_TABLE)
+    core, t, status, events = run(table, ns, P)
+    rig = Rig(ros, REAL_TABLE, status_every=1, confirm_s=CONFIRM / 120.0 - 1e-6,
+              match_tolerance_s=0.001)
+    rig.play(messages(ns, P))
+    rig.wait_outputs(N_SAMPLES)
+    node = rig.node
+    # the node decides what the engine decides up to its alignment delay at the end
+    lag = len(status) - node.counters["decisions"]
+    assert 0 <= lag <= math.ceil(max(core.tau) * 120) + 1
+    assert np.allclose(node.core.tau, core.tau)
+    iso = [(q, new) for _, q, _, new in events if new]
+    assert node.counters["isolations"] == len(iso)
+    if stuck:
+        assert iso == [(2, 3)] and node.latched[2] == 3 and node.selected == 1
+        frames = [m.header.frame_id for m in rig.voted]
+        assert set(frames) == {"imu1"}
+    else:
+        assert iso == [] and node.counters["selection_switches"] == 0
+    statuses = np.array([list(v.status) for v in rig.votes])
+    assert statuses.shape[0] >= node.counters["decisions"]
+    np.testing.assert_array_equal(statuses[:len(status) - lag], status[:len(status) - lag])
