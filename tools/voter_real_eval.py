@@ -82,13 +82,13 @@ def judge(events, onset, imu, qname):
     return ok, first[0] - onset
 
 
-def evaluate(data, alpha, margin, onset, confirm_s):
+def evaluate(data, alpha, margin, onset, confirm_s, **calib):
     confirm = max(1, int(math.ceil(confirm_s * RATE)))
     res = {"nominal": [], "faults": {}}
     for day in DAYS:
         train = [k for k, v in data.items() if v[0] != day]
         table, _ = calibrate_recordings([data[k][1:] for k in train], alpha, RATE,
-                                        margin=margin, names=train)
+                                        margin=margin, names=train, **calib)
         for name in (k for k, v in data.items() if v[0] == day):
             _, ns, P = data[name]
             t = (ns - ns[0]) * 1e-9

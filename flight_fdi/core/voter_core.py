@@ -37,8 +37,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import CoreError
-from .voter_align import align_times, check_mounting, correct_mounting, delay, \
-    estimate_time_offsets
+from .voter_align import check_mounting, correct_mounting, delay, estimate_time_offsets
 from .voting import QUANTITIES, SINGLE_FAULT, HEALTHY, MARGINAL, ThresholdTable, vote_array
 
 #: defaults chosen on the real recordings (docs/voter_real.md)
@@ -116,26 +115,58 @@ class Persistence:
         """One decision; returns the changes (quantity index, old isolated IMU, new)."""
         changes = []
         for i, (s, f) in enumerate(zip(status, faulty)):
-            if s == SINGLE_FAULT:
-                if self._cand[i] == f:
-                    self._cand_n[i] += 1
-                else:
-                    self._cand[i], self._cand_n[i] = int(f), 1
-            else:
-                self._cand[i] = self._cand_n[i] = 0
-            self._healthy[i] = self._healthy[i] + 1 if s == HEALTHY else 0
-            new = self.isolated[i]
-            if self._cand_n[i] >= self.confirm:
-                new = self._cand[i]
-            elif not self.sticky:
-                if s in (HEALTHY, MARGINAL):
-                    new = 0
-            elif self.release and new and self._healthy[i] >= self.release:
-                new = 0
-            if new != self.isolated[i]:
-                changes.append((i, self.isolated[i], new))
-                self.isolated[i] = new
+            ch = self._step(i, int(s), int(f))
+            if ch:
+                changes.append(ch)
         return changes
+
+    def update_batch(self, status: np.ndarray, faulty: np.ndarray
+                     ) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
+        """Decisions (m, Q) in order: (isolated IMU after each (m, Q), changes (row, quantity,
+        old, new)). A quantity with nothing isolated, pending or single-faulted in the batch
+        only counts its healthy run (vectorised); the others step decision by decision."""
+        m, Q = status.shape
+        isolated = np.empty((m, Q), dtype=np.int8)
+        changes = []
+        for i in range(Q):
+            col = status[:, i]
+            if not self.isolated[i] and not self._cand_n[i] and not np.any(col == SINGLE_FAULT):
+                bad = np.flatnonzero(col != HEALTHY)
+                self._healthy[i] = (self._healthy[i] + m if bad.size == 0
+                                    else m - 1 - int(bad[-1]))
+                isolated[:, i] = 0
+                continue
+            fcol = faulty[:, i].tolist()
+            for r, s in enumerate(col.tolist()):
+                ch = self._step(i, s, fcol[r])
+                if ch:
+                    changes.append((r,) + ch)
+                isolated[r, i] = self.isolated[i]
+        changes.sort()
+        return isolated, changes
+
+    def _step(self, i: int, s: int, f: int) -> tuple[int, int, int] | None:
+        """One decision of quantity i; the change (i, old, new) or None."""
+        if s == SINGLE_FAULT:
+            if self._cand[i] == f:
+                self._cand_n[i] += 1
+            else:
+                self._cand[i], self._cand_n[i] = int(f), 1
+        else:
+            self._cand[i] = self._cand_n[i] = 0
+        self._healthy[i] = self._healthy[i] + 1 if s == HEALTHY else 0
+        new = self.isolated[i]
+        if self._cand_n[i] >= self.confirm:
+            new = self._cand[i]
+        elif not self.sticky:
+            if s in (HEALTHY, MARGINAL):
+                new = 0
+        elif self.release and new and self._healthy[i] >= self.release:
+            new = 0
+        if new != self.isolated[i]:
+            old, self.isolated[i] = self.isolated[i], new
+            return (i, old, new)
+        return None
 
 
 def select(isolated: Sequence[int], current: int, avoid: set[int] = frozenset()) -> int:
@@ -289,7 +320,7 @@ class VoterCore:
             self._raw_t, self._raw_P = self._raw_t[cut:], self._raw_P[cut:]
             self._raw_base = first
 
-    def _deviation(self, stat: np.ndarray, status_hint: Any = None) -> np.ndarray:
+    def _deviation(self, stat: np.ndarray) -> np.ndarray:
         if self.offset is None:
             self.offset = stat[0].copy() if self.model.learn_s > 0 else np.zeros(stat.shape[1:])
         return stat - self.offset
@@ -331,15 +362,8 @@ class VoterCore:
         return self.model.track_tau_s * self.rate_hz
 
     def _persist(self, t: np.ndarray, status: np.ndarray, faulty: np.ndarray):
-        isolated = np.empty(status.shape, dtype=np.int8)
-        events = []
-        p = self.persistence
-        st, fa = status.tolist(), faulty.tolist()
-        for i in range(len(st)):
-            for q, old, new in p.update(st[i], fa[i]):
-                events.append((float(t[i]), q, old, new))
-            isolated[i] = p.isolated
-        return isolated, events
+        isolated, changes = self.persistence.update_batch(status, faulty)
+        return isolated, [(float(t[r]), q, old, new) for r, q, old, new in changes]
 
     def _empty(self) -> Decisions:
         Q = len(self.qi)

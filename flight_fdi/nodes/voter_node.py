@@ -23,30 +23,37 @@ Time alignment
     the output keeps flowing when another IMU is silent.
 
 Voting
-    For each triple the pair differences enter a sliding window of the table's N samples
-    (growing until N exist, exactly as calibrated); the bounds are the table's at the flight time
-    t = stamp - stamp of the first triple (IMU1's stamps, exact integer nanoseconds). eps_k = 1
-    when the mean of x_k is inside its bounds, and the seed's truth table gives the verdict
-    (flight_fdi.core.voting.vote).
+    The matched triples go through the voter engine shared with ``flight-fdi vote``
+    (flight_fdi.core.voter_core.VoterCore, one triple per call): with a table calibrated on
+    recordings (its ``model`` section) IMU2 and IMU3 are first moved onto IMU1's time (the
+    table's / ``time_offsets_s``'s offsets, or estimated over the learning phase) and into IMU1's
+    axes (mounting), the pair differences are prefiltered, their window means (the table's N
+    samples, growing until N exist) minus each pair's offset learnt in the first ``learn_s``
+    seconds are compared with the table's bounds at the flight time t = stamp - stamp of the
+    first triple (IMU1's stamps, exact integer nanoseconds); no decision while learning, and
+    decisions lag the input by the largest time offset. With a table of the simulator (no model)
+    it is the seed's statistic exactly. eps_k = 1 when the statistic of x_k is inside its bounds,
+    and the seed's truth table gives the verdict (flight_fdi.core.voting.vote_array).
 
 Selection (sticky)
-    A single-fault verdict naming IMU k on a quantity for ``confirm_decisions`` consecutive
-    decisions **isolates** IMU k on that quantity. The selected IMU is the first of IMU1, IMU2,
-    IMU3 isolated on no quantity (which is the truth table's choice for every single fault); a
-    multiple fault isolates nothing and keeps the selection. With ``sticky`` (default) an
-    isolation is latched: it is released only after ``release_after_windows`` complete windows
-    (N decisions each) of healthy votes (sum 3) in a row on that quantity, i.e. after the
-    evidence has been renewed that many times; 0 never releases it (until restart). So one
-    healthy window never switches the output back. A confirmed single fault naming another IMU
-    on the same quantity replaces the isolation. Without ``sticky`` a healthy or marginal vote
-    clears the isolation at once. An IMU whose newest stamp lags the newest stamp of the others
-    by more than ``stale_after_s`` (silent) is not selected either while another IMU is live.
+    A single-fault verdict naming IMU k on a quantity for the larger of ``confirm_decisions``
+    decisions and ``confirm_s`` seconds (default 0.5 s, chosen on the real recordings,
+    docs/voter_real.md) **isolates** IMU k on that quantity. The selected IMU is the first of
+    IMU1, IMU2, IMU3 isolated on no quantity (which is the truth table's choice for every single
+    fault); a multiple fault isolates nothing and keeps the selection. With ``sticky`` (default)
+    an isolation is latched: it is released only after ``release_after_windows`` complete
+    windows (N decisions each) of healthy votes (sum 3) in a row on that quantity; 0 never
+    releases it (until restart). So the output never flaps. A confirmed single fault naming
+    another IMU on the same quantity replaces the isolation. Without ``sticky`` a healthy or
+    marginal vote clears the isolation at once. An IMU whose newest stamp lags the newest stamp
+    of the others by more than ``stale_after_s`` (silent) is not selected either while another
+    IMU is live.
 
 Bad input never stops the node: non-finite values, values too large for the window statistic
 (|value| > max float / (4 N): a window of pair differences could overflow float64), duplicate and
 out-of-order stamps are dropped and counted per IMU (``dropped_imuK_<reason>``: ``nonfinite``,
 ``out_of_range``, ``duplicate``, ``out_of_order``); a stamp going back by more than
-``time_jump_reset_s`` restarts the voter (windows, flight time; isolations are kept). Silent
+``time_jump_reset_s`` restarts the voter (windows, flight time, learning; isolations are kept). Silent
 and never-arriving inputs are reported in ``/diagnostics``.
 
 Parameters: ``VOTER_PARAMS`` below (documented in ``config/voter.yaml``). A missing or invalid
@@ -67,10 +74,10 @@ from rclpy.validate_topic_name import validate_topic_name
 from ..core.errors import CoreError
 from ..core.voter_core import DEFAULT_CONFIRM_S, DEFAULT_RELEASE_WINDOWS, VoterCore, VoterModel, \
     select
-from ..core.voting import (HEALTHY, MULTIPLE_FAULT, PAIRS, QUANTITIES, SINGLE_FAULT,
-                           STATUS_NAMES, ThresholdTable, load_table)
+from ..core.voting import QUANTITIES, ThresholdTable, load_table
 from . import convert
 from . import diagnostics as diag
+from . import voter_diagnostics
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters, fail
 
@@ -456,72 +463,7 @@ class VoterNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_statuses(self) -> list:
-        name = self.get_name()
-        problems = self.inputs.problems()
-        values = self.inputs.key_values() + self.counters.key_values()
-        values += [(f"waiting_imu{k + 1}", str(len(q))) for k, q in enumerate(self._queues)]
-        inputs = diag.make_status(
-            f"{name}: inputs", diag.WARN if problems else diag.OK,
-            "; ".join(problems) if problems else "inputs OK", values, hardware_id=name)
-
-        v = self.last_vote
-        vals: list[tuple[str, Any]] = [("selected_imu", self.selected),
-                                       ("isolated", self._isolated_text())]
-        if v is None:
-            level, text = diag.WARN, ("no vote yet (waiting for matched triples)"
-                                      if self.model.learn_s <= 0 or self._t0 is None else
-                                      f"learning offsets ({self.model.learn_s:g} s)")
-        else:
-            vals.append(("flight_time_s", v["t_flight"]))
-            for i, q in enumerate(self.quantities):
-                vals.append((f"{q} status", STATUS_NAMES[int(v["status"][i])]))
-                vals.append((f"{q} isolated_imu", int(self.latched[i])))
-                for j, pair in enumerate(PAIRS):
-                    vals.append((f"{q} {pair} mean", float(v["mean"][i, j])))
-                    vals.append((f"{q} {pair} bounds", [float(self._lower[i, j]),
-                                                         float(self._upper[i, j])]))
-            worst = int(v["status"].max())
-            isolated = bool(np.any(self.latched))
-            if worst == MULTIPLE_FAULT:
-                level = diag.ERROR
-                bad = [q for q, s in zip(self.quantities, v["status"]) if s == MULTIPLE_FAULT]
-                text = f"multiple fault on {', '.join(bad)}: cannot isolate; output IMU" \
-                       f"{self.selected}"
-            elif isolated:
-                level = diag.WARN
-                text = f"isolated {self._isolated_text()}; output IMU{self.selected}"
-            elif worst == SINGLE_FAULT:
-                level = diag.WARN
-                text = f"single fault being confirmed; output IMU{self.selected}"
-            elif worst > HEALTHY:
-                level = diag.WARN
-                bad = [q for q, s in zip(self.quantities, v["status"]) if s != HEALTHY]
-                text = f"marginal on {', '.join(bad)}; output IMU{self.selected}"
-            else:
-                level, text = diag.OK, f"healthy; output IMU{self.selected}"
-        vote = diag.make_status(f"{name}: vote", level, text, vals, hardware_id=name)
-
-        now_t = max((t for t in self._last_t if t is not None), default=None)
-        rate = self._triple_rate.rate(now_t) if now_t is not None else 0.0
-        tvals = [("file", self.p["thresholds_file"]), ("window", self.window),
-                 ("rate_hz", self.table.rate_hz), ("alpha", self.table.alpha),
-                 ("duration_s", self.table.duration_s),
-                 ("segment_start_s", float(self.table.grid[self.table.segment_index(
-                     v["t_flight"])]) if v is not None else 0.0),
-                 ("confirm_decisions", self.confirm), ("learn_s", self.model.learn_s),
-                 ("time_offsets_s", [] if self.core.tau is None
-                  else [float(x) for x in self.core.tau]),
-                 ("triple_rate_hz", rate)]
-        level, text = diag.OK, "threshold table loaded"
-        if v is not None and v["t_flight"] > self.table.duration_s:
-            level, text = diag.WARN, (f"flight time {v['t_flight']:.1f} s beyond the calibrated "
-                                      f"{self.table.duration_s:g} s: last segment's bounds used")
-        if rate > 0 and self.counters["matched_triples"] > self.window and \
-                abs(rate / self.table.rate_hz - 1.0) > 0.1:
-            level, text = diag.WARN, (f"triples arrive at {rate:.1f} Hz, the table is calibrated "
-                                      f"for {self.table.rate_hz:g} Hz")
-        table = diag.make_status(f"{name}: thresholds", level, text, tvals, hardware_id=name)
-        return [inputs, vote, table]
+        return voter_diagnostics.statuses(self)
 
 
 def main(args: list[str] | None = None) -> int:
