@@ -215,7 +215,8 @@ class VoterCore:
 
     ``push(stamp_ns (n,), P (n, 6, 3))`` -> :class:`Decisions` of the samples that became
     decidable (alignment delays them by the largest time offset; none in the learning phase).
-    ``finish()`` decides what the alignment delay still holds back (the end of a recording)."""
+    ``finish()`` ends a recording shorter than the learning phase (it still estimates the time
+    offsets and decides); the last samples held back by the alignment delay stay undecided."""
 
     def __init__(self, table: ThresholdTable, confirm: int = 1, release_after_windows: int = 3,
                  sticky: bool = True, time_offsets_s: Sequence[float] | None = None,
@@ -292,8 +293,11 @@ class VoterCore:
     def _process(self, final: bool) -> Decisions:
         if not self._started and not self._start(final):
             return self._empty()
+        # a sample is decided once IMU2's and IMU3's samples of its instant have arrived; at
+        # the end of a recording the last ones never do (not decided: extrapolating them would
+        # compare different instants)
         lag = float(np.max(self.tau)) * self.rate_hz
-        end = self._count if final else self._count - int(math.ceil(max(0.0, lag)))
+        end = self._count - int(math.ceil(max(0.0, lag) - 1e-9))
         if end <= self._next:
             return self._empty()
         A = self._aligned(end)[:, self.qi, :]
