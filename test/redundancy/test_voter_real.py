@@ -239,3 +239,54 @@ def test_vote_errors_are_one_line(tmp_path, bag):
                  ("vote", bag, "--time-offsets", "x"), ("imu-csv", tmp_path / "o", tmp_path)):
         r = _cli(*args)
         assert r.returncode == 1 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+
+
+def test_imu_csv_reports_non_increasing_times(tmp_path):
+    rows = ["time,Acc_X,Acc_Y,Acc_Z,Gyr_X,Gyr_Y,Gyr_Z,Extra"]
+    for i, t in enumerate([0.0, 0.01, 0.02, 0.02, 0.04]):
+        rows.append(f"{t},{i},0,9.8,{i * 10},0,0,7")
+    paths = []
+    for k in range(3):
+        p = tmp_path / f"u{k}.csv"
+        p.write_text("\n".join(rows) + "\n")
+        paths.append(p)
+    r = _cli("imu-csv", tmp_path / "bag", *paths, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["topics"]["/imu1/data"]["messages"] == 5
+    assert doc["topics"]["/imu1/data"]["non_increasing_times"] == 1
+    from flight_fdi.bagio.imu_reader import read_imu_triples
+
+    d = read_imu_triples(tmp_path / "bag")
+    assert d.P.shape == (4, 6, 3) and d.dropped["imu1_duplicate"] == 1
+    np.testing.assert_allclose(d.P[1, :, 0], [math.radians(10), 0, 0, 1, 0, 9.8])
+
+
+def test_voter_calibrate_from_bags_cli(tmp_path, bag):
+    """The command's plumbing (the same recording five times: a smoke test, not a judgement):
+    a table with the model section that vote accepts."""
+    out = tmp_path / "t.json"
+    r = _cli("voter-calibrate", out, "--alpha", "0.002", "--json", "--from-bags", *[bag] * 5)
+    assert r.returncode == 0, r.stderr
+    info = json.loads(r.stdout)
+    assert info["recordings"] == 5 and set(info["mounting"]) == {
+        "imu2_gyro", "imu3_gyro", "imu2_accel", "imu3_accel"}
+    table = load_table(out)
+    model = VoterModel.from_table(table)
+    assert model.learn_s == 5.0 and model.time_offsets_s is None and model.prefilter == 12
+    assert table.window == 600 and table.alpha == 0.002
+    r = _cli("vote", bag, "--thresholds", out, "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["isolations"] == []
+
+
+def test_grade_presets_change_the_simulated_errors():
+    import argparse
+
+    from flight_fdi.cli.voter_calibrate import add_imu_options, imu_config
+
+    p = argparse.ArgumentParser()
+    add_imu_options(p)
+    nav = imu_config(p.parse_args([]))
+    mems = imu_config(p.parse_args(["--grade", "mems", "--param", "gyro_bias_dph=100"]))
+    assert nav.errors.gyro_bias_dph == 0.05
+    assert mems.errors.gyro_bias_dph == 100.0 and mems.errors.accel_bias_ug == 30000.0
