@@ -41,7 +41,7 @@ from .voter_align import check_mounting, correct_mounting, delay, estimate_time_
 from .voting import QUANTITIES, SINGLE_FAULT, HEALTHY, MARGINAL, ThresholdTable, vote_array
 
 #: defaults chosen on the real recordings (docs/voter_real.md)
-DEFAULT_CONFIRM_S = 0.5
+DEFAULT_CONFIRM_S = 1.0
 DEFAULT_RELEASE_WINDOWS = 3
 
 

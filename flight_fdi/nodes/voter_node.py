@@ -37,7 +37,7 @@ Voting
 
 Selection (sticky)
     A single-fault verdict naming IMU k on a quantity for the larger of ``confirm_decisions``
-    decisions and ``confirm_s`` seconds (default 0.5 s, chosen on the real recordings,
+    decisions and ``confirm_s`` seconds (default 1 s, chosen on the real recordings,
     docs/voter_real.md) **isolates** IMU k on that quantity. The selected IMU is the first of
     IMU1, IMU2, IMU3 isolated on no quantity (which is the truth table's choice for every single
     fault); a multiple fault isolates nothing and keeps the selection. With ``sticky`` (default)
