@@ -23,23 +23,29 @@ import time
 from pathlib import Path
 
 
-#: IMU grade presets of the simulator (ImuErrorModel parameters; --param overrides them):
-#: navigation = the documented defaults (seed 002); tactical and consumer MEMS after typical
-#: data sheets (MEMS: Xsens DOT class -- its per-unit offsets are the turn-on bias)
-GRADES = {
-    "navigation": {},
-    "tactical": {"gyro_bias_dph": 1.0, "gyro_scale_ppm": 100.0, "gyro_arw_dph_rthz": 0.05,
-                 "accel_bias_ug": 300.0, "accel_scale_ppm": 300.0, "accel_vrw_ug_rthz": 50.0},
-    "mems": {"gyro_bias_dph": 500.0, "gyro_scale_ppm": 5000.0, "gyro_arw_dph_rthz": 0.6,
-             "gyro_pulse_arcsec": 0.01, "gyro_full_scale_dps": 2000.0,
-             "accel_bias_ug": 30000.0, "accel_scale_ppm": 5000.0, "accel_vrw_ug_rthz": 120.0,
-             "accel_pulse_mps": 1e-5, "accel_full_scale_g": 16.0},
-}
+#: IMU grades of the simulator: navigation = the documented defaults of ImuErrorModel (seed
+#: 002's experiment); tactical and mems = the turn-on bias, white noise, scale factor and pulse
+#: of flight_fdi.sim.imu3d's grades (their bias instability has no counterpart in this model)
+GRADES = ("navigation", "tactical", "mems")
+
+
+def grade_params(name: str) -> dict[str, float]:
+    """ImuErrorModel parameters of a grade (--param overrides them)."""
+    if name == "navigation":
+        return {}
+    from flight_fdi.sim.imu import ARCSEC
+    from flight_fdi.sim.imu3d import DEG_H, DEG_RTH, GRADES as GRADES_3D, UG
+
+    g = GRADES_3D[name]
+    return {"gyro_bias_dph": g.gyro_bias / DEG_H, "gyro_scale_ppm": g.gyro_scale * 1e6,
+            "gyro_arw_dph_rthz": g.arw / DEG_RTH, "gyro_pulse_arcsec": g.gyro_quantum / ARCSEC,
+            "accel_bias_ug": g.accel_bias / UG, "accel_scale_ppm": g.accel_scale * 1e6,
+            "accel_vrw_ug_rthz": g.vrw / UG, "accel_pulse_mps": g.accel_quantum}
 
 
 def add_imu_options(p: argparse.ArgumentParser, duration: float = 60.0) -> None:
     """Options of the IMU simulation shared by the voter commands."""
-    p.add_argument("--grade", choices=tuple(GRADES), default="navigation",
+    p.add_argument("--grade", choices=GRADES, default="navigation",
                    help="IMU error presets (default navigation; --param overrides single values)")
     p.add_argument("--duration", type=float, default=duration, metavar="S",
                    help=f"flight duration in seconds (default {duration:g})")
@@ -62,7 +68,7 @@ def imu_config(args: argparse.Namespace, faults=()):
     from flight_fdi.sim.errors import SimError
     from flight_fdi.sim.imu import ImuErrorModel, ImuSimConfig
 
-    params: dict[str, float] = dict(GRADES[getattr(args, "grade", "navigation")])
+    params: dict[str, float] = grade_params(getattr(args, "grade", "navigation"))
     for item in args.param:
         if "=" not in item:
             raise SimError(f"--param {item!r}: expected NAME=VALUE")

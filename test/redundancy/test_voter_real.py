@@ -288,5 +288,9 @@ def test_grade_presets_change_the_simulated_errors():
     add_imu_options(p)
     nav = imu_config(p.parse_args([]))
     mems = imu_config(p.parse_args(["--grade", "mems", "--param", "gyro_bias_dph=100"]))
-    assert nav.errors.gyro_bias_dph == 0.05
-    assert mems.errors.gyro_bias_dph == 100.0 and mems.errors.accel_bias_ug == 30000.0
+    tac = imu_config(p.parse_args(["--grade", "tactical"]))
+    assert nav.errors.gyro_bias_dph == 0.05                      # the seed-002 defaults
+    assert mems.errors.gyro_bias_dph == 100.0                    # --param wins
+    assert mems.errors.accel_bias_ug == pytest.approx(5000.0)    # sim.imu3d's mems grade
+    assert tac.errors.gyro_bias_dph == pytest.approx(1.0)
+    assert tac.errors.gyro_arw_dph_rthz == pytest.approx(0.05)
