@@ -23,6 +23,7 @@ from .glr import GlrConfig, GlrResult, isolate
 from .forked import ForkedCall, can_fork, fork_call
 from .kalman import ForwardResult, GateConfig, measurement_record, run_forward
 from .models import LinearModel
+from .result import SCHEMA_ID, post_flight
 from .smoother import DEFAULT_RANK_TOL, BackwardResult, backward_information, run_backward
 
 _GLR_DEFAULTS = GlrConfig()
@@ -163,9 +164,9 @@ def run_analysis(model: LinearModel, t_ins: Any, v_ins: Any, t_ref: Any, v_ref: 
     t_ins, v_ins: INS stamps (strictly increasing) and velocity; t_ref, v_ref: reference stamps
     and velocity; r_ref: the reference's variance per message ((M,) or (M, 1, 1)), NaN where the
     message's covariance was invalid -- the model's R is used there and the samples are counted
-    in ``input.invalid_covariance``; None: model.R throughout. The filter runs on
-    z = V_INS(t_ref) - V_ref at the reference stamps the INS covers (``input.dropped_unaligned``
-    counts the others).
+    in ``input.reference.dropped.invalid_covariance_replaced``; None: model.R throughout. The
+    filter runs on z = V_INS(t_ref) - V_ref at the reference stamps the INS covers (the others
+    are counted by :func:`input_counts`).
     """
     if not isinstance(model, LinearModel):
         raise CoreError(f"run_analysis: model must be a LinearModel, got {type(model).__name__}")
@@ -222,10 +223,25 @@ def run_analysis(model: LinearModel, t_ins: Any, v_ins: Any, t_ref: Any, v_ref: 
         fwd = run_forward(model, None, None, gate=config.gate, record=record)
         result = analyze_forward(model, fwd, config, bag=bag, channel=channel, t0=origin)
     result.aligned = aligned
-    result.summary["input"] = {"ins_messages": int(ti.size), "ref_messages": int(tr.size),
-                               "invalid_covariance": invalid_cov,
-                               "dropped_unaligned": int((~aligned).sum())}
+    result.summary["input"] = input_counts(ti, tr, aligned, invalid_cov)
     return result
+
+
+def input_counts(t_ins: np.ndarray, t_ref: np.ndarray, aligned: np.ndarray,
+                 invalid_covariance: int) -> dict:
+    """``input`` of the summary for arrays (no topics): per role (``ins``, ``reference``) the
+    samples given, used, and those not used by reason -- reference samples outside the INS
+    record or in an INS gap longer than max_gap_s; ``invalid_covariance_replaced`` counts
+    samples used with the model's R instead of their invalid covariance. The bag layer
+    (flight_fdi.bagio.inputs) names the topics and adds the reasons of the raw messages."""
+    outside = (t_ref < t_ins[0]) | (t_ref > t_ins[-1])
+    return {
+        "ins": {"messages": int(t_ins.size), "used": int(t_ins.size), "dropped": {}},
+        "reference": {"messages": int(t_ref.size), "used": int(aligned.sum()), "dropped": {
+            "outside_ins_record": int((outside & ~aligned).sum()),
+            "ins_gap": int((~outside & ~aligned).sum()),
+            "invalid_covariance_replaced": int(invalid_covariance)}},
+    }
 
 
 #: records longer than this (steps; 5.5 hours at 10 Hz) run GLR before the backward pass
@@ -298,14 +314,16 @@ def combine(model: LinearModel, seed: SeedDiagnosis, glr: GlrResult) -> dict:
     """The overall verdict from both methods (times absolute):
 
     * ``insufficient_data`` when the seed method has too little data;
-    * GLR isolated a fault (its statistic exceeds its threshold): element, onset and magnitude
-      are GLR's -- it separates weakly observable elements that the seed's UDU^T order can
-      confuse, and it estimates onset and magnitude; the verdict is ``glitch`` for an outlier
-      hypothesis and ``failure`` for a step or jump (a change that persists);
+    * GLR isolated one fault (its statistic exceeds its threshold, no rival hypothesis of
+      another sensor within the margin, and what it leaves passes the second GLR pass):
+      element, onset and magnitude are GLR's -- it separates weakly observable elements that
+      the seed's UDU^T order can confuse; the verdict is ``glitch`` for an outlier hypothesis
+      and ``failure`` for a step, ramp or jump;
+    * GLR detected but ambiguous or unexplained: ``ambiguous``, no element;
     * otherwise the seed method's verdict, element and onset (magnitude unknown).
 
     ``methods_agree``: the seed element equals the element of the GLR hypothesis
-    (accel_bias_step <-> accel_bias, gyro_drift_step <-> gyro_drift, reference_jump /
+    (accel_bias_* <-> accel_bias, gyro_drift_* <-> gyro_drift, reference_jump /
     reference_outlier <-> the measured element, velocity_error; none <-> no element).
     """
     g_elem = glr_element(model, glr.hypothesis)
@@ -313,9 +331,12 @@ def combine(model: LinearModel, seed: SeedDiagnosis, glr: GlrResult) -> dict:
     if seed.verdict == "insufficient_data":
         return {"verdict": "insufficient_data", "element": None, "onset": None,
                 "magnitude": None, "methods_agree": agree}
-    if glr.detected:
+    if glr.detected and glr.confident:
         return {"verdict": "glitch" if _glr_is_outlier(glr.hypothesis) else "failure",
                 "element": g_elem, "onset": glr.onset_t, "magnitude": glr.magnitude,
+                "methods_agree": agree}
+    if glr.detected:
+        return {"verdict": "ambiguous", "element": None, "onset": None, "magnitude": None,
                 "methods_agree": agree}
     return {"verdict": seed.verdict, "element": seed.element, "onset": seed.onset_t,
             "magnitude": None, "methods_agree": agree}
@@ -328,7 +349,12 @@ def _summary(model: LinearModel, fwd: ForwardResult, seed: SeedDiagnosis, glr: G
 
     alarms = fwd.alarms()
     both = combine(model, seed, glr)
+    end_s = None if seed.end_t is None else seed.end_t - t0
+    decision = post_flight(seed, glr, t0, channel, glr_element(model, glr.hypothesis), end_s)
+    best = glr.per_hypothesis.get(glr.hypothesis, {})
+    interval = best.get("onset_interval")
     return {
+        "schema": SCHEMA_ID,
         "bag": str(bag),
         "channel": str(channel),
         "duration_s": float(fwd.t[-1] - fwd.t[0]),
@@ -342,13 +368,19 @@ def _summary(model: LinearModel, fwd: ForwardResult, seed: SeedDiagnosis, glr: G
         },
         "post_flight": {
             "verdict": both["verdict"],
+            "headline": decision["headline"],
+            "fault": decision["fault"],
+            "candidates": decision["candidates"],
+            "isolation": decision["isolation"],
             "element": both["element"],
             "onset_s": rel(both["onset"]),
             "magnitude": _num(both["magnitude"]),
             "methods_agree": bool(both["methods_agree"]),
+            "disagreement": decision["disagreement"],
             "seed_method": {
                 "verdict": seed.verdict,
                 "element": seed.element,
+                "onset_s": rel(seed.onset_t),
                 "elements": [{"name": e.name, "J_peak": _num(e.J_peak), "gamma2": _num(e.gamma2),
                               "F_peak": _num(e.F_peak), "eta2": _num(e.eta2),
                               "exceed_fraction": float(e.exceed_fraction), "dof": int(e.dof)}
@@ -357,9 +389,21 @@ def _summary(model: LinearModel, fwd: ForwardResult, seed: SeedDiagnosis, glr: G
             "glr": {
                 "hypothesis": glr.hypothesis,
                 "onset_s": rel(glr.onset_t),
+                "onset_interval_s": None if interval is None or not glr.detected
+                else [rel(interval[0]), rel(interval[1])],
                 "magnitude": _num(glr.magnitude),
+                "unit": best.get("unit") if glr.detected else None,
                 "statistic": float(glr.statistic),
                 "threshold": float(glr.threshold),
+                "isolation": glr.isolation,
+                "runner_up": glr.runner_up,
+                "runner_up_statistic": float(glr.runner_up_statistic),
+                "residual": None if glr.residual is None else {
+                    "hypothesis": glr.residual["hypothesis"],
+                    "onset_s": rel(glr.residual["onset_t"]),
+                    "statistic": float(glr.residual["statistic"])},
+                "statistics": {h: float(v["statistic"])
+                               for h, v in glr.per_hypothesis.items()},
             },
         },
     }

@@ -24,6 +24,12 @@ Hypotheses (``GlrConfig.hypotheses``)
     where ``A_bar`` is A with row j zeroed: beta_j stays mu and the other states respond through
     column j of A (on the INS channel the velocity error ramps after an accelerometer bias step,
     the tilt ramps after a gyro drift step). Magnitude unit: the state's (m/s^2, rad/s).
+``"<state>_ramp"`` or ``"ramp:<state>"`` (``accel_bias_ramp``, ``gyro_drift_ramp``)
+    The instrument error in state j grows at the rate mu from the onset: the fault state is
+    [beta; r] with ``beta' = A_bar beta + e_j r``, ``r' = 0``, ``r(theta) = mu``. Magnitude unit:
+    the state's per second (m/s^3, rad/s^2). **On one velocity channel a gyro drift step w and an
+    accelerometer bias ramp of -g w have the same signature** (both give V'' = -g V / R - g w):
+    no test on velocity alone separates them, so both are reported (``ambiguous``).
 ``"reference_jump"`` or ``"jump:<measurement>"``
     The measurement z fused by the filter is offset by mu from the onset on. The magnitude is the
     offset of z (on the INS channel z = V_INS - V_ref: a reference velocity that jumps by +d gives
@@ -32,6 +38,18 @@ Hypotheses (``GlrConfig.hypotheses``)
     A single-sample measurement fault of size mu at the onset (the signature includes the filter's
     response to having fused it). It is in the default set on purpose: a lone wild sample then
     wins as ``reference_outlier`` instead of being reported as a jump or a step.
+
+Is the fault explained?
+-----------------------
+The best (h, theta) is reported with confidence (``isolation = "single"``) only when
+
+* no hypothesis of *another sensor* comes within ``ambiguity_margin`` of its statistic
+  (else ``"ambiguous"``, both named), and
+* a second pass on what it leaves finds nothing: the fitted fault mu rho(theta, h) is removed
+  from the innovations and every hypothesis h2 is tested again *given* the first fault
+  (the joint fit of both: l2 = n2'^2 / (d22 - d12^2 / d11), chi2(1) per onset when one fault
+  explains the data); above the threshold -> ``"unexplained"`` (two faults, or one no
+  hypothesis describes). More outliers after the largest one are one ``outliers`` fault.
 
 Signature recursion (exact, time-varying)
 -----------------------------------------
@@ -90,10 +108,15 @@ from .errors import CoreError
 from .models import LinearModel
 
 __all__ = ["GlrConfig", "GlrResult", "isolate", "first_crossing_probability",
-           "DEFAULT_HYPOTHESES"]
+           "DEFAULT_HYPOTHESES", "sensor_of", "kind_of"]
 
-DEFAULT_HYPOTHESES = ("accel_bias_step", "gyro_drift_step", "reference_jump", "reference_outlier")
+DEFAULT_HYPOTHESES = ("accel_bias_step", "gyro_drift_step", "accel_bias_ramp", "gyro_drift_ramp",
+                      "reference_jump", "reference_outlier")
 NONE = "none"
+#: chi2(1) 95 % quantile: the onsets whose l is within this of the peak form the onset interval
+ONSET_CI_DROP = 3.841458820694124
+#: at most this many outlier times are listed in per_hypothesis
+MAX_OUTLIER_TIMES = 100
 
 
 @dataclass(frozen=True)
@@ -107,12 +130,19 @@ class GlrConfig:
         only the speed, not the result (beyond rounding).
     curve_points: at most this many points per curve in ``GlrResult.curves`` (the maximum of
         each bin of onsets); 0 = every onset.
+    ambiguity_margin: two hypotheses of different sensors whose statistics l differ by less
+        than this are reported as ambiguous (l is twice the log-likelihood ratio: the default
+        2 ln 100 = 9.21 asks for a likelihood ratio of 100 between the winner and the runner-up).
+    residual_test: after the best hypothesis is fitted and removed, test what is left by a
+        second GLR pass (see "Is the fault explained?" in the module doc).
     """
 
     p_false_alarm: float = 1e-3
     hypotheses: tuple = DEFAULT_HYPOTHESES
     block_size: int = 0
     curve_points: int = 4000
+    ambiguity_margin: float = 2.0 * float(np.log(100.0))
+    residual_test: bool = True
 
     def __post_init__(self) -> None:
         p = self.p_false_alarm
@@ -139,6 +169,14 @@ class GlrConfig:
                 raise CoreError(f"GlrConfig.{nm} must be an integer >= 0, got {val!r}")
         if self.block_size == 1:
             raise CoreError("GlrConfig.block_size must be 0 (automatic) or >= 2, got 1")
+        am = self.ambiguity_margin
+        if isinstance(am, bool) or not isinstance(am, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(am) or am < 0:
+            raise CoreError(f"GlrConfig.ambiguity_margin must be a number >= 0, got {am!r}")
+        object.__setattr__(self, "ambiguity_margin", float(am))
+        if not isinstance(self.residual_test, (bool, np.bool_)):
+            raise CoreError(f"GlrConfig.residual_test must be true or false, got "
+                            f"{self.residual_test!r}")
 
 
 @dataclass(frozen=True)
@@ -153,6 +191,14 @@ class GlrResult:
     per_hypothesis: for each hypothesis its best onset: dict(onset_index, onset_t, magnitude,
         magnitude_std, statistic, unit).
     curves: for each hypothesis (onset_t array, l array), max-pooled to ``curve_points``.
+    runner_up, runner_up_statistic: the best other hypothesis and its statistic (None / 0.0
+        with a single hypothesis).
+    isolation: ``"none"`` (nothing above the threshold), ``"single"`` (one fault explains the
+        data), ``"ambiguous"`` (the runner-up, a hypothesis of another sensor, is within
+        ``ambiguity_margin``) or ``"unexplained"`` (the second pass on what the best hypothesis
+        leaves still finds a fault above the threshold).
+    residual: the second pass: dict(hypothesis, onset_index, onset_t, statistic) of its best
+        hypothesis (the statistic conditioned on the first fault), None when not run.
     """
 
     hypothesis: str
@@ -163,10 +209,20 @@ class GlrResult:
     threshold: float
     per_hypothesis: dict = field(default_factory=dict)
     curves: dict = field(default_factory=dict)
+    runner_up: str | None = None
+    runner_up_statistic: float = 0.0
+    isolation: str = NONE
+    residual: dict | None = None
 
     @property
     def detected(self) -> bool:
         return self.hypothesis != NONE
+
+    @property
+    def confident(self) -> bool:
+        """A fault above the threshold that one hypothesis alone explains, clear of the
+        runner-up."""
+        return self.isolation == "single"
 
 
 # --------------------------------------------------------------------------------------------
@@ -175,7 +231,7 @@ class GlrResult:
 @dataclass(frozen=True)
 class _Hypothesis:
     name: str
-    kind: str  # "step" | "jump" | "outlier"
+    kind: str  # "step" | "ramp" | "jump" | "outlier"
     index: int  # state index (step) or measurement row (jump/outlier)
     unit: str
     scale: float  # SI units per scaled unit of the magnitude
@@ -188,13 +244,14 @@ def _measurement_unit(model: LinearModel, row: int) -> str:
 
 
 def _resolve(model: LinearModel, name: str) -> _Hypothesis:
-    def state(sname: str) -> _Hypothesis:
+    def state(sname: str, kind: str = "step") -> _Hypothesis:
         if sname not in model.state_names:
             raise CoreError(
                 f"GlrConfig.hypotheses: {name!r} needs a state {sname!r}; model {model.name!r} has "
-                f"states {', '.join(model.state_names)} (use 'step:<state>')")
+                f"states {', '.join(model.state_names)} (use '{kind}:<state>')")
         j = model.state_names.index(sname)
-        return _Hypothesis(name, "step", j, model.state_units[j], float(model.scale[j]))
+        unit = model.state_units[j] + ("/s" if kind == "ramp" else "")
+        return _Hypothesis(name, kind, j, unit, float(model.scale[j]))
 
     def row(kind: str, mname: str | None) -> _Hypothesis:
         if mname is None:
@@ -214,6 +271,8 @@ def _resolve(model: LinearModel, name: str) -> _Hypothesis:
 
     if name.startswith("step:"):
         return state(name[5:])
+    if name.startswith("ramp:"):
+        return state(name[5:], "ramp")
     if name.startswith("jump:"):
         return row("jump", name[5:])
     if name.startswith("outlier:"):
@@ -224,9 +283,11 @@ def _resolve(model: LinearModel, name: str) -> _Hypothesis:
         return row("outlier", None)
     if name.endswith("_step"):
         return state(name[:-5])
+    if name.endswith("_ramp"):
+        return state(name[:-5], "ramp")
     raise CoreError(f"GlrConfig.hypotheses: unknown hypothesis {name!r}; use '<state>_step', "
-                    f"'step:<state>', 'reference_jump', 'jump:<measurement>', 'reference_outlier' "
-                    f"or 'outlier:<measurement>'")
+                    f"'step:<state>', '<state>_ramp', 'ramp:<state>', 'reference_jump', "
+                    f"'jump:<measurement>', 'reference_outlier' or 'outlier:<measurement>'")
 
 
 # --------------------------------------------------------------------------------------------
@@ -373,21 +434,30 @@ class _System:
         self.kind = hyp.kind
         self.m = m
         sh = flt.shared
-        if hyp.kind == "step":
+        if hyp.kind in ("step", "ramp"):
             j = hyp.index
-            self.q, self.i0 = n, j
+            ramp = hyp.kind == "ramp"
+            # a ramp carries its rate r as one more fault state: beta_j' = r, r' = 0
+            self.q, self.i0 = n + ramp, (n if ramp else j)
             Abar = np.array(model.A, dtype=float)
             Abar[j, :] = 0.0  # the instrument error stays at the step: beta_j' = 0
             sc = model.scale
-            Abar_s = Abar / sc[:, None] * sc[None, :]
+            Abar_s = np.zeros((self.q, self.q))
+            Abar_s[:n, :n] = Abar / sc[:, None] * sc[None, :]
+            if ramp:
+                Abar_s[j, n] = 1.0  # (r in scaled units of state j per second)
             self.psi_table = _expm_table(Abar_s, flt.dt_values, lambda d: expm(Abar_s * d))
-            if "step" not in sh:
-                C = np.concatenate([flt.H, -flt.H], axis=3)  # [H', -H'], (B, nb, m, 2n)
-                sh["step"] = (flt.PhiN - flt.A,  # G_k H'_k
-                              np.ascontiguousarray(np.swapaxes(C, 2, 3)),  # C^T
-                              _mul(flt.Sinv, C),  # S^-1 C
-                              np.sum(C * flt.w[..., :, None], axis=-2))  # C^T S^-1 nu
-            self.GD, self.Ct, self.SC, self.c = sh["step"]
+            if hyp.kind not in sh:
+                parts = [flt.H] + ([np.zeros(flt.H.shape[:3] + (1,))] if ramp else []) \
+                    + [-flt.H]
+                C = np.concatenate(parts, axis=3)  # [H', (0,) -H'], (B, nb, m, p)
+                GD = flt.PhiN - flt.A  # G_k H'_k
+                if ramp:
+                    GD = np.concatenate([GD, np.zeros(GD.shape[:3] + (1,))], axis=3)
+                sh[hyp.kind] = (GD, np.ascontiguousarray(np.swapaxes(C, 2, 3)),  # C^T
+                                _mul(flt.Sinv, C),  # S^-1 C
+                                np.sum(C * flt.w[..., :, None], axis=-2))  # C^T S^-1 nu
+            self.GD, self.Ct, self.SC, self.c = sh[hyp.kind]
         else:
             r = hyp.index
             self.q, self.i0 = 1, 0
@@ -401,9 +471,9 @@ class _System:
         self.p = self.q + n
         F = np.zeros((nb, self.p, self.p))
         self._psi_varies = False
-        if hyp.kind == "step":
+        if hyp.kind in ("step", "ramp"):
             if flt.dt_values.size == 1:
-                F[:, :n, :n] = self.psi_table[0]
+                F[:, :self.q, :self.q] = self.psi_table[0]
             else:
                 self._psi_varies = True
         elif hyp.kind == "jump":
@@ -412,7 +482,7 @@ class _System:
 
     def column(self, j: int):
         flt, q, F = self.flt, self.q, self._F
-        if self.kind == "step":
+        if self.kind in ("step", "ramp"):
             if self._psi_varies:
                 F[:, :q, :q] = self.psi_table[flt.dt_key[j]]
             F[:, q:, :q] = self.GD[j]
@@ -535,6 +605,76 @@ def _pool(t: np.ndarray, l: np.ndarray, points: int):
     return t[arg], l[arg]
 
 
+def _signature(system: _System, k0: int) -> np.ndarray:
+    """rho_k of a unit fault of ``system`` starting at sample k0, position-major (B, nb, m)
+    like ``_Filter.w``: the block of k0 step by step, then the later blocks' start states
+    through their transfer matrices and all of them together (~3 sqrt(N) vectorised steps)."""
+    flt = system.flt
+    nb, B, p = flt.nb, flt.B, system.p
+    b0, j0 = divmod(int(k0), B)
+    rho = np.zeros((B, nb, system.m))
+    s = np.zeros(p)
+    s[system.i0] = 1.0
+    for j in range(j0, B):
+        F, _, _ = system.column(j)
+        rho[j, b0] = system.Ct[j, b0].T @ s
+        s = F[b0] @ s
+    later = nb - b0 - 1
+    if later > 0:
+        T = np.broadcast_to(np.eye(p), (later, p, p)).copy()
+        for j in range(B):
+            F, _, _ = system.column(j)
+            T = F[b0 + 1:] @ T
+        x = np.zeros((later, p))
+        x[0] = s
+        for i in range(1, later):
+            x[i] = T[i - 1] @ x[i - 1]
+        for j in range(B):
+            F, _, _ = system.column(j)
+            rho[j, b0 + 1:] = np.einsum("bpm,bp->bm", system.Ct[j, b0 + 1:], x)
+            x = np.einsum("bpq,bq->bp", F[b0 + 1:], x)
+    return rho
+
+
+def _statistics(model: LinearModel, hyps: list, flt: _Filter) -> dict:
+    """num, den, cross (sample order, N entries) of every hypothesis."""
+    N = flt.t.size
+    out = {}
+    for hyp in hyps:
+        out[hyp.name] = tuple(a[:N] for a in _scan(_System(model, hyp, flt)))
+    return out
+
+
+def _residual_pass(model: LinearModel, hyps: list, flt: _Filter, raw: dict, best: _Hypothesis,
+                   k0: int) -> dict:
+    """Remove the fitted fault (best, onset k0) from the innovations and test what is left:
+    for every hypothesis h2 and onset, the GLR of h2 *given* the first fault (both fitted
+    jointly): with n_i, d_ij the inner products of the first pass and n2' the numerator on the
+    residual, l2 = n2'^2 / (d22 - d12^2 / d11), chi2(1) for each onset when one fault explains
+    the data (d12 comes from n2 - n2' = mu1 d12)."""
+    num1, den1, _ = raw[best.name]
+    mu1 = num1[k0] / den1[k0]
+    rho = _signature(_System(model, best, flt), k0)
+    w = flt.w - mu1 * _mul(flt.Sinv, rho[..., None])[..., 0]
+    rest = _Filter(flt.t, flt.nb, flt.B, flt.PhiN, flt.A, flt.G, flt.H, flt.Sinv, w,
+                   flt.dt_key, flt.dt_values)
+    top = {"hypothesis": NONE, "onset_index": None, "onset_t": None, "statistic": 0.0}
+    for hyp in hyps:
+        n2r, _, _ = _scan(_System(model, hyp, rest))
+        n2r = n2r[:flt.t.size]
+        n2, d22, _ = raw[hyp.name]
+        d12 = (n2 - n2r) / mu1 if mu1 != 0.0 else np.zeros_like(n2)
+        cond = d22 - d12 ** 2 / den1[k0]
+        ok = cond > 1e-6 * np.maximum(d22, 1e-300)
+        l2 = np.zeros_like(n2)
+        l2[ok] = n2r[ok] ** 2 / cond[ok]
+        k = int(np.argmax(l2))
+        if l2[k] > top["statistic"]:
+            top = {"hypothesis": hyp.name, "onset_index": k, "onset_t": float(flt.t[k]),
+                   "statistic": float(l2[k])}
+    return top
+
+
 def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> GlrResult:
     """Isolate the fault in a flight from the forward filter's result by GLR (module docstring).
 
@@ -552,8 +692,9 @@ def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> Gl
     curves: dict[str, tuple] = {}
     fresh = 0
     pair_a: list[np.ndarray] = []
+    raw = _statistics(model, hyps, flt)
     for hyp in hyps:
-        num, den, cross = (a[:N] for a in _scan(_System(model, hyp, flt)))
+        num, den, cross = raw[hyp.name]
         # den = 0: the fault would leave no trace after this onset (e.g. a bias step at the
         # last sample); such onsets are not tests. (A tiny but positive den is a real test.)
         ok = den > 1e-300
@@ -568,22 +709,72 @@ def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> Gl
         fresh += int(ok[0]) + int(np.count_nonzero(ok[1:] & ~ok[:-1]))
         k = int(np.argmax(l))
         if ok[k]:
+            # profile-likelihood 95 % interval of the onset: l within chi2(1, 0.95) of its peak
+            near = np.flatnonzero(l >= l[k] - ONSET_CI_DROP)
             per[hyp.name] = {
                 "onset_index": k, "onset_t": float(flt.t[k]),
+                "onset_interval": (float(flt.t[near[0]]), float(flt.t[near[-1]])),
                 "magnitude": float(num[k] / den[k] * hyp.scale),
                 "magnitude_std": float(hyp.scale / np.sqrt(den[k])),
-                "statistic": float(l[k]), "unit": hyp.unit}
+                "statistic": float(l[k]), "unit": hyp.unit, "kind": hyp.kind}
         else:
-            per[hyp.name] = {"onset_index": None, "onset_t": None, "magnitude": None,
-                             "magnitude_std": None, "statistic": 0.0, "unit": hyp.unit}
+            per[hyp.name] = {"onset_index": None, "onset_t": None, "onset_interval": None,
+                             "magnitude": None, "magnitude_std": None, "statistic": 0.0,
+                             "unit": hyp.unit, "kind": hyp.kind}
         curves[hyp.name] = _pool(flt.t, l, config.curve_points)
+        if hyp.kind == "outlier":
+            per[hyp.name]["_l"] = l
 
     threshold = _threshold(fresh, np.concatenate(pair_a) if pair_a else np.zeros(0),
                            config.p_false_alarm)
-    best = max(per, key=lambda h: per[h]["statistic"])
+    for h in per.values():
+        if "_l" in h:  # outliers: every onset above the threshold is one (c ~ 0 between them)
+            over = np.flatnonzero(h.pop("_l") > threshold)
+            h["count"] = int(over.size)
+            h["times"] = [float(flt.t[k]) for k in over[:MAX_OUTLIER_TIMES]]
+            h["onset_interval"] = None
+    ranked = sorted(per, key=lambda h: per[h]["statistic"], reverse=True)
+    best = ranked[0]
+    runner = ranked[1] if len(ranked) > 1 else None
     stat = per[best]["statistic"]
-    if stat > threshold:
-        b = per[best]
-        return GlrResult(best, b["onset_index"], b["onset_t"], b["magnitude"], stat, threshold,
-                         per, curves)
-    return GlrResult(NONE, None, None, None, stat, threshold, per, curves)
+    extra = {"runner_up": runner,
+             "runner_up_statistic": per[runner]["statistic"] if runner else 0.0}
+    if not stat > threshold:
+        return GlrResult(NONE, None, None, None, stat, threshold, per, curves, **extra)
+    b = per[best]
+    isolation, residual = "single", None
+    rival = next((h for h in ranked[1:] if sensor_of(h) != sensor_of(best)), None)
+    if rival is not None and stat - per[rival]["statistic"] < config.ambiguity_margin:
+        isolation = "ambiguous"
+        extra = {"runner_up": rival, "runner_up_statistic": per[rival]["statistic"]}
+    if config.residual_test:
+        hyp = next(h for h in hyps if h.name == best)
+        residual = _residual_pass(model, hyps, flt, raw, hyp, b["onset_index"])
+        more_outliers = hyp.kind == "outlier" and residual["hypothesis"] == best
+        if isolation == "single" and residual["statistic"] > threshold and not more_outliers:
+            isolation = "unexplained"
+    return GlrResult(best, b["onset_index"], b["onset_t"], b["magnitude"], stat, threshold,
+                     per, curves, isolation=isolation, residual=residual, **extra)
+
+
+def sensor_of(hypothesis: str) -> str | None:
+    """The instrument a hypothesis blames: ``accelerometer`` (accel_bias_*), ``gyro``
+    (gyro_drift_*), ``reference`` (reference_* / jump: / outlier:), the stepped state's name
+    for other state hypotheses, None for "none"."""
+    if hypothesis == NONE:
+        return None
+    if hypothesis.startswith(("reference_", "jump:", "outlier:")):
+        return "reference"
+    state = hypothesis[5:] if hypothesis.startswith(("step:", "ramp:")) else hypothesis[:-5]
+    return {"accel_bias": "accelerometer", "gyro_drift": "gyro"}.get(state, state)
+
+
+def kind_of(hypothesis: str) -> str | None:
+    """step | ramp | jump | outliers of a hypothesis name (None for "none")."""
+    if hypothesis == NONE:
+        return None
+    if hypothesis.startswith(("reference_outlier", "outlier:")):
+        return "outliers"
+    if hypothesis.startswith(("reference_jump", "jump:")):
+        return "jump"
+    return "ramp" if hypothesis.startswith("ramp:") or hypothesis.endswith("_ramp") else "step"
