@@ -350,3 +350,108 @@ def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",
         names.append(state_names_t)
         xs.append(x)
     return stamps, channels, names, xs
+
+
+# --------------------------------------------------------------------------- nav_msgs/Odometry
+
+ODOMETRY = "nav_msgs/msg/Odometry"
+#: doubles after child_frame_id: pose.pose (position 3, orientation 4), pose.covariance (36),
+#: twist.twist (linear 3, angular 3), twist.covariance (36)
+_ODOM_ORIENTATION, _ODOM_TWIST, _ODOM_TWIST_COV, _ODOM_DOUBLES = 3, 43, 49, 85
+#: covariance entries of the linear velocity block (rows/columns 0..2 of the 6x6)
+LINEAR_COV = (0, 1, 2, 6, 7, 8, 12, 13, 14)
+
+
+def _strings_at(buf: np.ndarray, starts: np.ndarray, at: np.ndarray, lengths: np.ndarray,
+                what: str, name: str) -> str:
+    """The one string (without its NUL) that every message holds at payload offset ``at`` with
+    length ``lengths`` (incl. NUL); BagError when the messages disagree."""
+    if lengths.size == 0:
+        return ""
+    if np.any(lengths != lengths[0]):
+        raise BagError(f"{what}: {name} changes within the topic")
+    n = int(lengths[0])
+    if n == 0:
+        return ""
+    raw = buf[(starts + 4 + at)[:, None] + np.arange(n)[None, :]]
+    if np.any(raw != raw[0]):
+        raise BagError(f"{what}: {name} changes within the topic")
+    return bytes(raw[0, :-1]).decode("utf-8", "replace")
+
+
+def decode_odometry(payloads: "Payloads | Sequence[bytes | memoryview]", what: str = "message"
+                    ) -> tuple[np.ndarray, np.ndarray, str, str]:
+    """nav_msgs/msg/Odometry series (little-endian CDR; vectorised like :func:`decode`):
+    (stamp_ns (N,), values (N, 16) = orientation x, y, z, w, twist.linear x, y, z, the 9
+    entries of the linear block of twist.covariance (row-major), header.frame_id,
+    child_frame_id). Both strings must be the same in every message.
+
+    Layout after the encapsulation: sec, nanosec, frame_id (u32 length + bytes), then
+    child_frame_id at align4, then 85 doubles at align8 (pose 7, pose covariance 36, twist 6,
+    twist covariance 36)."""
+    if not isinstance(payloads, Payloads):
+        payloads = Payloads.from_list(payloads)
+    n = len(payloads)
+    buf, starts, lengths = payloads.buf, payloads.starts, payloads.lengths
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 16)), "", ""
+    if lengths.min() < 20:
+        bad = int(np.argmin(lengths))
+        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {ODOMETRY}")
+    head = buf[starts[:, None] + np.arange(16)]
+    if np.any(head[:, 0] != 0) or np.any(head[:, 1] != 1):
+        raise BagError(f"{what}: {ODOMETRY} in big-endian or unknown CDR encapsulation is not "
+                       "supported")
+    words = np.ascontiguousarray(head[:, 4:16]).view("<u4").reshape(n, 3).astype(np.int64)
+    sec = np.where(words[:, 0] >= 2**31, words[:, 0] - 2**32, words[:, 0])
+    nsec, len1 = words[:, 1], words[:, 2]
+    c = (12 + len1 + 3) & ~3
+    if np.any(4 + c + 4 > lengths):
+        raise BagError(f"{what}: too short for {ODOMETRY} with its frame_id")
+    len2 = np.ascontiguousarray(buf[(starts + 4 + c)[:, None] + np.arange(4)]).view(
+        "<u4").reshape(n).astype(np.int64)
+    d = _align8(c + 4 + len2)
+    short = 4 + d + 8 * _ODOM_DOUBLES > lengths
+    if np.any(short):
+        bad = int(np.flatnonzero(short)[0])
+        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {ODOMETRY}")
+    cols = [_ODOM_ORIENTATION + i for i in range(4)] + [_ODOM_TWIST + i for i in range(3)] \
+        + [_ODOM_TWIST_COV + i for i in LINEAR_COV]
+    raw = buf[(starts + 4 + d)[:, None, None] + (8 * np.asarray(cols))[None, :, None]
+              + np.arange(8)[None, None, :]]
+    values = np.ascontiguousarray(raw).view("<f8").reshape(n, len(cols))
+    frame = _strings_at(buf, starts, np.full(n, 12), len1, what, "header.frame_id")
+    child = _strings_at(buf, starts, c + 4, len2, what, "child_frame_id")
+    return sec * _NS + nsec, values, frame, child
+
+
+def encode_odometry(stamp_ns: np.ndarray, frame_id: str, child_frame_id: str,
+                    orientation: np.ndarray, linear: np.ndarray,
+                    linear_covariance: np.ndarray | None = None) -> list[bytes]:
+    """Serialize nav_msgs/Odometry (little endian; position and angular rates zero) -- for
+    tests and sample bags. orientation (N, 4) x, y, z, w; linear (N, 3); linear_covariance
+    (3, 3) or (N, 3, 3) of twist.linear (the rest of both covariances zero)."""
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64).reshape(-1)
+    n = stamp_ns.size
+    out = []
+    f = frame_id.encode() + b"\x00"
+    ch = child_frame_id.encode() + b"\x00"
+    cov = np.zeros((n, 3, 3)) if linear_covariance is None else np.broadcast_to(
+        np.asarray(linear_covariance, dtype=float), (n, 3, 3))
+    import struct
+
+    for k in range(n):
+        sec, nsec = divmod(int(stamp_ns[k]), _NS)
+        b = bytearray(b"\x00\x01\x00\x00")
+        b += struct.pack("<iII", sec, nsec, len(f)) + f
+        b += bytes(-(len(b) - 4) % 4) + struct.pack("<I", len(ch)) + ch
+        b += bytes(-(len(b) - 4) % 8)
+        doubles = np.zeros(_ODOM_DOUBLES)
+        doubles[_ODOM_ORIENTATION:_ODOM_ORIENTATION + 4] = orientation[k]
+        doubles[_ODOM_TWIST:_ODOM_TWIST + 3] = linear[k]
+        tc = np.zeros((6, 6))
+        tc[:3, :3] = cov[k]
+        doubles[_ODOM_TWIST_COV:] = tc.reshape(-1)
+        b += doubles.astype("<f8").tobytes()
+        out.append(bytes(b))
+    return out

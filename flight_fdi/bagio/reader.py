@@ -10,12 +10,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
 
 from . import cdr
 from .errors import BagError
+from .inputs import (SUPPORTED_TYPES, InputSpec, Series, clean_series, decode_topic,
+                     merge_references)
 from .typestore import get_typestore
 
 INS_TOPIC = "/ins/velocity"
@@ -61,6 +63,16 @@ class FlightData:
     #: None when the bag has no /sim/fault message
     fault: dict | None = None
     topics: dict[str, str] = field(default_factory=dict)  # topic -> message type in the bag
+    spec: InputSpec | None = None     # the input contract it was read with
+    series: list = field(default_factory=list)  # [INS Series, reference Series...]
+
+    def input_section(self, aligned: np.ndarray) -> dict:
+        """``input`` of the result (flight_fdi.bagio.inputs.input_section); ``aligned``: which
+        reference samples the analysis used (AnalysisResult.aligned)."""
+        from .inputs import input_section
+
+        return input_section(self.series[0], self.series[1:], self.stamp_ins_ns,
+                             self.stamp_ref_ns, np.asarray(aligned, dtype=bool))
 
     @property
     def ins_rel_s(self) -> np.ndarray:
@@ -195,59 +207,36 @@ def _read_raw_generic(reader: Any, path: Path, topics: set[str]) -> dict[str, _R
 
 # --------------------------------------------------------------------------- read_flight
 
-def _clean_stamps(stamp: np.ndarray, finite: np.ndarray) -> tuple[np.ndarray, int, int, int]:
-    """Indices kept, and counts of (non-finite, duplicate, out-of-order) messages dropped.
-
-    Messages are taken in bag order; a message whose stamp equals the latest stamp kept so far
-    is a duplicate, one whose stamp is earlier is out of order. Both are dropped, never reordered.
-    """
-    idx = np.flatnonzero(finite)
-    s = stamp[idx]
-    if s.size == 0:
-        return idx, int(stamp.size), 0, 0
-    prev_max = np.empty_like(s)
-    prev_max[0] = np.iinfo(np.int64).min
-    np.maximum.accumulate(s[:-1], out=prev_max[1:])
-    dup = s == prev_max
-    ooo = s < prev_max
-    keep = ~(dup | ooo)
-    return idx[keep], int(stamp.size - idx.size), int(dup.sum()), int(ooo.sum())
-
-
 def read_flight(path: str | Path, channel: str = "x", ins_topic: str = INS_TOPIC,
-                ref_topic: str = REF_TOPIC, truth_topic: str = TRUTH_TOPIC,
-                fault_topic: str = FAULT_TOPIC, with_truth: bool = True) -> FlightData:
+                ref_topic: str | Sequence[str] = REF_TOPIC, truth_topic: str = TRUTH_TOPIC,
+                fault_topic: str = FAULT_TOPIC, with_truth: bool = True,
+                spec: InputSpec | None = None) -> FlightData:
     """Read one INS channel, its reference velocity and (if present) the simulator's truth.
 
-    ``ins_topic`` carries geometry_msgs/TwistStamped, ``ref_topic``
-    geometry_msgs/TwistWithCovarianceStamped; ``channel`` picks twist.linear.x / .y / .z and the
-    matching covariance diagonal entry (0 / 7 / 14). Dropped messages are counted in
-    ``problems``; a reference whose variance is not finite or <= 0 is kept with r_ref = NaN
-    and counted as ``ref_invalid_covariance``. Problem keys: ``PROBLEM_KEYS``.
-
-    Messages are taken in bag (receive-time) order; one whose header stamp is not later than
-    the latest stamp kept so far is dropped (``*_duplicate_stamp`` when equal,
-    ``*_out_of_order_stamp`` when earlier), never reordered. ``with_truth=False`` skips the
-    /sim/truth messages (a little faster on long simulated flights).
+    ``spec`` (:class:`~flight_fdi.bagio.inputs.InputSpec`) names the topics, the channel, the
+    navigation frame and the Odometry twist frame; without it ``channel``, ``ins_topic`` and
+    ``ref_topic`` (one topic or several) build one. Either input may be TwistStamped,
+    TwistWithCovarianceStamped or Odometry (see :mod:`.inputs`); several references are merged.
+    A reference whose variance is not finite or <= 0 (or that has none) is kept with
+    r_ref = NaN (the model's R). Unused messages are counted per topic and reason
+    (``series``; legacy totals in ``problems``: ``PROBLEM_KEYS``). Header stamps are sorted
+    when merely shuffled (:func:`~flight_fdi.bagio.inputs.clean_series`). Any topic missing,
+    of an unsupported type or without a usable sample: BagError, one line.
     """
-    if channel not in CHANNELS:
-        raise BagError(f"channel must be one of {', '.join(CHANNELS)}, got {channel!r}")
-    col, cov_index = CHANNELS[channel]
+    if spec is None:
+        spec = InputSpec(ins_topic=ins_topic, reference_topics=(
+            (ref_topic,) if isinstance(ref_topic, str) else tuple(ref_topic)), channel=channel)
+    channel = spec.component
     p = Path(path)
     reader = _open_reader(p)
     try:
         topics = {c.topic: c.msgtype for c in reader.connections}
-        expected = {ins_topic: cdr.TWIST_STAMPED, ref_topic: cdr.TWIST_COV_STAMPED}
         counts: dict[str, int] = {}
         for c in reader.connections:
             counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
-        for topic, msgtype in expected.items():
-            if topic not in topics or counts.get(topic, 0) == 0:
-                raise BagError(f"bag '{p}': no messages on {topic} "
-                               f"(topics: {_topic_list(topics)})")
-            if topics[topic] != msgtype:
-                raise BagError(f"bag '{p}': {topic} carries {topics[topic]}, expected {msgtype}")
-        wanted = {ins_topic, ref_topic}
+        for topic in (spec.ins_topic, *spec.reference_topics):
+            _check_topic(p, topic, topics, counts)
+        wanted = {spec.ins_topic, *spec.reference_topics}
         has_truth = with_truth and topics.get(truth_topic) == FILTER_STATE
         has_fault = topics.get(fault_topic) == STRING
         if has_truth:
@@ -258,42 +247,54 @@ def read_flight(path: str | Path, channel: str = "x", ins_topic: str = INS_TOPIC
     finally:
         reader.close()
 
+    def series(topic: str) -> Series:
+        what = f"bag '{p}': {topic} message"
+        s, v, r, note = decode_topic(topics[topic], raw[topic].payloads, spec, what)
+        out = clean_series(topic, topics[topic], s, v, r, spec.reorder_window_s, note)
+        if out.stamp.size < (2 if topic == spec.ins_topic else 1):
+            reasons = ", ".join(f"{n} {k}" for k, n in out.dropped.items() if n) or "too few"
+            raise BagError(f"bag '{p}': {topic}: no usable samples ({out.stamp.size} of "
+                           f"{out.messages} messages usable; {reasons})")
+        return out
+
+    ins = series(spec.ins_topic)
+    refs = [series(t) for t in spec.reference_topics]
+    s_ref, v_ref, r_ref = merge_references(refs)
+    r_ref = np.where(np.isfinite(r_ref) & (r_ref > 0), r_ref, np.nan)
+    s_ins, v_ins = ins.stamp, ins.v
+    if s_ref[-1] < s_ins[0] or s_ref[0] > s_ins[-1]:
+        raise BagError(f"bag '{p}': no reference sample lies within the INS record "
+                       f"({spec.ins_topic}: {s_ins[0] * 1e-9:.3f} .. {s_ins[-1] * 1e-9:.3f} s, "
+                       f"references {s_ref[0] * 1e-9:.3f} .. {s_ref[-1] * 1e-9:.3f} s)")
     problems = dict.fromkeys(PROBLEM_KEYS, 0)
-    s_ins, tw_ins, _ = cdr.decode(cdr.TWIST_STAMPED, raw[ins_topic].payloads,
-                                  what=f"bag '{p}': {ins_topic} message", twist_cols=[col])
-    v = tw_ins[:, 0]
-    keep, nf, dup, ooo = _clean_stamps(s_ins, np.isfinite(v))
-    problems.update(ins_nonfinite_velocity=nf, ins_duplicate_stamp=dup, ins_out_of_order_stamp=ooo)
-    s_ins, v_ins = s_ins[keep], np.ascontiguousarray(v[keep])
-
-    s_ref, tw_ref, cov = cdr.decode(cdr.TWIST_COV_STAMPED, raw[ref_topic].payloads,
-                                    what=f"bag '{p}': {ref_topic} message", twist_cols=[col],
-                                    cov_cols=[cov_index])
-    v = tw_ref[:, 0]
-    keep, nf, dup, ooo = _clean_stamps(s_ref, np.isfinite(v))
-    problems.update(ref_nonfinite_velocity=nf, ref_duplicate_stamp=dup, ref_out_of_order_stamp=ooo)
-    s_ref, v_ref = s_ref[keep], np.ascontiguousarray(v[keep])
-    r = cov[keep, 0]
-    bad_r = ~(np.isfinite(r) & (r > 0))
-    problems["ref_invalid_covariance"] = int(bad_r.sum())
-    r_ref = np.where(bad_r, np.nan, r)
-
-    for topic, s, n_raw in ((ins_topic, s_ins, len(raw[ins_topic].payloads)),
-                            (ref_topic, s_ref, len(raw[ref_topic].payloads))):
-        if s.size == 0:
-            raise BagError(f"bag '{p}': none of the {n_raw} messages on {topic} is usable "
-                           f"({', '.join(f'{v} {k}' for k, v in problems.items() if v)})")
+    for pre, sr in (("ins", [ins]), ("ref", refs)):
+        problems[f"{pre}_nonfinite_velocity"] = sum(x.dropped["non_finite"] for x in sr)
+        problems[f"{pre}_duplicate_stamp"] = sum(x.dropped["duplicate_stamp"] for x in sr)
+        problems[f"{pre}_out_of_order_stamp"] = sum(x.dropped["out_of_order"] for x in sr)
+    problems["ref_invalid_covariance"] = int(sum(
+        (~(np.isfinite(x.r) & (x.r > 0))).sum() for x in refs if x.msgtype != cdr.TWIST_STAMPED))
     t0_ns = int(min(s_ins[0], s_ref[0]))
     data = FlightData(
         path=str(p), channel=channel,
         t_ins=s_ins * 1e-9, v_ins=v_ins, t_ref=s_ref * 1e-9, v_ref=v_ref, r_ref=r_ref,
         t0=t0_ns * 1e-9, stamp_ins_ns=s_ins, stamp_ref_ns=s_ref, t0_ns=t0_ns,
-        problems=problems, topics=topics)
+        problems=problems, topics=topics, spec=spec, series=[ins, *refs])
     if has_truth:
         _attach_truth(data, raw[truth_topic], channel, p, truth_topic)
     if has_fault:
         _attach_fault(data, raw[fault_topic], p, fault_topic)
     return data
+
+
+def _check_topic(path: Path, topic: str, topics: dict[str, str], counts: dict[str, int]) -> None:
+    if topic not in topics or counts.get(topic, 0) == 0:
+        raise BagError(f"bag '{path}': no messages on {topic} (topics: {_topic_list(topics)}; "
+                       "name the inputs with --ins-topic / --reference-topic or an "
+                       "--input-profile)")
+    if topics[topic] not in SUPPORTED_TYPES:
+        raise BagError(f"bag '{path}': {topic} carries {topics[topic]}, expected one of "
+                       f"{', '.join(t.rsplit('/', 1)[-1] for t in SUPPORTED_TYPES)} "
+                       "(TwistStamped, TwistWithCovarianceStamped, Odometry)")
 
 
 def _attach_truth(data: FlightData, raw: _Raw, channel: str, path: Path, topic: str) -> None:

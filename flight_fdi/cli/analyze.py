@@ -17,13 +17,63 @@ from flight_fdi.cli.errors import CliError
 def add_analysis_options(p: argparse.ArgumentParser) -> None:
     """Options shared by ``analyze``, ``run`` and ``report`` (one set of names for one
     configuration)."""
-    p.add_argument("--channel", default="x", choices=("x", "y"), help="velocity axis (default x)")
+    add_input_options(p)
     p.add_argument("--model", default="ins_channel",
                    help="built-in model name or a model YAML file (default ins_channel)")
     add_gate_options(p)
     p.add_argument("--gate-action", default="flag", choices=("flag", "reject"),
                    help="fuse (flag) or drop (reject) a gated sample (default flag)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+
+
+def add_input_options(p: argparse.ArgumentParser) -> None:
+    """The input contract (flight_fdi.bagio.inputs): topics, channel, frames, profile."""
+    g = p.add_argument_group("input (default: the sample bags' layout; see config/inputs/)")
+    g.add_argument("--input-profile", metavar="FILE", default=None,
+                   help="YAML input profile holding any of the settings below (the options "
+                        "given here win)")
+    g.add_argument("--ins-topic", default=None,
+                   help="INS velocity topic (TwistStamped, TwistWithCovarianceStamped or "
+                        "Odometry; default /ins/velocity)")
+    g.add_argument("--reference-topic", action="append", default=None, metavar="TOPIC",
+                   help="reference velocity topic (same types); repeat for redundant "
+                        "references, merged by stamp (default /reference/velocity)")
+    g.add_argument("--channel", default=None,
+                   help="velocity axis: x, y or a direction of --nav-frame (east, north) "
+                        "(default x)")
+    g.add_argument("--nav-frame", default=None, choices=("enu", "ned"),
+                   help="navigation frame of the twists: enu (REP 103: x east, y north) or ned "
+                        "(x north, y east) (default enu)")
+    g.add_argument("--odometry-twist-frame", default=None, choices=("child", "header"),
+                   help="Odometry twist given in child_frame_id (REP 105; rotated into the "
+                        "navigation frame by the pose orientation) or already in header.frame_id "
+                        "(default child)")
+    p.add_argument("--fail-on-fault", action="store_true",
+                   help="exit status 3 when a fault was declared (verdict failure, glitch or "
+                        "ambiguous); 0 otherwise, 1 on an error")
+
+
+def input_spec(args: argparse.Namespace):
+    """InputSpec from the options and --input-profile."""
+    from flight_fdi.bagio.inputs import make_spec
+
+    return make_spec(getattr(args, "input_profile", None), ins_topic=args.ins_topic,
+                     reference_topics=tuple(args.reference_topic) if args.reference_topic
+                     else None, channel=args.channel, nav_frame=args.nav_frame,
+                     odometry_twist_frame=getattr(args, "odometry_twist_frame", None))
+
+
+#: exit status with --fail-on-fault when a fault was declared
+EXIT_FAULT = 3
+FAULT_VERDICTS = ("failure", "glitch", "ambiguous")
+
+
+def exit_status(res: dict, args: argparse.Namespace) -> int:
+    """0, or EXIT_FAULT with --fail-on-fault when the verdict declares a fault."""
+    if getattr(args, "fail_on_fault", False) and \
+            res["post_flight"]["verdict"] in FAULT_VERDICTS:
+        return EXIT_FAULT
+    return 0
 
 
 def add_gate_options(p: argparse.ArgumentParser) -> None:
@@ -54,7 +104,8 @@ def analysis_config(args: argparse.Namespace):
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("analyze", help="post-flight analysis of a bag without a ROS graph",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", help="rosbag2 bag (folder) with /ins/velocity and /reference/velocity")
+    p.add_argument("bag", help="rosbag2 bag (folder, .mcap or .db3) with an INS and a "
+                               "reference velocity (see --ins-topic, --input-profile)")
     add_analysis_options(p)
     p.add_argument("--jobs", type=int, choices=(1, 2), default=default_jobs(),
                    help="processes to use: with 2 the backward pass runs beside the forward "
@@ -69,22 +120,38 @@ def default_jobs() -> int:
 
 
 def analyze_bag(bag: str, args: argparse.Namespace) -> dict:
+    """The result of one bag (the summary with ``input`` per topic and ``source``)."""
+    return analyse_flight_bag(bag, args)[0].summary
+
+
+def analyse_flight_bag(bag: str, args: argparse.Namespace, with_truth: bool = False):
+    """(AnalysisResult with the complete summary, FlightData) of one bag."""
     from flight_fdi.bagio import read_flight
     from flight_fdi.core.forked import ForkedCall
 
+    spec = input_spec(args)
     # with two jobs the bag is read in a forked child while this process imports the estimation
     # core (SciPy: ~0.5 s); errors of either side come out here, the child never outlives this
-    with ForkedCall(read_flight, (bag,), {"channel": args.channel, "with_truth": False},
+    with ForkedCall(read_flight, (bag,), {"spec": spec, "with_truth": with_truth},
                     fork=getattr(args, "jobs", 1) == 2) as job:
-        from flight_fdi.core.analysis import analyze_flight
+        from flight_fdi.core.analysis import run_analysis
         from flight_fdi.core.models import get_model
 
         config = analysis_config(args)
         model = get_model(args.model)
         flight = job.result()
     # times relative to the first INS/reference message, exact from integer nanoseconds
-    return analyze_flight(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
-                          flight.r_ref, config, bag=str(bag), channel=args.channel, t0=0.0)
+    res = run_analysis(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
+                       flight.r_ref, config, bag=str(bag), channel=spec.component, t0=0.0)
+    complete_summary(res.summary, flight, res.aligned)
+    return res, flight
+
+
+def complete_summary(summary: dict, flight, aligned) -> dict:
+    """Put the bag's ``input`` (per topic, every drop reason) and ``source`` into a summary."""
+    summary["input"] = flight.input_section(aligned)
+    summary["source"] = flight.spec.describe()
+    return summary
 
 
 def _fmt(value, spec: str = ".3g", none: str = "-") -> str:
@@ -99,9 +166,21 @@ def format_result(res: dict) -> str:
     post = res["post_flight"]
     seed = post["seed_method"]
     glr = post["glr"]
+    from flight_fdi.bagio.inputs import warnings
+
     lines = [
+        f"{post['verdict'].upper()}: {post.get('headline', '')}",
+        "",
         f"bag {res['bag']}  channel {res['channel']}  {res['duration_s']:.1f} s  "
         f"{res['samples']} samples",
+    ]
+    src = res.get("source")
+    if src:
+        lines.append(f"input: INS {src['ins_topic']}, reference "
+                     f"{', '.join(src['reference_topics'])}, {src['nav_frame'].upper()} axis "
+                     f"{src['channel']} ({src['axis_name']})")
+    lines += warnings(res.get("input") or {})
+    lines += [
         "",
         f"in flight: gate beta2 > {inf['gate_threshold']:.3g}, exceeded on "
         f"{100 * inf['exceed_fraction']:.2f}% of samples; first alarm at "
@@ -114,9 +193,22 @@ def format_result(res: dict) -> str:
         lines.append(f"  ... {len(inf['alarms']) - 5} more")
     lines += [
         "",
-        f"post flight: {post['verdict'].upper()}  element {_fmt(post['element'], 's')}  onset "
-        f"{_fmt(post['onset_s'], '.1f')} s  magnitude {_fmt(post['magnitude'], '.4g')}  "
-        f"(methods {'agree' if post['methods_agree'] else 'disagree'})",
+        f"post flight: {post['verdict'].upper()}  isolation {post.get('isolation', '-')}  "
+        f"element {_fmt(post['element'], 's')}  onset {_fmt(post['onset_s'], '.1f')} s",
+    ]
+    fault = post.get("fault")
+    if fault:
+        lines.append(f"  {fault['sensor']} {fault['axis']} {fault['kind']}: "
+                     f"{_fmt(fault['magnitude_eng'], '+.4g')} {fault['unit_eng']} "
+                     f"({_fmt(fault['magnitude'], '+.4g')} {fault['unit']}, 1-sigma "
+                     f"{_fmt(fault['magnitude_std'], '.2g')}), onset 95 % "
+                     f"{_interval(fault['onset_interval_s'])} s; statistic "
+                     f"{fault['statistic']:.4g} vs threshold {_fmt(fault['threshold'], '.4g')}"
+                     + (f", runner-up {fault['runner_up']['hypothesis']} "
+                        f"{fault['runner_up']['statistic']:.4g}" if fault["runner_up"] else ""))
+    if post.get("disagreement"):
+        lines.append(f"  methods disagree: {post['disagreement']}")
+    lines += [
         "",
         f"seed method (chi2/UDU^T + Fisher): {seed['verdict']}, element "
         f"{_fmt(seed['element'], 's')}",
@@ -134,6 +226,10 @@ def format_result(res: dict) -> str:
     return "\n".join(lines)
 
 
+def _interval(iv) -> str:
+    return "-" if not iv or iv[0] is None else f"{iv[0]:.1f} .. {iv[1]:.1f}"
+
+
 def run(args: argparse.Namespace) -> int:
     res = analyze_bag(args.bag, args)
     if args.json:
@@ -141,4 +237,4 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         print(format_result(res))
-    return 0
+    return exit_status(res, args)

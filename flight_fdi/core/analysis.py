@@ -236,8 +236,10 @@ def input_counts(t_ins: np.ndarray, t_ref: np.ndarray, aligned: np.ndarray,
     (flight_fdi.bagio.inputs) names the topics and adds the reasons of the raw messages."""
     outside = (t_ref < t_ins[0]) | (t_ref > t_ins[-1])
     return {
-        "ins": {"messages": int(t_ins.size), "used": int(t_ins.size), "dropped": {}},
-        "reference": {"messages": int(t_ref.size), "used": int(aligned.sum()), "dropped": {
+        "ins": {"role": "ins", "messages": int(t_ins.size), "used": int(t_ins.size),
+                "dropped": {}},
+        "reference": {"role": "reference", "messages": int(t_ref.size),
+                      "used": int(aligned.sum()), "dropped": {
             "outside_ins_record": int((outside & ~aligned).sum()),
             "ins_gap": int((~outside & ~aligned).sum()),
             "invalid_covariance_replaced": int(invalid_covariance)}},

@@ -55,18 +55,29 @@ def crafted(tmp_path_factory) -> Path:
 
 def test_problem_counts_and_kept_values(crafted):
     d = read_flight(crafted)
+    # the shuffled INS stamps (1.5 after 2, 4.5 after 5) are sorted, not dropped
     assert d.problems == {
-        "ins_nonfinite_velocity": 1, "ins_duplicate_stamp": 1, "ins_out_of_order_stamp": 2,
+        "ins_nonfinite_velocity": 1, "ins_duplicate_stamp": 1, "ins_out_of_order_stamp": 0,
         "ref_nonfinite_velocity": 1, "ref_duplicate_stamp": 1, "ref_out_of_order_stamp": 0,
         "ref_invalid_covariance": 3}
-    assert d.stamp_ins_ns.tolist() == [T0 + k * NS for k in (0, 1, 2, 3, 5)]
-    assert d.v_ins.tolist() == [0.0, 1.0, 2.0, 3.0, 5.0]
+    ins = d.series[0]
+    assert ins.dropped == {"non_finite": 1, "zero_stamp": 0, "duplicate_stamp": 1,
+                           "out_of_order": 0}
+    assert ins.reordered > 0 and ins.messages == 9
+    assert d.stamp_ins_ns.tolist() == [T0 + int(k * NS) for k in (0, 1, 1.5, 2, 3, 4.5, 5)]
+    assert d.v_ins.tolist() == [0.0, 1.0, 1.5, 2.0, 3.0, 4.5, 5.0]
+    # with no reorder window the late ones are dropped as out of order instead
+    from flight_fdi.bagio.inputs import InputSpec
+
+    d0 = read_flight(crafted, spec=InputSpec(reorder_window_s=0.0))
+    assert d0.series[0].dropped["out_of_order"] == 2 and d0.series[0].reordered == 0
+    assert d0.v_ins.tolist() == [0.0, 1.0, 2.0, 3.0, 5.0]
     assert d.stamp_ref_ns.tolist() == [T0 + k * NS for k in (0, 1, 2, 3, 4)]
     assert d.v_ref.tolist() == [10.0, 11.0, 12.0, 13.0, 14.0]
     assert d.r_ref[:2].tolist() == [0.01, 0.02] and np.all(np.isnan(d.r_ref[2:]))
     assert d.t0_ns == T0 and d.t0 == T0 / NS
-    assert np.allclose(d.t_ins - d.t0, [0, 1, 2, 3, 5], atol=1e-6)
-    assert d.ins_rel_s.tolist() == [0.0, 1.0, 2.0, 3.0, 5.0]
+    assert np.allclose(d.t_ins - d.t0, [0, 1, 1.5, 2, 3, 4.5, 5], atol=1e-6)
+    assert d.ins_rel_s.tolist() == [0.0, 1.0, 1.5, 2.0, 3.0, 4.5, 5.0]
     assert d.x_truth is None and d.fault is None and d.faults == []
     assert "1 ins duplicate stamp" in d.problem_summary()
 
@@ -74,7 +85,7 @@ def test_problem_counts_and_kept_values(crafted):
 def test_channel_y_uses_covariance_index_7(crafted):
     d = read_flight(crafted, channel="y")
     assert d.problems["ins_nonfinite_velocity"] == 0 and d.problems["ref_invalid_covariance"] == 0
-    assert d.v_ins.tolist() == [0.0, -1.0, -2.0, -5.0, -6.0, -7.0]  # the NaN on x is kept on y
+    assert d.v_ins.tolist() == [0.0, -1.0, -4.0, -2.0, -5.0, -6.0, -8.0, -7.0]  # NaN on x only
     assert np.all(d.r_ref == 0.5)
     assert d.v_ref.tolist() == [100.0, 101.0, 103.0, 104.0, 105.0, 106.0]
 
@@ -92,7 +103,7 @@ def test_storages_read_alike(crafted, tmp_path, storage, compression):
 def test_reading_a_single_mcap_file(crafted):
     (mcap_file,) = crafted.glob("*.mcap")
     d = read_flight(mcap_file)
-    assert d.v_ins.tolist() == [0.0, 1.0, 2.0, 3.0, 5.0]
+    assert d.v_ins.tolist() == [0.0, 1.0, 1.5, 2.0, 3.0, 4.5, 5.0]
 
 
 def test_missing_and_non_bags(tmp_path):
@@ -133,7 +144,7 @@ def test_missing_empty_and_mistyped_topics(tmp_path):
     store = get_typestore()
     with open_writer(tmp_path / "other") as bag:
         bag.write("/other", "std_msgs/msg/String", store.types["std_msgs/msg/String"](data="x"), 1)
-    with pytest.raises(BagError, match=r"no messages on /ins/velocity \(topics: /other\)"):
+    with pytest.raises(BagError, match=r"no messages on /ins/velocity \(topics: /other; name the inputs with --ins-topic"):
         read_flight(tmp_path / "other")
 
     ins = cdr.encode(cdr.TWIST_STAMPED, np.array([T0]), "ins", np.zeros((1, 6)))
@@ -145,8 +156,9 @@ def test_missing_empty_and_mistyped_topics(tmp_path):
 
     with open_writer(tmp_path / "mistyped") as bag:
         bag.write_raw("/ins/velocity", cdr.TWIST_STAMPED, ins[0], T0)
-        bag.write_raw("/reference/velocity", cdr.TWIST_STAMPED, ins[0], T0)
-    with pytest.raises(BagError, match="carries geometry_msgs/msg/TwistStamped, expected"):
+        bag.write_raw("/reference/velocity", "std_msgs/msg/String",
+                      b"\x00\x01\x00\x00\x03\x00\x00\x00hi\x00", T0)
+    with pytest.raises(BagError, match="carries std_msgs/msg/String, expected one of"):
         read_flight(tmp_path / "mistyped")
 
     nan_ins = cdr.encode(cdr.TWIST_STAMPED, np.array([T0, T0 + 1]), "ins",
@@ -156,7 +168,7 @@ def test_missing_empty_and_mistyped_topics(tmp_path):
         for i, d in enumerate(nan_ins):
             bag.write_raw("/ins/velocity", cdr.TWIST_STAMPED, d, T0 + i)
         bag.write_raw("/reference/velocity", cdr.TWIST_COV_STAMPED, ref[0], T0)
-    with pytest.raises(BagError, match="none of the 2 messages on /ins/velocity is usable"):
+    with pytest.raises(BagError, match="/ins/velocity: no usable samples .0 of 2 messages usable; 2 non_finite"):
         read_flight(tmp_path / "all_nan")
     with pytest.raises(BagError, match="channel must be one of"):
         read_flight(tmp_path / "all_nan", channel="q")

@@ -32,27 +32,12 @@ def make_flight(simulate, step, seed, duration=1000.0, fault=None, start=1_700_0
     return model, start + t_ins, v_ins, start + t_ref, v_ref, r_ref
 
 
-SCHEMA = {
-    "bag": str, "channel": str, "duration_s": float, "samples": int,
-    "in_flight": {"gate_threshold": float, "exceed_fraction": float, "first_alarm_s": None,
-                  "alarms": list},
-    "post_flight": {"verdict": str, "element": None, "onset_s": None, "magnitude": None,
-                    "methods_agree": bool,
-                    "seed_method": {"verdict": str, "element": None, "elements": list},
-                    "glr": {"hypothesis": str, "onset_s": None, "magnitude": None,
-                            "statistic": float, "threshold": float}},
-    "input": {"ins_messages": int, "ref_messages": int, "invalid_covariance": int,
-              "dropped_unaligned": int},
-}
+def check_schema(d):
+    """Every result follows the versioned JSON Schema shipped with the package."""
+    from flight_fdi.schema import validate_result
 
-
-def check_schema(d, schema, path=""):
-    assert set(d) == set(schema), f"{path}: keys {sorted(d)} != {sorted(schema)}"
-    for k, typ in schema.items():
-        if isinstance(typ, dict):
-            check_schema(d[k], typ, f"{path}.{k}")
-        elif typ is not None:
-            assert isinstance(d[k], typ), f"{path}.{k} is {type(d[k]).__name__}"
+    validate_result(d)
+    assert d["schema"] == "flight-fdi/result/v1"
 
 
 @pytest.fixture(scope="module")
@@ -65,12 +50,15 @@ def test_accelerometer_bias_step_end_to_end(accel_flight):
     t0 = t_ins[0]
     res = run_analysis(model, t_ins, v_ins, t_ref, v_ref, r_ref, bag="synthetic.mcap")
     s = res.summary
-    check_schema(s, SCHEMA)
+    check_schema(s)
     json.dumps(s, allow_nan=False)  # strictly JSON
     assert s["bag"] == "synthetic.mcap" and s["channel"] == "x"
-    assert s["samples"] == t_ref.size and s["input"]["dropped_unaligned"] == 0
-    assert s["input"] == {"ins_messages": t_ins.size, "ref_messages": t_ref.size,
-                          "invalid_covariance": 0, "dropped_unaligned": 0}
+    assert s["samples"] == t_ref.size
+    assert s["input"] == {
+        "ins": {"role": "ins", "messages": t_ins.size, "used": t_ins.size, "dropped": {}},
+        "reference": {"role": "reference", "messages": t_ref.size, "used": t_ref.size,
+                      "dropped": {"outside_ins_record": 0, "ins_gap": 0,
+                                  "invalid_covariance_replaced": 0}}}
     assert s["duration_s"] == pytest.approx(t_ref[-1] - t_ref[0])
     # in flight: the gate alarms only after the fault
     inf = s["in_flight"]
@@ -106,7 +94,7 @@ def test_accelerometer_bias_step_end_to_end(accel_flight):
 def test_nominal_flight_end_to_end(simulate, step):
     model, t_ins, v_ins, t_ref, v_ref, r_ref = make_flight(simulate, step, 32, duration=600.0)
     s = analyze_flight(model, t_ins, v_ins, t_ref, v_ref, r_ref, channel="y")
-    check_schema(s, SCHEMA)
+    check_schema(s)
     assert s["channel"] == "y"
     assert s["in_flight"]["alarms"] == [] and s["in_flight"]["first_alarm_s"] is None
     assert s["in_flight"]["exceed_fraction"] < 0.01
@@ -124,11 +112,11 @@ def test_invalid_covariance_gaps_and_time_origin(simulate, step):
     keep = (t_ins - t_ins[0] < 50.0) | (t_ins - t_ins[0] > 53.0)  # a 3 s INS dropout
     t0 = t_ins[0] - 100.0
     res = run_analysis(model, t_ins[keep], v_ins[keep], t_ref, v_ref, r, t0=t0)
-    inp = res.summary["input"]
-    assert inp["invalid_covariance"] == 10
+    inp = res.summary["input"]["reference"]["dropped"]
+    assert inp["invalid_covariance_replaced"] == 10
     gap = (t_ref - t_ins[0] > 50.0 - 0.02) & (t_ref - t_ins[0] < 53.0 + 0.02)
-    assert inp["dropped_unaligned"] == int(gap.sum()) > 0
-    assert res.summary["samples"] == t_ref.size - inp["dropped_unaligned"]
+    assert inp["ins_gap"] == int(gap.sum()) > 0 and inp["outside_ins_record"] == 0
+    assert res.summary["samples"] == t_ref.size - inp["ins_gap"]
     np.testing.assert_array_equal(res.aligned, ~gap)
     # the model's R where the covariance was invalid, the message's elsewhere
     R = res.fwd.R[:, 0, 0]
