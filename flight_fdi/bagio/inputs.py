@@ -181,7 +181,7 @@ def decode_topic(msgtype: str, payloads: cdr.Payloads, spec: InputSpec, what: st
     R = _rotation(q)
     v_nav = np.einsum("kij,kj->ki", R, lin)
     c_nav = np.einsum("ki,kij,kj->k", R[:, col, :], cov, R[:, col, :])
-    bad = ~np.isfinite(q).all(axis=1) | (np.abs(np.linalg.norm(q, axis=1) - 1.0) > 1e-3)
+    bad = ~np.isfinite(q).all(axis=1) | ~(np.abs((q * q).sum(axis=1) - 1.0) <= 1e-3)
     v = v_nav[:, col].copy()
     v[bad] = np.nan  # no usable orientation: counted as non_finite
     note = (f"Odometry twist in child_frame_id '{child}' (REP 105) rotated into '{frame}' by "

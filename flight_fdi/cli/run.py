@@ -13,7 +13,8 @@ import json
 import sys
 from pathlib import Path
 
-from flight_fdi.cli.analyze import add_analysis_options, analysis_config, format_result
+from flight_fdi.cli.analyze import (add_analysis_options, analysis_config, exit_status,
+                                    format_result, input_spec)
 from flight_fdi.cli.errors import CliError
 
 
@@ -21,13 +22,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="the ROS node pipeline (player, filter, recorder, smoother) "
                        "on a bag in one process", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", help="input rosbag2 bag with /ins/velocity and /reference/velocity")
+    p.add_argument("bag", help="input rosbag2 bag with an INS and a reference velocity (see "
+                               "--ins-topic, --input-profile)")
     p.add_argument("--out", default=None,
                    help="output folder (default out/<bag name>): recording, result.json")
     p.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"),
                    help="storage of the recording (default mcap)")
     p.add_argument("--no-report", action="store_true",
                    help="skip the figures and HTML page (OUT/report/index.html)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no 'replay NN %%' lines on stderr")
     add_analysis_options(p)
     p.set_defaults(func=run)
 
@@ -40,9 +44,11 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"bag {str(bag)!r} does not exist")
     out = Path(args.out) if args.out else Path("out") / bag.resolve().name
     config = analysis_config(args)
+    spec = input_spec(args)
     try:
-        res = run_pipeline(bag, out, channel=args.channel, config=config, model=args.model,
-                           storage=args.storage, overwrite=True)
+        res = run_pipeline(bag, out, config=config, model=args.model, storage=args.storage,
+                           overwrite=True, spec=spec,
+                           progress=None if args.no_progress else sys.stderr)
     except PipelineError as exc:
         raise CliError(str(exc)) from None
     index = None
@@ -60,4 +66,4 @@ def run(args: argparse.Namespace) -> int:
         print(f"\nrecording and result.json in {out}/")
         if index is not None:
             print(f"report (figures and verdict): {index}")
-    return 0
+    return exit_status(res, args)

@@ -50,8 +50,8 @@ def fault_record(glr: GlrResult, hypothesis: str, t0: float, axis: str,
     magnitude: SI, signed as the *sensor's* error (a reference that jumps by +d reads +d,
     although GLR's offset of z = V_INS - V_ref is -d); magnitude_eng in unit_eng (mg, deg/h,
     mg/h, deg/h^2); magnitude_std its 1-sigma; onset_interval_s the profile-likelihood 95 %
-    interval of the onset. end_s: the end of an outlier (its onset), else the end given (the
-    seed method's episode end) or null: the fault lasts to the end of the record."""
+    interval of the onset. end_s: the last outlier; null for a step, ramp or jump (the
+    hypothesis: it lasts to the end of the record)."""
     h = glr.per_hypothesis[hypothesis]
     sensor, kind = sensor_of(hypothesis), kind_of(hypothesis)
     sign = -1.0 if sensor == "reference" else 1.0
@@ -67,6 +67,8 @@ def fault_record(glr: GlrResult, hypothesis: str, t0: float, axis: str,
         onset, end_s = min(h["times"]) - t0, max(h["times"]) - t0
     elif kind == "outliers":
         end_s = onset
+    else:
+        end_s = None
     return {
         "sensor": sensor, "axis": axis, "kind": kind, "hypothesis": hypothesis,
         "onset_s": _num(onset),

@@ -90,6 +90,43 @@ def twist_cov_velocity_raw(data: bytes) -> tuple[int, int, tuple[float, float, f
     return sec, nanosec, (x, y, z), (c0, c7, c14)
 
 
+#: the velocity message types the filter node reads (either input)
+VELOCITY_TYPES = ("geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/TwistWithCovarianceStamped",
+                  "nav_msgs/msg/Odometry")
+_NAN3 = (float("nan"),) * 3
+
+
+def velocity_decoder(msgtype: str, odometry_twist_frame: str = "child"):
+    """f(data) -> (sec, nanosec, linear velocity (x, y, z), variance per axis; NaN where the
+    type has none) for one of VELOCITY_TYPES, from the CDR bytes (:mod:`.wire`; WireError when
+    malformed). Odometry: see wire.decode_odometry (rotated into header.frame_id unless
+    ``odometry_twist_frame`` is "header")."""
+    if msgtype == VELOCITY_TYPES[0]:
+        def twist(data: bytes):
+            sec, nanosec, x, y, z = wire.decode_twist_stamped(data)
+            return sec, nanosec, (x, y, z), _NAN3
+        return twist
+    if msgtype == VELOCITY_TYPES[1]:
+        return twist_cov_velocity_raw
+    if msgtype == VELOCITY_TYPES[2]:
+        rotate = odometry_twist_frame != "header"
+
+        def odometry(data: bytes):
+            sec, nanosec, x, y, z, c0, c1, c2 = wire.decode_odometry(data, rotate)
+            return sec, nanosec, (x, y, z), (c0, c1, c2)
+        return odometry
+    raise ValueError(f"unsupported velocity message type {msgtype!r}; one of "
+                     f"{', '.join(VELOCITY_TYPES)}")
+
+
+def message_class(msgtype: str):
+    """The rclpy message class of "pkg/msg/Name"."""
+    import importlib
+
+    pkg, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
 def twist_stamped(t: float, v: Sequence[float], frame_id: str = ""):
     """(t, [vx, vy, vz]) -> geometry_msgs/TwistStamped (for tests, the player and benchmarks)."""
     from geometry_msgs.msg import TwistStamped

@@ -20,9 +20,12 @@ INS velocity mode
 -----------------
 
 Inputs
-    ``ins_topic`` (default ``/ins/velocity``, geometry_msgs/TwistStamped): INS velocity.
-    ``reference_topic`` (default ``/reference/velocity``, geometry_msgs/TwistWithCovarianceStamped):
-    the reference velocity (GNSS, Doppler ...); its linear covariance diagonal is R when valid.
+    ``ins_topic`` (default ``/ins/velocity``, ``ins_type`` geometry_msgs/TwistStamped): INS
+    velocity. ``reference_topic`` (default ``/reference/velocity``, ``reference_type``
+    geometry_msgs/TwistWithCovarianceStamped): the reference velocity (GNSS, Doppler ...); its
+    linear covariance diagonal is R when valid. Either may be TwistStamped,
+    TwistWithCovarianceStamped or nav_msgs/Odometry (twist in child_frame_id, rotated into
+    header.frame_id by the pose orientation; ``odometry_twist_frame``).
     ``reference_topics``: several redundant references instead (see "Redundant references").
     QoS ``input_qos``: ``sensor_data`` (best effort, default) or ``reliable``.
 
@@ -136,6 +139,7 @@ from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig, KalmanFilter
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
 from ..core.references import ReferenceConfig, RedundantFilter
 from . import attitude_mode, convert
+from .convert import VELOCITY_TYPES
 from . import diagnostics as diag
 from .clockutil import ClockReader
 from .errors import ParameterError
@@ -186,6 +190,15 @@ FILTER_PARAMS = (
               "Redundant reference topics (geometry_msgs/TwistWithCovarianceStamped), one "
               "measurement row each; when it names any topic it replaces reference_topic. "
               "[\"\"] (the default): the one reference_topic"),
+    ParamSpec("ins_type", "string", "geometry_msgs/msg/TwistStamped",
+              "Message type of ins_topic", choices=VELOCITY_TYPES),
+    ParamSpec("reference_type", "string", "geometry_msgs/msg/TwistWithCovarianceStamped",
+              "Message type of the reference topic(s) (TwistStamped has no covariance: "
+              "reference_variance is used)", choices=VELOCITY_TYPES),
+    ParamSpec("odometry_twist_frame", "string", "child",
+              "Odometry inputs: the twist is in child_frame_id (REP 105; rotated into "
+              "header.frame_id by the pose orientation) or already in header.frame_id",
+              choices=("child", "header")),
     ParamSpec("reference_mode", "string", "exclude",
               "What a failed redundant reference does to the filter: exclude (AF: its row is "
               "struck out), known_anomaly (KF2: its variance grows by anomaly_variance), "
@@ -306,7 +319,8 @@ _ALARM_NAMES = {0: "clear", 1: "raised", 2: "active", 3: "cleared"}
 
 #: parameters that mean something only in the INS velocity mode
 INS_ONLY = INS_MODEL_PARAMS + (
-    "ins_topic", "reference_topic", "reference_topics", "reference_mode", "anomaly_variance",
+    "ins_topic", "reference_topic", "reference_topics", "ins_type", "reference_type",
+    "odometry_twist_frame", "reference_mode", "anomaly_variance",
     "readmit_after_s", "reference_sync_tolerance_s", "reference_sync_wait_s", "max_gap_s",
     "buffer_s", "reference_variance", "use_reference_covariance")
 
@@ -494,8 +508,6 @@ class FilterNode(Node):
         self.counters = diag.Counters(("received_ins", "received_reference", "published",
                                        "time_jump_resets"))
 
-        from geometry_msgs.msg import TwistStamped, TwistWithCovarianceStamped
-
         ref_key = "reference_topics" if any(p["reference_topics"]) else "reference_topic"
         self.ins_name = self._resolve("ins_topic", p["ins_topic"])
         ref_names = [self._resolve(ref_key, topic) for topic in reference_topics(p)]
@@ -519,13 +531,7 @@ class FilterNode(Node):
         else:
             self.ref_config = None
             self.channels = [_Channel(a, k, self.model, self.gate) for k, a in enumerate(axes)]
-        # raw subscriptions: the few fields used are read from the CDR bytes (convert /
-        # wire), ~15 times cheaper than rclpy building the message objects
-        self.create_subscription(TwistStamped, self.ins_name, self._on_ins, qos, raw=True)
-        for ref in self.refs:
-            self.create_subscription(TwistWithCovarianceStamped, ref.name,
-                                     lambda data, k=ref.index: self._on_reference(k, data), qos,
-                                     raw=True)
+        self._subscribe_inputs(qos)
         self._row_names = [self.ref_name]
 
         self._create_outputs(len(self.channels))
@@ -597,6 +603,25 @@ class FilterNode(Node):
                    f"nanosec={nanosec}: after the last time a ROS stamp can hold")
         return True
 
+    def _subscribe_inputs(self, qos: Any) -> None:
+        """Raw subscriptions of the INS and reference topics in their configured types: the few
+        fields used are read from the CDR bytes (convert / wire), ~15 times cheaper than rclpy
+        building the message objects (TwistStamped INS: the original fast decoder)."""
+        p = self.p
+        self._decode_ref = convert.velocity_decoder(p["reference_type"], p["odometry_twist_frame"])
+        if p["ins_type"] == convert.VELOCITY_TYPES[0]:
+            self._decode_ins = convert.twist_velocity_raw
+        else:
+            full = convert.velocity_decoder(p["ins_type"], p["odometry_twist_frame"])
+            self._decode_ins = lambda data: full(data)[:3]
+        self.create_subscription(convert.message_class(p["ins_type"]), self.ins_name,
+                                 self._on_ins, qos, raw=True)
+        ref_cls = convert.message_class(p["reference_type"])
+        for ref in self.refs:
+            self.create_subscription(ref_cls, ref.name,
+                                     lambda data, k=ref.index: self._on_reference(k, data), qos,
+                                     raw=True)
+
     def _malformed(self, what: str, exc: Exception) -> None:
         """A message whose bytes are not its type (only a broken publisher sends that)."""
         self._drop(f"{what}_malformed", f"{what} message: {exc}")
@@ -606,7 +631,7 @@ class FilterNode(Node):
         self.inputs.seen(self.ins_name)
         self.counters.inc("received_ins")
         try:
-            sec, nanosec, lin = convert.twist_velocity_raw(data)
+            sec, nanosec, lin = self._decode_ins(data)
         except WireError as exc:
             self._malformed("ins", exc)
             return
@@ -657,7 +682,7 @@ class FilterNode(Node):
         self.inputs.seen(ref.name)
         self.counters.inc("received_reference")
         try:
-            sec, nanosec, lin, var = convert.twist_cov_velocity_raw(data)
+            sec, nanosec, lin, var = self._decode_ref(data)
         except WireError as exc:
             self._malformed("reference", exc)
             return

@@ -102,21 +102,76 @@ def _private_context(log_args: list[str]) -> Iterator[Any]:
         rclpy.logging.set_logger_level("", default_level)
 
 
-def filter_parameters(config: Any, channel: str, model: str) -> dict[str, Any]:
-    """filter_node parameters that make the live filter run as the analysis's forward pass."""
+def filter_parameters(config: Any, channel: str, model: str, spec: Any = None,
+                      types: dict[str, str] | None = None) -> dict[str, Any]:
+    """filter_node parameters that make the live filter run as the analysis's forward pass;
+    ``spec`` (bagio InputSpec) and ``types`` ({topic: message type} of the bag) name the
+    inputs."""
     gate = config.gate
-    return {"model": model, "channels": [channel], "input_qos": "reliable",
+    inputs: dict[str, Any] = {}
+    if spec is not None:
+        refs = list(spec.reference_topics)
+        inputs = {"ins_topic": spec.ins_topic, "odometry_twist_frame": spec.odometry_twist_frame}
+        if len(refs) == 1:
+            inputs["reference_topic"] = refs[0]
+        else:
+            inputs["reference_topics"] = refs
+        if types:
+            inputs["ins_type"] = types[spec.ins_topic]
+            ref_types = {types[t] for t in refs}
+            if len(ref_types) > 1:
+                raise PipelineError(f"the reference topics carry different types "
+                                    f"({', '.join(sorted(ref_types))}); the filter node reads "
+                                    "one type for all of them")
+            inputs["reference_type"] = ref_types.pop()
+    return {**inputs, "model": model, "channels": [channel], "input_qos": "reliable",
             "gate_rule": gate.rule, "gate_probability": float(gate.probability),
             "alarm_m": int(gate.alarm_m), "alarm_n": int(gate.alarm_n),
             "gate_action": gate.action, "max_gap_s": float(config.max_gap_s),
             "buffer_s": max(2.0, 4.0 * float(config.max_gap_s))}
 
 
+def check_inputs(bag: Path, spec: Any, config: Any) -> tuple[Any, dict]:
+    """Before any ROS graph: read the bag's inputs as ``flight-fdi analyze`` does (BagError,
+    one line, for a missing topic, a wrong type, a topic without a usable sample, no reference
+    within the INS record) and count every unused message. Returns (FlightData, ``input``
+    section)."""
+    from flight_fdi.bagio import read_flight
+    from flight_fdi.core.align import align_to_reference
+
+    flight = read_flight(bag, spec=spec, with_truth=False)
+    aligned, _ = align_to_reference(flight.ins_rel_s, flight.v_ins, flight.ref_rel_s,
+                                    max_gap_s=config.max_gap_s)
+    if not aligned.any():
+        raise BagError(f"bag '{bag}': no reference sample lies within the INS record "
+                       f"(max_gap_s = {config.max_gap_s} s)")
+    return flight, flight.input_section(aligned)
+
+
+class Progress:
+    """Prints "replay NN %" to a stream each time another 10 % of the messages were played."""
+
+    def __init__(self, total: int, stream: Any) -> None:
+        self.total, self.stream, self.next = max(int(total), 1), stream, 10
+
+    def __call__(self, played: int) -> None:
+        if self.stream is None:
+            return
+        pct = 100 * played // self.total
+        if pct >= self.next:
+            self.next = (pct // 10 + 1) * 10
+            print(f"replay {min(pct, 100):3d} % ({played} of {self.total} messages)",
+                  file=self.stream, flush=True)
+
+
 def _spin_until(executor: Any, done: Any, deadline: float, what: str,
-                stop: StopSignals) -> None:
+                stop: StopSignals, tick: Any = None) -> None:
     """Spin until ``done()``; PipelineError at the deadline, KeyboardInterrupt once Ctrl-C was
-    pressed (raised here, between callbacks, never inside a node's callback)."""
+    pressed (raised here, between callbacks, never inside a node's callback). ``tick()`` is
+    called between spins (progress)."""
     while not done():
+        if tick is not None:
+            tick()
         if stop.stop:
             raise KeyboardInterrupt
         left = deadline - time.monotonic()
@@ -128,7 +183,8 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
 def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "x", *,
                           config: Any = None, model: str = "ins_channel", storage: str = "mcap",
                           overwrite: bool = False, timeout_s: float = 600.0,
-                          executor: str = "events", log_level: str = "warn") -> PipelineRun:
+                          executor: str = "events", log_level: str = "warn",
+                          spec: Any = None, progress: Any = None) -> PipelineRun:
     """Replay ``bag`` through the node pipeline; see the module docstring.
 
     ``config``: the core's AnalysisConfig (default: its defaults), used by the filter (gate,
@@ -137,23 +193,35 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     default level is process-wide). The recording is closed once the filter has received every
     played message and the recorder holds every step the filter published (its ``published``
     counter) and its model -- exact counts, no waiting for quiet.
+
+    ``spec``: the bagio InputSpec (topics, types, frames; default: the sample bags' layout on
+    ``channel``). The inputs are checked (:func:`check_inputs`) before any node exists; the
+    result carries the same ``input`` and ``source`` as ``flight-fdi analyze``. ``progress``: a
+    stream for "replay NN %" lines per 10 % of the messages (None: silent).
     """
     from rclpy.parameter import Parameter
 
-    from flight_fdi.bagio.reader import INS_TOPIC, REF_TOPIC
+    from flight_fdi.bagio.inputs import InputSpec
     from flight_fdi.core.analysis import AnalysisConfig
 
-    from .bag_player import BagPlayer, BagSource
+    from .bag_player import BagPlayer
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
     from .smoother_node import SmootherNode, write_json
 
     if config is None:
         config = AnalysisConfig()
-    if channel not in ("x", "y"):
-        raise ParameterError(f"invalid channel {channel!r}; allowed: x, y")
+    if spec is None:
+        if channel not in ("x", "y"):
+            raise ParameterError(f"invalid channel {channel!r}; allowed: x, y")
+        spec = InputSpec(channel=channel)
+    channel = spec.component
     bag = Path(bag)
-    BagSource(bag, [INS_TOPIC, REF_TOPIC]).close()  # a readable bag, before anything is created
+    # the inputs are usable, before anything is created (a graph never waits for bad input)
+    flight, input_section = check_inputs(bag, spec, config)
+    played_topics = [spec.ins_topic, *spec.reference_topics]
+    total = sum(e["messages"] for e in input_section.values())
+    tick_progress = Progress(total, progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recording = out / "recording"
@@ -180,12 +248,15 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                 raise PipelineError(f"{cls.__name__}: {exc}") from None
 
         try:
-            flt = build(FilterNode, filter_parameters(config, channel, model))
+            flt = build(FilterNode, filter_parameters(config, channel, model, spec,
+                                                      flight.topics))
             rec = build(RecorderNode, {"output": str(recording), "storage": storage,
                                        "overwrite": overwrite})
             player = build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
-                                       "publish_clock": False})
-            _spin_until(ex, player.done.done, deadline, "replaying the bag", stop)
+                                       "publish_clock": False, "topics": played_topics})
+            _spin_until(ex, player.done.done, deadline, "replaying the bag", stop,
+                        lambda: tick_progress(player.published))
+            tick_progress(player.published)
             if player.error:
                 raise BagError(player.error)
             # the replay is over once the filter has taken every played message and the
@@ -208,8 +279,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                 raise PipelineError(f"recording failed: {rec.error}")
             recorded = rec.counts()
             played, ack_timeouts = player.published, player.ack_timeouts
-            # analyze's t0: the earliest INS / reference stamp (0.0: the first recorded state)
-            flight_start = max(player.first_stamp_ns, 0) * 1e-9
+            # analyze's t0: the earliest usable INS / reference stamp
+            flight_start = flight.t0_ns * 1e-9
             for node in (player, flt, rec):
                 ex.remove_node(node)
                 node.destroy_node()
@@ -226,6 +297,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                                     f"{run.error if run else 'no result'}")
             result = dict(run.result)
             result["bag"] = str(bag)  # the input, as flight-fdi analyze names it
+            result["input"] = input_section
+            result["source"] = spec.describe()
             write_json(result, result_json)
             return PipelineRun(result=result, recording=recording, result_json=result_json,
                                messages_played=played, recorded=recorded, replay_s=replay_s,

@@ -94,6 +94,50 @@ def decode_twist_cov_stamped(data: bytes
     return sec, nanosec, x, y, z, c0, c7, c14
 
 
+_ODOM_LITTLE = struct.Struct("<4d")  # pose.pose.orientation x, y, z, w
+#: twist.linear, then the linear block of twist.covariance (entries 0-2, 6-8, 12-14)
+_ODOM_TWIST = struct.Struct("<3d24x3d24x3d24x3d")
+#: offsets (from the 8-aligned start of the doubles) of orientation and twist
+_ODOM_ORIENTATION_AT, _ODOM_TWIST_AT, _ODOM_SIZE = 3 * 8, 43 * 8, 85 * 8
+_ODOM_BIG = (struct.Struct(">4d"), struct.Struct(">3d24x3d24x3d24x3d"))
+
+
+def decode_odometry(data: bytes, rotate: bool = True
+                    ) -> tuple[int, int, float, float, float, float, float, float]:
+    """nav_msgs/msg/Odometry -> (sec, nanosec, twist.linear x, y, z, variances of the three),
+    with the twist in the navigation frame (header.frame_id):
+
+    REP 105 gives the twist in child_frame_id (the body). With ``rotate`` and a child_frame_id
+    that is neither empty nor equal to header.frame_id, the velocity is rotated by
+    pose.pose.orientation (v_nav = R(q) v_body) and the variances are the diagonal of
+    R C R^T (C the linear block of the covariance); a quaternion that is not unit gives NaN
+    velocities (the caller drops them as non-finite). Otherwise the twist is taken as it is."""
+    structs, sec, nanosec, _ = _stamped(data, 0)
+    n1 = structs[0].unpack_from(data, 4)[2]
+    at = 4 + ((12 + n1 + 3) & ~3)  # child_frame_id's length
+    if at + 4 > len(data):
+        raise WireError(f"{len(data)} bytes is too short for an Odometry message")
+    little = structs is _LITTLE
+    (n2,) = struct.unpack_from("<I" if little else ">I", data, at)
+    start = 4 + ((at - 4 + 4 + n2 + 7) & ~7)
+    if start + _ODOM_SIZE > len(data):
+        raise WireError(f"{len(data)} bytes is too short for an Odometry message")
+    q_s, tw_s = (_ODOM_LITTLE, _ODOM_TWIST) if little else _ODOM_BIG
+    x, y, z, *c = tw_s.unpack_from(data, start + _ODOM_TWIST_AT)
+    if not rotate or n2 <= 1 or (n1 == n2 and data[16:16 + n1] == data[at + 4:at + 4 + n2]):
+        return sec, nanosec, x, y, z, c[0], c[4], c[8]
+    qx, qy, qz, qw = q_s.unpack_from(data, start + _ODOM_ORIENTATION_AT)
+    if not abs(qx * qx + qy * qy + qz * qz + qw * qw - 1.0) <= 1e-3:
+        nan = float("nan")
+        return sec, nanosec, nan, nan, nan, c[0], c[4], c[8]
+    r = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)),
+         (2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)),
+         (2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)))
+    v = [a * x + b * y + cz * z for a, b, cz in r]
+    var = [sum(row[i] * c[3 * i + j] * row[j] for i in range(3) for j in range(3)) for row in r]
+    return sec, nanosec, v[0], v[1], v[2], var[0], var[1], var[2]
+
+
 # --- encoding ----------------------------------------------------------------------------------
 
 def _remember(cache: dict, key: object, value: object) -> None:
