@@ -37,7 +37,7 @@ class AnalysisConfig:
     max_gap_s: INS samples further apart than this are not interpolated across (alignment).
     fisher_window, persistence_s, episode_probability, min_valid_steps, rank_tol: the seed
         diagnosis (:class:`~flight_fdi.core.diagnosis.DiagnosisConfig`).
-    glr_p_false_alarm, glr_hypotheses: the GLR isolator
+    glr_p_false_alarm, glr_hypotheses, glr_ambiguity_margin: the GLR isolator
         (:class:`~flight_fdi.core.glr.GlrConfig`).
     jobs: processes :func:`run_analysis` may use. With 2, the backward information filter runs
         in a forked child beside the forward pass when that gives the same numbers and is safe
@@ -54,6 +54,7 @@ class AnalysisConfig:
     rank_tol: float = DEFAULT_RANK_TOL
     glr_p_false_alarm: float = 1e-3
     glr_hypotheses: tuple = _GLR_DEFAULTS.hypotheses
+    glr_ambiguity_margin: float = _GLR_DEFAULTS.ambiguity_margin
     jobs: int = 1
 
     def __post_init__(self) -> None:
@@ -79,6 +80,8 @@ class AnalysisConfig:
             raise CoreError(f"AnalysisConfig: {exc}".replace("GlrConfig.p_false_alarm",
                                                              "AnalysisConfig.glr_p_false_alarm")
                             .replace("GlrConfig.hypotheses", "AnalysisConfig.glr_hypotheses")
+                            .replace("GlrConfig.ambiguity_margin",
+                                     "AnalysisConfig.glr_ambiguity_margin")
                             ) from None
 
     def diagnosis_config(self) -> DiagnosisConfig:
@@ -88,7 +91,8 @@ class AnalysisConfig:
 
     def glr_config(self) -> GlrConfig:
         return GlrConfig(p_false_alarm=self.glr_p_false_alarm,
-                         hypotheses=tuple(self.glr_hypotheses))
+                         hypotheses=tuple(self.glr_hypotheses),
+                         ambiguity_margin=self.glr_ambiguity_margin)
 
 
 @dataclass

@@ -250,7 +250,10 @@ def _resolve(model: LinearModel, name: str) -> _Hypothesis:
                 f"GlrConfig.hypotheses: {name!r} needs a state {sname!r}; model {model.name!r} has "
                 f"states {', '.join(model.state_names)} (use '{kind}:<state>')")
         j = model.state_names.index(sname)
-        unit = model.state_units[j] + ("/s" if kind == "ramp" else "")
+        unit = model.state_units[j]
+        if kind == "ramp":  # per second: m/s^2 -> m/s^3, rad/s -> rad/s^2
+            unit = (unit[:-4] + "/s^3" if unit.endswith("/s^2") else
+                    unit[:-2] + "/s^2" if unit.endswith("/s") else unit + "/s")
         return _Hypothesis(name, kind, j, unit, float(model.scale[j]))
 
     def row(kind: str, mname: str | None) -> _Hypothesis:

@@ -130,8 +130,9 @@ def post_flight(seed: Any, glr: GlrResult, t0: float, axis: str, seed_element_gl
         verdict = "ambiguous"
         candidates = [fault_record(glr, glr.hypothesis, t0, axis, end_s)]
         r = glr.residual or {}
+        at = "" if r.get("onset_t") is None else f" at {r['onset_t'] - t0:.1f} s"
         head = (f"unexplained: the best single fault, {describe(candidates[0])}, leaves a "
-                f"{r.get('hypothesis')} (statistic {r.get('statistic', 0.0):.4g} > "
+                f"{r.get('hypothesis')}{at} (statistic {r.get('statistic', 0.0):.4g} > "
                 f"{glr.threshold:.4g}) unexplained: more than one fault, or one the "
                 "hypotheses do not describe")
     else:

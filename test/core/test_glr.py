@@ -198,7 +198,7 @@ def test_noise_free_fault_is_recovered_exactly(fault, name, magnitude):
         ramp = res.per_hypothesis["accel_bias_ramp"]
         assert ramp["statistic"] == pytest.approx(res.statistic, rel=1e-6)
         assert ramp["magnitude"] == pytest.approx(-model.params["g"] * magnitude, rel=1e-6)
-        assert ramp["unit"] == "m/s^2/s"
+        assert ramp["unit"] == "m/s^3"
     else:
         assert res.hypothesis == name and res.isolation == "single" and res.confident
     best = res.per_hypothesis[name]
