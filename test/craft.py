@@ -44,15 +44,15 @@ def encode(msgtype: str, stamp: np.ndarray, v_nav: np.ndarray, var: float | None
     tw[:, :3] = lin
     if msgtype == TWIST:
         return cdr.encode(TWIST, stamp, "map", tw)
-    cov = np.zeros(36)
-    cov[[0, 7, 14]] = var
+    cov = np.zeros((k, 36))
+    cov[:, [0, 7, 14]] = np.broadcast_to(np.asarray(var, dtype=float), (k,))[:, None]
     return cdr.encode(TWIST_COV, stamp, "map", tw, cov)
 
 
 def write(path: Path, fl, ins_topic: str = "/ins/velocity", ins_type: str = TWIST,
           ref_topics: tuple = ("/reference/velocity",), ref_type: str = TWIST_COV,
           yaw_rate: float = 0.0, ref_stamps=None, ref_values=None, ins_stamps=None,
-          storage: str = "mcap") -> Path:
+          ref_var=None, storage: str = "mcap") -> Path:
     """A bag of ``fl`` (a SimulatedFlight) with the given topics and types. ``yaw_rate``
     (rad/s): the body turns (Odometry twists are then body-frame). ``ref_stamps`` /
     ``ref_values`` / ``ins_stamps`` replace the stamps and values (bad-input tests); messages
@@ -63,7 +63,8 @@ def write(path: Path, fl, ins_topic: str = "/ins/velocity", ins_type: str = TWIS
     ref_s = fl.stamp_ref_ns if ref_stamps is None else np.asarray(ref_stamps, dtype=np.int64)
     v_ref = fl.v_ref if ref_values is None else ref_values
     yaw_ref = yaw_rate * fl.t_ref
-    refs = [encode(ref_type, ref_s, v_ref, fl.sigma_ref ** 2, yaw_ref if yaw_rate else None)
+    var = fl.sigma_ref ** 2 if ref_var is None else ref_var
+    refs = [encode(ref_type, ref_s, v_ref, var, yaw_ref if yaw_rate else None)
             for _ in ref_topics]
     rows = [(int(fl.stamp_ns[i]), ins_topic, ins_type, d) for i, d in enumerate(ins)]
     for topic, msgs in zip(ref_topics, refs):

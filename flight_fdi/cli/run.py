@@ -37,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.pipeline import PipelineError, run_pipeline
 
     bag = Path(args.bag)
@@ -49,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         res = run_pipeline(bag, out, config=config, model=args.model, storage=args.storage,
                            overwrite=True, spec=spec,
                            progress=None if args.no_progress else sys.stderr)
-    except PipelineError as exc:
+    except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None
     index = None
     if not args.no_report:
