@@ -330,12 +330,17 @@ def decorrelated_residual(model: Any, a: Any) -> tuple[np.ndarray, np.ndarray]:
 def error_result(bag: str, channel: str, message: str) -> dict:
     """A schema-valid ``insufficient_data`` result for a bag that could not be analysed, with
     the reason under the extra key ``error``."""
+    from flight_fdi.core.result import SCHEMA_ID
+
     return {
+        "schema": SCHEMA_ID,
         "bag": bag, "channel": channel, "duration_s": 0.0, "samples": 0,
         "in_flight": {"gate_threshold": None, "exceed_fraction": 0.0,
                       "first_alarm_s": None, "alarms": []},
         "post_flight": {
-            "verdict": "insufficient_data", "element": None, "onset_s": None, "magnitude": None,
+            "verdict": "insufficient_data", "headline": f"not analysed: {message}",
+            "fault": None, "candidates": [], "isolation": "none", "disagreement": None,
+            "element": None, "onset_s": None, "magnitude": None,
             "methods_agree": True,
             "seed_method": {"verdict": "insufficient_data", "element": None, "elements": []},
             "glr": {"hypothesis": "none", "onset_s": None, "magnitude": None,
@@ -352,7 +357,8 @@ def summary_line(result: dict) -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
 
     text = (f"channel {result['channel']}: {post['verdict']}"
-            + (f" of {post['element']}" if post["element"] else "")
+            + (f": {post['headline']}" if post.get("headline") else
+               f" of {post['element']}" if post["element"] else "")
             + f", onset {f(post['onset_s'], '.1f')} s, magnitude {f(post['magnitude'])}; "
             f"seed method {post['seed_method']['verdict']}, GLR {glr['hypothesis']} "
             f"(l = {f(glr['statistic'])}, threshold {f(glr['threshold'])}); "

@@ -130,12 +130,23 @@ def decode_odometry(data: bytes, rotate: bool = True
     if not abs(qx * qx + qy * qy + qz * qz + qw * qw - 1.0) <= 1e-3:
         nan = float("nan")
         return sec, nanosec, nan, nan, nan, c[0], c[4], c[8]
-    r = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)),
-         (2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)),
-         (2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)))
-    v = [a * x + b * y + cz * z for a, b, cz in r]
-    var = [sum(row[i] * c[3 * i + j] * row[j] for i in range(3) for j in range(3)) for row in r]
-    return sec, nanosec, v[0], v[1], v[2], var[0], var[1], var[2]
+    # R(q) row by row (unrolled: this is the per-message path): (R v)_i, (R C R^T)_ii
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = c
+    xx, yy, zz, xy, xz, yz = qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz
+    wx, wy, wz = qw * qx, qw * qy, qw * qz
+    a, b, d = 1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)
+    vx = a * x + b * y + d * z
+    px = a * (a * c00 + b * c01 + d * c02) + b * (a * c10 + b * c11 + d * c12) \
+        + d * (a * c20 + b * c21 + d * c22)
+    a, b, d = 2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)
+    vy = a * x + b * y + d * z
+    py = a * (a * c00 + b * c01 + d * c02) + b * (a * c10 + b * c11 + d * c12) \
+        + d * (a * c20 + b * c21 + d * c22)
+    a, b, d = 2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)
+    vz = a * x + b * y + d * z
+    pz = a * (a * c00 + b * c01 + d * c02) + b * (a * c10 + b * c11 + d * c12) \
+        + d * (a * c20 + b * c21 + d * c22)
+    return sec, nanosec, vx, vy, vz, px, py, pz
 
 
 # --- encoding ----------------------------------------------------------------------------------
