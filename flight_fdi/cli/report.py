@@ -2,8 +2,8 @@
 
 INPUT is one of
 
-* a rosbag2 bag with /ins/velocity and /reference/velocity (a folder with metadata.yaml, or a
-  .mcap / .db3 file): analysed like ``flight-fdi analyze``; a simulated bag's /sim/truth is drawn
+* a rosbag2 bag (a folder with metadata.yaml, or a .mcap / .db3 file; the input options name
+  its topics): analysed like ``flight-fdi analyze``; a simulated bag's /sim/truth is drawn
   as the true error;
 * the output folder of ``flight-fdi run`` (result.json and recording/): the forward pass is
   rebuilt from the recording exactly as the smoother node does, and the truth is taken from the
@@ -54,17 +54,29 @@ def _truth_of(flight: Any, model: Any, shift: float):
 
 
 def analyse_bag(bag: Path, args: argparse.Namespace):
-    """(AnalysisResult, Truth or None, model) of an input bag, as ``flight-fdi analyze`` does."""
-    from flight_fdi.bagio import read_flight
-    from flight_fdi.core.analysis import run_analysis
+    """(AnalysisResult, Truth or None, model) of an input bag, as ``flight-fdi analyze`` does
+    (the same input options and result, ``input`` per topic included)."""
+    from flight_fdi.cli.analyze import analyse_flight_bag
     from flight_fdi.core.models import get_model
 
-    config = analysis_config(args)
+    res, flight = analyse_flight_bag(str(bag), args, with_truth=True)
     model = get_model(args.model)
-    flight = read_flight(bag, channel=args.channel, with_truth=True)
-    res = run_analysis(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
-                       flight.r_ref, config, bag=str(bag), channel=args.channel, t0=0.0)
     return res, _truth_of(flight, model, flight.t0), model
+
+
+def _inputs_of(doc: dict, args: argparse.Namespace) -> None:
+    """Take the input contract of a result (its ``source``) unless given as options."""
+    src = doc.get("source") or {}
+    if args.ins_topic is None and src.get("ins_topic"):
+        args.ins_topic = src["ins_topic"]
+    if args.reference_topic is None and src.get("reference_topics"):
+        args.reference_topic = list(src["reference_topics"])
+    if args.nav_frame is None and src.get("nav_frame"):
+        args.nav_frame = src["nav_frame"]
+    if args.odometry_twist_frame is None and src.get("odometry_twist_frame"):
+        args.odometry_twist_frame = src["odometry_twist_frame"]
+    if args.channel is None:
+        args.channel = src.get("channel") or doc.get("channel")
 
 
 def analyse_run_folder(folder: Path, args: argparse.Namespace):
@@ -73,10 +85,10 @@ def analyse_run_folder(folder: Path, args: argparse.Namespace):
     recording = folder / "recording"
     doc = _load_json(result_json)
     input_bag = Path(doc["bag"]) if isinstance(doc.get("bag"), str) and doc["bag"] else None
-    channel = doc.get("channel") or args.channel
+    _inputs_of(doc, args)
+    channel = args.channel or "x"
     if not recording.exists():
         if input_bag is not None and _is_bag(input_bag):
-            args.channel = channel
             res, truth, model = analyse_bag(input_bag, args)
             return res, truth, model, [f"{recording} is missing: the input bag {input_bag} was "
                                        "analysed again."]
@@ -90,8 +102,9 @@ def analyse_run_folder(folder: Path, args: argparse.Namespace):
     flight = None
     if input_bag is not None and _is_bag(input_bag):
         from flight_fdi.bagio import read_flight
+        from flight_fdi.cli.analyze import input_spec
 
-        flight = read_flight(input_bag, channel=channel, with_truth=True)
+        flight = read_flight(input_bag, spec=input_spec(args), with_truth=True)
     rec = read_recording(recording, channel=channel)
     # times from the start of the input flight, as in result.json
     run = analyze_recording(rec, flight_start_s=None if flight is None else flight.t0,
@@ -134,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
             if not doc.get("bag") or not _is_bag(bag):
                 raise CliError(f"{src} names the bag {doc.get('bag')!r}, which does not exist; "
                                "the figures need the flight's data")
-            args.channel = doc.get("channel") or args.channel
+            _inputs_of(doc, args)
             res, truth, model = analyse_bag(bag, args)
             notes.append(f"The bag {bag} named in {src} was analysed again.")
     else:
@@ -146,5 +159,5 @@ def run(args: argparse.Namespace) -> int:
         json.dump({"index": str(index), "summary": res.summary}, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     else:
-        print(f"{post['verdict']}  element {post['element'] or '-'}: report in {index}")
+        print(f"{post['verdict'].upper()}: {post.get('headline', '')}\nreport in {index}")
     return 0

@@ -116,12 +116,13 @@ def write_report(analysis_result: Any, out_dir: str | Path, truth: Truth | None 
                         else "")
                      + "filtered and smoothed estimates; chi-square term J(i/k) with "
                        "gamma_k^2; Fisher statistic F_k with eta^2 (seed 000, figures 7.2/7.3)."))
-    figures.gate_figure(res, out / "gate.png")
+    units = figures.state_units(res, model)
+    figures.gate_figure(res, out / "gate.png", unit=units[0] if units and units[0] else "-")
     figs.append(("gate.png", "In flight: the innovation with +-3 sqrt(S); beta^2 with the gate "
                              "and the M-of-N alarm episodes."))
     figures.chi2_figure(res, out / "chi2.png")
     figs.append(("chi2.png", "Post flight: total chi-square statistic J of the two-filter residual "
-                             "with gamma^2 and the violation episode."))
+                             "with gamma^2, shaded where J exceeds it; the seed method's onset."))
     figures.glr_figure(res, out / "glr.png")
     figs.append(("glr.png", "Post flight: GLR statistic over the onset time for each hypothesis, "
                             "with the threshold of its false-alarm probability."))
@@ -149,7 +150,9 @@ def _page(summary: dict, res: Any, figs: list[tuple[str, str]], title: str | Non
         f"<title>{_e(title)}</title><style>{CSS}</style></head><body>",
         f"<div class='verdict {_e(verdict)}'>",
         f"<h1>{_e(verdict.replace('_', ' ').upper())}</h1>",
-        "<p>"
+        f"<p><b>{_e(post.get('headline', ''))}</b></p>"
+        + (f"<p>Why the methods differ: {_e(post['disagreement'])}</p>"
+           if post.get("disagreement") else "") + "<p>"
         f"element <b>{_e(post['element'] or '-')}</b>, onset <b>{_num(post['onset_s'], '.1f')} s"
         f"</b>, magnitude <b>{_e(_magnitude_text(post['magnitude'], post['element'], unit))}</b>"
         f"; the two methods {'agree' if post['methods_agree'] else 'disagree'}.</p>",

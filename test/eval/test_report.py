@@ -111,7 +111,8 @@ def test_report_command_on_a_bag_and_on_a_result_json(tmp_path, capsys):
     args = parser.parse_args(["report", str(bag), "--out", str(tmp_path / "r1"), "--json"])
     assert args.func(args) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["summary"]["post_flight"]["element"] == "gyro_drift"
+    post = out["summary"]["post_flight"]  # a gyro step and an accelerometer ramp: both named
+    assert post["verdict"] == "ambiguous" and "gyro x: drift step" in post["headline"]
     page = (tmp_path / "r1" / "index.html").read_text()
     assert "true error" in page  # the simulated bag's /sim/truth is drawn
     assert len(list((tmp_path / "r1").glob("*.png"))) == 7
@@ -120,7 +121,7 @@ def test_report_command_on_a_bag_and_on_a_result_json(tmp_path, capsys):
     result.write_text(json.dumps(out["summary"]))
     args = parser.parse_args(["report", str(result), "--out", str(tmp_path / "r2")])
     assert args.func(args) == 0
-    assert "gyro_drift" in capsys.readouterr().out
+    assert "gyro x: drift step" in capsys.readouterr().out
     assert json.loads((tmp_path / "r2" / "summary.json").read_text())["post_flight"] == \
         out["summary"]["post_flight"]
 
@@ -139,3 +140,75 @@ def test_report_command_errors_are_one_line(tmp_path):
     args = parser.parse_args(["report", str(tmp_path / "notes.txt"), "--out", str(tmp_path / "r")])
     with pytest.raises(CliError, match="neither a bag"):
         args.func(args)
+
+
+# ------------------------------------------------------------------------------ figure content
+
+@pytest.fixture()
+def drawn(monkeypatch, analysed, tmp_path):
+    """The matplotlib Figure of each figure function (captured as it is saved)."""
+    from flight_fdi.report import figures
+
+    got = {}
+    save = figures._save
+
+    def keep(fig, path):
+        got[path.stem] = fig
+        return save(fig, path)
+
+    monkeypatch.setattr(figures, "_save", keep)
+    _, res, truth = analysed
+    figures.element_figure(res, 2, tmp_path / "element.png", truth=truth)
+    figures.gate_figure(res, tmp_path / "gate.png")
+    figures.chi2_figure(res, tmp_path / "chi2.png")
+    figures.glr_figure(res, tmp_path / "glr.png")
+    return res, got
+
+
+def test_every_line_is_labelled_and_every_axis_has_a_unit(drawn):
+    _, figs = drawn
+    for name, fig in figs.items():
+        for ax in fig.axes:
+            assert re.search(r"\[[^\]]+\]", ax.get_ylabel()), (name, ax.get_ylabel())
+            for line in ax.get_lines():
+                assert not line.get_label().startswith("_"), (name, line.get_label())
+        assert "[s]" in fig.axes[-1].get_xlabel()
+    assert figs["gate"].axes[0].get_ylabel() == "innovation nu [m/s]"
+
+
+def test_chi2_is_shaded_only_where_j_exceeds_gamma2(drawn):
+    from flight_fdi.report.figures import exceed_intervals
+
+    res, figs = drawn
+    seed = res.seed
+    t = np.asarray(seed.t) - res.t0
+    over = np.asarray(seed.valid, bool) & (seed.J > seed.gamma2)
+    spans = exceed_intervals(t, over)
+    assert spans and len(figs["chi2"].axes[0].patches) == len(spans)
+    for a, b in spans:
+        assert np.all(over[(t >= a) & (t <= b)])  # nothing shaded where J <= gamma^2
+    assert exceed_intervals(np.arange(6.0), [0, 1, 1, 0, 1, 0]) == [(1.0, 2.0), (4.0, 4.0)]
+
+
+def test_alarm_spans_are_visible_at_flight_scale(drawn):
+    from flight_fdi.report.figures import MIN_SPAN_FRACTION
+
+    res, figs = drawn
+    ax = figs["gate"].axes[1]
+    assert res.fwd.alarms() and len(ax.patches) == len(res.fwd.alarms())
+    figs["gate"].canvas.draw()
+    width = ax.get_window_extent().width
+    for p in ax.patches:
+        assert p.get_window_extent().width >= 0.9 * MIN_SPAN_FRACTION * width
+
+
+def test_hypotheses_have_distinct_styles_none_in_the_thresholds_red(drawn):
+    from flight_fdi.core.glr import DEFAULT_HYPOTHESES
+    from flight_fdi.report.figures import THRESHOLD_COLOR, hypothesis_style
+
+    styles = [tuple(hypothesis_style(h).values()) for h in DEFAULT_HYPOTHESES]
+    assert len(set(styles)) == len(styles)
+    assert all(c != THRESHOLD_COLOR for c, _ in styles)
+    _, figs = drawn
+    colors = {ln.get_label(): ln.get_color() for ln in figs["glr"].axes[0].get_lines()}
+    assert colors["reference_outlier"] != colors[next(k for k in colors if k.startswith("thr"))]
