@@ -275,9 +275,13 @@ def chi2_figure(result: Any, path: Path) -> Path:
     ts, g = _stride(t, np.where(valid, seed.gamma2, np.nan))
     ax.plot(ts, g, color=THRESHOLD_COLOR, lw=1, label="gamma^2 = n + 3 sqrt(2n)")
     _exceed_spans(ax, t, np.where(valid, seed.J, np.nan), np.where(valid, seed.gamma2, np.nan),
-                  "J > gamma^2")
+                  "J > gamma^2 (before a step too: the backward filter carries it)")
     _onset_line(ax, None if seed.onset_t is None else seed.onset_t - result.t0,
                 label=f"seed onset: J peak ({seed.verdict}, {seed.element})")
+    glr = result.glr
+    if glr.detected and glr.onset_t is not None:
+        ax.axvline(glr.onset_t - result.t0, color="tab:gray", ls=":", lw=1.5,
+                   label=f"GLR onset ({glr.hypothesis}, {glr.isolation})")
     ax.set_yscale("log")
     ax.set_ylabel("J [-] (chi-square)")
     ax.set_xlabel("time [s]")
