@@ -29,8 +29,10 @@ Detectors and methods
 the seed method's verdict is ``glitch``, ``failure`` or ``ambiguous``; its isolated class is the
 element it names. ``glr``: a fault is declared when GLR's statistic exceeds its threshold; its
 class is the hypothesis' element (``accel_bias_step`` -> ``accel_bias``, ``gyro_drift_step`` ->
-``gyro_drift``; reference hypotheses keep their own names). A fault is *isolated* when it is
-declared and the class equals the true element.
+``gyro_drift``; reference hypotheses keep their own names; a flight GLR reports as ambiguous or
+unexplained has the class ``ambiguous``). A fault is *isolated* when it is declared and the
+class equals the true element; GLR *names* it when it is isolated or among the candidates of
+an ambiguous result (:func:`onset_errors` reports onset errors over the named faults).
 
 Everything here is pure (numpy, no rclpy); :func:`run_study` runs the flights over ``jobs``
 processes. The result depends only on the study's configuration and seed, never on ``jobs``.
@@ -210,12 +212,17 @@ def plan_study(config: StudyConfig) -> list[FlightCase]:
 
 def glr_class(hypothesis: str) -> str:
     """The class a GLR hypothesis isolates: the stepped state for ``<state>_step`` /
-    ``step:<state>``, the hypothesis name itself otherwise (``none``, ``reference_jump``...)."""
+    ``step:<state>``, the hypothesis name itself otherwise (``none``, ``accel_bias_ramp``,
+    ``reference_jump``...)."""
     if hypothesis.startswith("step:"):
         return hypothesis[5:]
     if hypothesis.endswith("_step"):
         return hypothesis[:-5]
     return hypothesis
+
+
+#: the class GLR gives a flight whose best hypothesis is not a confident single explanation
+AMBIGUOUS = "ambiguous"
 
 
 def run_case(case: FlightCase, config: StudyConfig) -> dict:
@@ -241,6 +248,8 @@ def run_case(case: FlightCase, config: StudyConfig) -> dict:
         j_exceed = int(np.count_nonzero(valid & (seed.J > seed.gamma2)))
     post = summary["post_flight"]
     glr = post["glr"]
+    candidates = [{"hypothesis": c["hypothesis"], "onset_s": c["onset_s"],
+                   "magnitude": c["magnitude"]} for c in post["candidates"]]
     return {
         "index": case.index, "kind": case.kind, "sim_seed": case.sim_seed,
         "level": case.level, "magnitude": case.magnitude, "onset_s": onset,
@@ -255,7 +264,8 @@ def run_case(case: FlightCase, config: StudyConfig) -> dict:
                  "J_exceeded": j_exceed, "J_valid": int(valid.sum())},
         "glr": {"hypothesis": glr["hypothesis"], "onset_s": glr["onset_s"],
                 "magnitude": glr["magnitude"], "statistic": glr["statistic"],
-                "threshold": glr["threshold"]},
+                "threshold": glr["threshold"], "isolation": glr["isolation"],
+                "candidates": candidates},
         "verdict": post["verdict"], "element": post["element"],
     }
 
@@ -287,6 +297,8 @@ def predicted_class(record: dict, method: str) -> str:
     if method == "seed":
         return record["seed"]["element"] or "none"
     if method == "glr":
+        if record["glr"].get("isolation", "single") != "single":
+            return AMBIGUOUS
         return glr_class(record["glr"]["hypothesis"])
     raise EvalError(f"unknown isolation method {method!r}; choose one of {', '.join(METHODS)}")
 
@@ -406,6 +418,18 @@ def smallest_isolated(rows: Sequence[dict], method: str,
     return best
 
 
+def _onset_errors(records: Sequence[dict]) -> dict:
+    from .onset import onset_errors  # (that module builds on this one)
+
+    return onset_errors(records)
+
+
+def _format_onset_errors(table: dict) -> str:
+    from .onset import format_onset_errors
+
+    return format_onset_errors(table)
+
+
 def summarize(records: Sequence[dict]) -> dict:
     """All metrics of a study from its per-flight records (see the module docstring)."""
     records = sorted(records, key=lambda r: r["index"])
@@ -453,6 +477,7 @@ def summarize(records: Sequence[dict]) -> dict:
                                                        if r["kind"] == k and isolated(r, "glr"))
                                              for k in kinds}},
         "by_level": {k: by_level(records, k) for k in kinds},
+        "onset_error_glr": _onset_errors(records),
     }
     out["smallest_isolated_95"] = {
         m: {k: {"level": smallest_isolated(out["by_level"][k], m), "unit": LEVEL_UNITS[k][0]}
@@ -601,4 +626,8 @@ def format_metrics(metrics: dict) -> str:
         parts = [f"{k}: " + ("not reached" if v["level"] is None else f"{v['level']:g} {v['unit']}")
                  for k, v in per.items()]
         lines.append(f"  {m}: " + ", ".join(parts))
+    if metrics.get("onset_error_glr"):
+        lines += ["", "GLR onset error where GLR names the true fault (isolated, or among the "
+                      "candidates of an ambiguous result):", "",
+                  _format_onset_errors(metrics["onset_error_glr"])]
     return "\n".join(lines)
