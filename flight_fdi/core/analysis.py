@@ -114,14 +114,14 @@ class AnalysisResult:
 
 
 def glr_element(model: LinearModel, hypothesis: str) -> str | None:
-    """The state element a GLR hypothesis points at: the stepped state of a step hypothesis, the
+    """The state element a GLR hypothesis points at: the state of a step or ramp hypothesis, the
     state a measurement observes for a measurement fault (``reference_jump`` ->
     ``velocity_error`` on the INS channel); None for ``"none"``."""
     if hypothesis == "none":
         return None
-    if hypothesis.endswith("_step") and not hypothesis.startswith("step:"):
+    if hypothesis.endswith(("_step", "_ramp")) and not hypothesis.startswith(("step:", "ramp:")):
         return hypothesis[:-5]
-    if hypothesis.startswith("step:"):
+    if hypothesis.startswith(("step:", "ramp:")):
         return hypothesis[5:]
     # a fault of a measurement row: the state that row observes
     if ":" in hypothesis:
