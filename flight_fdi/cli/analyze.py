@@ -166,21 +166,7 @@ def format_result(res: dict) -> str:
     post = res["post_flight"]
     seed = post["seed_method"]
     glr = post["glr"]
-    from flight_fdi.bagio.inputs import warnings
-
-    lines = [
-        f"{post['verdict'].upper()}: {post.get('headline', '')}",
-        "",
-        f"bag {res['bag']}  channel {res['channel']}  {res['duration_s']:.1f} s  "
-        f"{res['samples']} samples",
-    ]
-    src = res.get("source")
-    if src:
-        lines.append(f"input: INS {src['ins_topic']}, reference "
-                     f"{', '.join(src['reference_topics'])}, {src['nav_frame'].upper()} axis "
-                     f"{src['channel']} ({src['axis_name']})")
-    lines += warnings(res.get("input") or {})
-    lines += [
+    lines = _head_lines(res) + [
         "",
         f"in flight: gate beta2 > {inf['gate_threshold']:.3g}, exceeded on "
         f"{100 * inf['exceed_fraction']:.2f}% of samples; first alarm at "
@@ -196,16 +182,8 @@ def format_result(res: dict) -> str:
         f"post flight: {post['verdict'].upper()}  isolation {post.get('isolation', '-')}  "
         f"element {_fmt(post['element'], 's')}  onset {_fmt(post['onset_s'], '.1f')} s",
     ]
-    fault = post.get("fault")
-    if fault:
-        lines.append(f"  {fault['sensor']} {fault['axis']} {fault['kind']}: "
-                     f"{_fmt(fault['magnitude_eng'], '+.4g')} {fault['unit_eng']} "
-                     f"({_fmt(fault['magnitude'], '+.4g')} {fault['unit']}, 1-sigma "
-                     f"{_fmt(fault['magnitude_std'], '.2g')}), onset 95 % "
-                     f"{_interval(fault['onset_interval_s'])} s; statistic "
-                     f"{fault['statistic']:.4g} vs threshold {_fmt(fault['threshold'], '.4g')}"
-                     + (f", runner-up {fault['runner_up']['hypothesis']} "
-                        f"{fault['runner_up']['statistic']:.4g}" if fault["runner_up"] else ""))
+    for fault in ([post["fault"]] if post.get("fault") else []) + post.get("candidates", []):
+        lines.append(_fault_line(fault))
     if post.get("disagreement"):
         lines.append(f"  methods disagree: {post['disagreement']}")
     lines += [
@@ -224,6 +202,34 @@ def format_result(res: dict) -> str:
         f"(threshold {glr['threshold']:.4g})",
     ]
     return "\n".join(lines)
+
+
+def _head_lines(res: dict) -> list[str]:
+    """Verdict headline, the flight, the inputs and one warning per drop reason."""
+    from flight_fdi.bagio.inputs import warnings
+
+    post = res["post_flight"]
+    lines = [f"{post['verdict'].upper()}: {post.get('headline', '')}", "",
+             f"bag {res['bag']}  channel {res['channel']}  {res['duration_s']:.1f} s  "
+             f"{res['samples']} samples"]
+    src = res.get("source")
+    if src:
+        lines.append(f"input: INS {src['ins_topic']}, reference "
+                     f"{', '.join(src['reference_topics'])}, {src['nav_frame'].upper()} axis "
+                     f"{src['channel']} ({src['axis_name']})")
+    return lines + warnings(res.get("input") or {})
+
+
+def _fault_line(fault: dict) -> str:
+    """One fault (or candidate) with both units, its 1-sigma, onset interval and statistics."""
+    runner = fault.get("runner_up")
+    return (f"  {fault['sensor']} {fault['axis']} {fault['kind']}: "
+            f"{_fmt(fault['magnitude_eng'], '+.4g')} {fault['unit_eng']} "
+            f"({_fmt(fault['magnitude'], '+.4g')} {fault['unit']}, 1-sigma "
+            f"{_fmt(fault['magnitude_std'], '.2g')}), onset 95 % "
+            f"{_interval(fault['onset_interval_s'])} s; statistic {fault['statistic']:.4g} vs "
+            f"threshold {_fmt(fault['threshold'], '.4g')}"
+            + (f", runner-up {runner['hypothesis']} {runner['statistic']:.4g}" if runner else ""))
 
 
 def _interval(iv) -> str:

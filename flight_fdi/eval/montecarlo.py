@@ -329,16 +329,22 @@ def error_rates(records: Sequence[dict], detector: str) -> dict:
 
     type_I = false alarms / nominal flights (H0 true, rejected);
     type_II = missed / faulty flights (H0 false, accepted). A rate is None without flights.
-    ``wrong_isolation`` (methods only): declared on a faulty flight but named another element.
+    ``wrong_isolation`` (methods only): declared on a faulty flight and confidently named
+    another element; ``ambiguous`` (GLR): declared but reported as ambiguous / unexplained.
     """
     nominal = [r for r in records if r["kind"] == "nominal"]
     faulty = [r for r in records if r["kind"] != "nominal"]
     out = type_errors([declared(r, detector) for r in nominal],
                       [declared(r, detector) for r in faulty])
     if detector in METHODS:
-        wrong = sum(declared(r, detector) and not isolated(r, detector) for r in faulty)
+        amb = [declared(r, detector) and predicted_class(r, detector) == AMBIGUOUS
+               for r in faulty]
+        wrong = sum(declared(r, detector) and not isolated(r, detector) and not a
+                    for r, a in zip(faulty, amb))
         out["wrong_isolation"] = wrong
         out["wrong_isolation_rate"] = wrong / len(faulty) if faulty else None
+        out["ambiguous"] = sum(amb)
+        out["ambiguous_rate"] = sum(amb) / len(faulty) if faulty else None
     return out
 
 
@@ -581,12 +587,14 @@ def format_metrics(metrics: dict) -> str:
              f" (J > gamma^2), per flight {_pct(fa['seed']['per_flight_rate'])}",
              f"  GLR: per flight {_pct(fa['glr']['per_flight_rate'])}",
              "",
-             "| detector | type I (false alarm) | type II (missed) | wrong element |",
-             "|---|---|---|---|"]
+             "| detector | type I (false alarm) | type II (missed) | confidently wrong element "
+             "| ambiguous |",
+             "|---|---|---|---|---|"]
     for det, e in metrics["error_rates"].items():
         wrong = _pct(e.get("wrong_isolation_rate")) if "wrong_isolation_rate" in e else "n/a"
+        amb = _pct(e.get("ambiguous_rate")) if "ambiguous_rate" in e else "n/a"
         lines.append(f"| {det} | {_pct(e['type_I'])} ({e['false_alarms']}/{e['nominal']}) | "
-                     f"{_pct(e['type_II'])} ({e['missed']}/{e['faulty']}) | {wrong} |")
+                     f"{_pct(e['type_II'])} ({e['missed']}/{e['faulty']}) | {wrong} | {amb} |")
     for m, cm in metrics["confusion"].items():
         lines += ["", f"confusion matrix, {m} (rows: true, columns: isolated)",
                   "| true \\ isolated | " + " | ".join(cm["predicted"]) + " |",
