@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from flight_fdi.cli.analyze import add_analysis_options, analysis_config
+from flight_fdi.cli.analyze import add_analysis_options
 from flight_fdi.cli.errors import CliError
 
 
