@@ -53,6 +53,9 @@ class Verdict:
     jump: tuple[float, float] | None = None
 
 
+_ACCEPTED = Verdict(ACCEPT)  # shared: callers only read verdicts
+
+
 class StampLine:
     """The time line of one stream (see the module docstring).
 
@@ -97,6 +100,10 @@ class StampLine:
         return OUT_OF_ORDER if last - t <= self.jump_s else None
 
     def check(self, t: float, payload: Any = None) -> Verdict:
+        last = self.last
+        if not self._held and last is not None and last < t <= last + self.forward_jump_s:
+            self.last = t  # the common case, without allocating a Verdict
+            return _ACCEPTED
         kind = self._on_line(t)
         if kind is not None:
             dismissed = [p for _, p in self._held]

@@ -219,10 +219,10 @@ def innovation_msg(stamp, channel: str, row_names: Sequence[str], result: Any,
 
 def innovation_bytes(stamp: tuple[int, int], channel: str, row_names: Sequence[str],
                      result: Any, row_failed: Sequence[bool] | None = None,
-                     row_excluded: Sequence[bool] | None = None) -> bytes:
+                     row_excluded: Sequence[bool] | None = None, frame_id: str = "") -> bytes:
     """:func:`innovation_msg` serialized (``stamp`` = (sec, nanosec)), without building the
     message: what the filter node publishes per update (the same bytes rclpy would send)."""
-    return wire.encode_innovation(stamp[0], stamp[1], "", **_innovation_fields(
+    return wire.encode_innovation(stamp[0], stamp[1], frame_id, **_innovation_fields(
         channel, row_names, result, row_failed, row_excluded))
 
 
@@ -248,21 +248,21 @@ def filter_state_msg(stamp, channel: str, state_names: Sequence[str], x: Any, P:
 def filter_state_bytes(stamp: tuple[int, int], channel: str, state_names: Sequence[str],
                        x: Any, P: Any, z: Any = (), R: Any = (), H: Any = (), u: Any = (),
                        dt: float = 0.0, fused: bool = False, gated: bool = False,
-                       reset: bool = False) -> bytes:
+                       reset: bool = False, frame_id: str = "") -> bytes:
     """:func:`filter_state_msg` serialized (``stamp`` = (sec, nanosec)), without building
     the message."""
-    return wire.encode_filter_state(stamp[0], stamp[1], "", **_filter_state_fields(
+    return wire.encode_filter_state(stamp[0], stamp[1], frame_id, **_filter_state_fields(
         channel, state_names, x, P, z, R, H, u, dt, fused, gated, reset))
 
 
-def model_info_msg(stamp, channel: str, model: Any, gate: Any):
+def model_info_msg(stamp, channel: str, model: Any, gate: Any, frame_id: str = ""):
     """flight_fdi_msgs/ModelInfo from a LinearModel and a GateConfig."""
     from flight_fdi_msgs.msg import ModelInfo
 
     B = model.B
     names = list(model.params)
     return ModelInfo(
-        header=header(stamp), channel=channel, model_name=model.name,
+        header=header(stamp, frame_id), channel=channel, model_name=model.name,
         state_names=list(model.state_names), state_units=list(model.state_units),
         measurement_names=list(model.measurement_names),
         n=model.n, m=model.m, p=0 if B is None else int(B.shape[1]),

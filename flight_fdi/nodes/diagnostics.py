@@ -27,10 +27,15 @@ API (stable; used by every node)::
         .count(name) .rate(name) .age(name) -> float (NaN = never) .is_stale(name) -> bool
         .never_seen(name) -> bool
         .key_values() -> list[(key, str)]   "<name> rate_hz", "<name> age_s", "<name> count"
-        .problems() -> list[str]  "no messages on <name> yet", "<name> stale for 12.3 s" ...
+        .problems(clock_stalled_s=0.0) -> list[str]  "no messages on <name> yet",
+                                  "<name> stale for 12.3 s" ...; while the node clock is stalled
+                                  (``clock_stalled_s`` > 0) the ages are wall-clock ones
 
-    DiagnosticsTimer(node, period_s, build)    publishes ``build() -> list[DiagnosticStatus]``
-        on /diagnostics every ``period_s`` of the node's clock (also callable: .publish_now())
+    DiagnosticsTimer(node, period_s, build, hardware_id="")   publishes
+        ``build() -> list[DiagnosticStatus]`` on /diagnostics every ``period_s`` of the node's
+        clock (also callable: .publish_now()). A steady-clock timer keeps publishing when the
+        node's clock stops (use_sim_time and /clock silent): then a "<node>: clock" WARN status
+        ("clock stalled for 12.3 s") is added. .clock_stalled_s() -> float (0.0 when running).
 
 ``clock_now`` is a zero-argument callable returning the current node time in seconds, e.g.
 ``lambda: node.get_clock().now().nanoseconds * 1e-9``.
@@ -38,6 +43,7 @@ API (stable; used by every node)::
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from typing import Any, Callable, Iterable, Mapping
 
@@ -176,6 +182,7 @@ class InputMonitor:
         self._names = list(names)
         self._count = {n: 0 for n in self._names}
         self._last: dict[str, float | None] = {n: None for n in self._names}
+        self._wall: dict[str, float | None] = {n: None for n in self._names}
         self._rate = {n: RateMeter(window_s) for n in self._names}
 
     @property
@@ -186,6 +193,7 @@ class InputMonitor:
         now = self._now()
         self._count[name] += 1
         self._last[name] = now
+        self._wall[name] = time.monotonic()
         self._rate[name].tick(now)
 
     def count(self, name: str) -> int:
@@ -215,28 +223,71 @@ class InputMonitor:
                     (f"{n} age_s", "never" if math.isnan(age) else format_value(age))]
         return out
 
-    def problems(self) -> list[str]:
+    def problems(self, clock_stalled_s: float = 0.0) -> list[str]:
+        """What is wrong with the inputs. While the node's clock is stalled (sim time without
+        /clock: its ages do not grow), staleness is judged on the wall clock."""
         out = []
+        wall_now = time.monotonic()
         for n in self._names:
             if self.never_seen(n):
                 out.append(f"no messages on {n} yet")
+            elif clock_stalled_s > 0.0:
+                age = wall_now - self._wall[n]
+                if age > self.stale_after_s:
+                    out.append(f"{n} stale for {age:.1f} s (wall clock; node clock stalled)")
             elif self.is_stale(n):
                 out.append(f"{n} stale for {self.age(n):.1f} s")
         return out
 
 
 class DiagnosticsTimer:
-    """Publishes ``build()``'s statuses on ``/diagnostics`` every ``period_s`` (node clock)."""
+    """Publishes ``build()``'s statuses on ``/diagnostics`` every ``period_s`` (node clock).
+
+    A second timer on the steady clock watches the node's clock: when it has not advanced for
+    more than two periods of wall time (use_sim_time and ``/clock`` stopped, so the first timer
+    no longer fires), this one publishes instead, with a "<node>: clock" WARN status added."""
 
     def __init__(self, node: Any, period_s: float, build: Callable[[], list],
-                 topic: str = "/diagnostics") -> None:
+                 topic: str = "/diagnostics", hardware_id: str = "") -> None:
         from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.clock import Clock, ClockType
 
         self._node = node
         self._build = build
+        self.period_s = float(period_s)
+        self.hardware_id = hardware_id or node.get_fully_qualified_name()
         self.publisher = node.create_publisher(DiagnosticArray, topic, 10)
         self.timer = node.create_timer(period_s, self.publish_now)
+        self._clock_ns = node.get_clock().now().nanoseconds
+        self._clock_moved = time.monotonic()   # wall time the node clock was last seen moving
+        self._published = time.monotonic()
+        self.wall_timer = node.create_timer(period_s, self._watch,
+                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _watch(self) -> None:
+        now_ns = self._node.get_clock().now().nanoseconds
+        if now_ns != self._clock_ns:
+            self._clock_ns = now_ns
+            self._clock_moved = time.monotonic()
+        if time.monotonic() - self._published > 2.0 * self.period_s:
+            self.publish_now()
+
+    def clock_stalled_s(self) -> float:
+        """How long (wall seconds) the node's clock has not advanced, once that exceeds two
+        periods; 0.0 while it runs."""
+        stalled = time.monotonic() - self._clock_moved
+        return stalled if stalled > 2.0 * self.period_s else 0.0
 
     def publish_now(self) -> None:
+        self._published = time.monotonic()
         stamp = self._node.get_clock().now().to_msg()
-        self.publisher.publish(make_array(stamp, self._build()))
+        statuses = list(self._build())
+        stalled = self.clock_stalled_s()
+        if stalled:
+            statuses.append(make_status(
+                f"{self._node.get_name()}: clock", WARN,
+                f"clock stalled for {stalled:.1f} s (use_sim_time and no /clock?): node time "
+                "does not advance, input staleness is judged on the wall clock",
+                [("node_time_s", self._clock_ns * 1e-9), ("stalled_s", stalled)],
+                hardware_id=self.hardware_id))
+        self.publisher.publish(make_array(stamp, statuses))

@@ -51,9 +51,11 @@ per-channel counts). Messages are never reordered.
     dropped_ins_nonfinite           INS velocity NaN/Inf on a configured axis
     dropped_ins_duplicate           INS stamp equal to the previous one
     dropped_ins_out_of_order        INS stamp older than the previous one (by <= time_jump_reset_s)
+    dropped_ins_stamp_outlier       INS stamp that jumped (see below) and was not continued
     dropped_reference_invalid_stamp reference stamp after the last time a stamp can hold
     dropped_reference_duplicate     reference stamp equal to the previous one
     dropped_reference_out_of_order  reference stamp older than the previous one (idem)
+    dropped_reference_stamp_outlier reference stamp that jumped and was not continued
     dropped_ins_gap                 the INS samples around the reference stamp are more than
                                     ``max_gap_s`` apart (INS dropout): the reference is dropped
     dropped_ins_too_old             the reference stamp is older than the INS buffer
@@ -69,9 +71,13 @@ per-channel counts). Messages are never reordered.
     (channel) resets                filter restarts (time jump, or a gap > reset_after_gap_s)
     =============================== ===========================================================
 
-A stamp that goes backwards by more than ``time_jump_reset_s`` (a bag loop, a clock reset) resets
-the filters (and the INS buffer when it is on the old time line) with a warning; the next
-FilterState has ``reset = True`` and ``dt = 0``.
+A stamp that goes backwards by more than ``time_jump_reset_s`` or forward by more than
+``reset_after_gap_s`` is a time jump (core ``timeline.StampLine``). One wild stamp (a 0 from a
+driver, a bit flip) is an outlier: dropped and counted when the next sample continues the old time
+line. Only when ``time_jump_confirm`` samples in a row continue the new line (a bag loop, a clock
+reset) is it adopted: on the reference it resets the filters (warning; the channel statuses turn
+WARN with the reason for ``reset_warn_s``; the next FilterState has ``reset = True`` and
+``dt = 0``), on the INS it resets the INS buffer; the samples held meanwhile are then used.
 
 A reference dropout: diagnostics turn WARN once the input is older than ``stale_after_s``
 ("/reference/velocity stale for 3.2 s"; "no messages on ... yet" when none ever came). On
@@ -123,6 +129,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from collections import deque
 from typing import Any
 
@@ -138,7 +145,8 @@ from ..core.errors import CoreError
 from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig, KalmanFilter
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
 from ..core.references import ReferenceConfig, RedundantFilter
-from . import attitude_mode, convert
+from ..core.timeline import ACCEPT, DUPLICATE, HELD, NEW_LINE, OUT_OF_ORDER, OUTLIER, StampLine
+from . import attitude_mode, convert, filter_diag
 from .convert import VELOCITY_TYPES
 from . import diagnostics as diag
 from .clockutil import ClockReader
@@ -299,8 +307,20 @@ FILTER_PARAMS = (
     ParamSpec("use_reference_covariance", "bool", True,
               "Use the reference message's covariance as R when it is finite and > 0"),
     ParamSpec("time_jump_reset_s", "double", 1.0,
-              "A stamp going backwards by more than this resets the filter (smaller steps back "
+              "A stamp going backwards by more than this is a time jump (smaller steps back "
               "are dropped as out of order)", "s", min=0.0, min_exclusive=True),
+    ParamSpec("time_jump_confirm", "int", 3,
+              "A time jump (back by more than time_jump_reset_s, or forward by more than "
+              "reset_after_gap_s) resets the filter only when this many samples of the input in a "
+              "row continue the new time line (held meanwhile, then used); a jump the next "
+              "sample does not continue is an outlier, dropped and counted. 1 = reset at once",
+              "samples", min=1, max=1000),
+    ParamSpec("reset_warn_s", "double", 10.0,
+              "After a filter reset the channel's /diagnostics status stays WARN, with the "
+              "reason, this long (wall clock)", "s", min=0.0, max=86400.0),
+    ParamSpec("frame_id", "string", "nav",
+              "header.frame_id of every output (fdi/innovation, fdi/state, fdi/model): the "
+              "navigation frame the velocities are expressed in", non_empty=True),
     ParamSpec("reset_after_gap_s", "double", 60.0,
               "After a reference gap up to this long the filter predicts across it; after a "
               "longer gap it restarts from the prior", "s", min=0.0, min_exclusive=True),
@@ -314,7 +334,6 @@ FILTER_PARAMS = (
 )
 
 _DEFAULTS = {s.name: s.default for s in FILTER_PARAMS}
-_ALARM_NAMES = {0: "clear", 1: "raised", 2: "active", 3: "cleared"}
 
 
 #: parameters that mean something only in the INS velocity mode
@@ -397,6 +416,15 @@ def validate(values: dict[str, Any]) -> None:
     build_model(values)
 
 
+def output_qos() -> QoSProfile:
+    """fdi/innovation and fdi/state: reliable, KEEP_ALL. A KEEP_LAST writer history is the only
+    copy DDS retransmits from: a reader that falls more than ``depth`` samples behind (a recorder
+    process descheduled for tens of ms on a loaded machine, at replay speed) silently loses the
+    overwritten samples. KEEP_ALL keeps every unacknowledged sample (docs/hardening.md)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE)
+
+
 def input_qos(kind: str, depth: int) -> QoSProfile:
     reliability = (ReliabilityPolicy.BEST_EFFORT if kind == "sensor_data"
                    else ReliabilityPolicy.RELIABLE)
@@ -429,6 +457,7 @@ class _Channel:
         self.result = None
         self.rows_used: int | None = None
         self.alarm_since: float | None = None
+        self.last_reset: tuple[float, str] | None = None  # (wall time, reason) of the last reset
 
     def reset(self) -> None:
         if self.rf is None:
@@ -446,6 +475,7 @@ class _Reference:
         self.index = index
         self.name = name
         self.last_t: float | None = None
+        self.line: StampLine | None = None  # its time line (set by the node)
         self.counters = diag.Counters(("samples", "missing", "dropped_late"))
 
 
@@ -517,6 +547,10 @@ class FilterNode(Node):
         if len(set(ref_names)) != len(ref_names):
             fail(ref_key, p[ref_key], f"distinct topics (they resolve to {ref_names})")
         self.refs = [_Reference(k, nm) for k, nm in enumerate(ref_names)]
+        self._ins_line = self._stamp_line()
+        self._frame = p["frame_id"]
+        for ref in self.refs:
+            ref.line = self._stamp_line()
         self.ref_name = ref_names[0]
         self.redundant = len(self.refs) > 1
         if self.redundant:
@@ -543,7 +577,8 @@ class FilterNode(Node):
                                                  self.diagnostic_statuses)
         stamp = self.get_clock().now().to_msg()
         for ch in self.channels:
-            self.pub_model.publish(convert.model_info_msg(stamp, ch.name, self.model, self.gate))
+            self.pub_model.publish(convert.model_info_msg(stamp, ch.name, self.model, self.gate,
+                                                         frame_id=p["frame_id"]))
         refs_text = ", ".join(ref_names)
         if self.redundant:
             refs_text += (f" (redundant: mode {p['reference_mode']}, readmit after "
@@ -558,8 +593,7 @@ class FilterNode(Node):
         """The publishers of both modes: fdi/innovation, fdi/state, fdi/model (latched)."""
         from flight_fdi_msgs.msg import FilterState, Innovation, ModelInfo
 
-        out_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                             reliability=ReliabilityPolicy.RELIABLE)
+        out_qos = output_qos()
         self.pub_innovation = self.create_publisher(Innovation, "fdi/innovation", out_qos)
         self.pub_state = self.create_publisher(FilterState, "fdi/state", out_qos)
         latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1, n_channels),
@@ -578,6 +612,10 @@ class FilterNode(Node):
                  f"a valid ROS topic name ({str(exc).splitlines()[0]})")
         except RuntimeError as exc:  # rcl's own check of the expanded name (e.g. "/a//b")
             fail(key, self.p[key], f"a valid ROS topic name ({exc})")
+
+    def _stamp_line(self) -> StampLine:
+        p = self.p
+        return StampLine(p["time_jump_reset_s"], p["time_jump_confirm"], p["reset_after_gap_s"])
 
     def _new_aligner(self) -> None:
         self.aligner = StreamingAligner(max_gap_s=self.p["max_gap_s"], buffer_s=self.p["buffer_s"])
@@ -645,16 +683,20 @@ class FilterNode(Node):
             return
         # one channel: a plain float (the aligner's cheap path); several: a vector
         v = values[0] if len(values) == 1 else np.array(values)
-        last = self._last_ins_t
-        if last is not None and t <= last:
-            if t == last:
-                self._drop("ins_duplicate", f"INS sample at t={t:.3f} s: duplicate stamp")
-                return
-            if last - t <= self.p["time_jump_reset_s"]:
-                self._drop("ins_out_of_order",
-                           f"INS sample at t={t:.3f} s: older than the last one ({last:.3f} s)")
-                return
-            self._ins_time_jump(t, last)
+        verdict = self._ins_line.check(t, (t, v))
+        if verdict.dismissed:
+            self._outliers("ins", verdict.dismissed)
+        kind = verdict.kind
+        if kind == ACCEPT:
+            self._add_ins(t, v)
+        elif kind == NEW_LINE:
+            self._ins_time_jump(*verdict.jump)
+            for t_k, v_k in verdict.released:
+                self._add_ins(t_k, v_k)
+        elif kind != HELD:
+            self._stamp_drop("ins", kind, t)
+
+    def _add_ins(self, t: float, v: Any) -> None:
         try:
             self.aligner.add_ins(t, v)
         except CoreError as exc:
@@ -663,9 +705,25 @@ class FilterNode(Node):
         self._last_ins_t = t
         self._drain()
 
-    def _ins_time_jump(self, t: float, last: float) -> None:
+    def _stamp_drop(self, what: str, kind: str, t: float, ref: Any = None) -> None:
+        """A sample dropped by its time line (duplicate, out of order, outlier)."""
+        line = self._ins_line if ref is None else ref.line
+        where = "INS" if ref is None else f"reference sample on {ref.name}"
+        why = {DUPLICATE: "duplicate stamp", OUT_OF_ORDER: f"older than the last one "
+               f"({line.last:.3f} s)", OUTLIER: "repeats a wild stamp"}[kind]
+        self._drop(f"{what}_{'stamp_outlier' if kind == OUTLIER else kind}",
+                   f"{where} at t={t:.3f} s: {why}")
+
+    def _outliers(self, what: str, dismissed: list) -> None:
+        """Held samples whose jump the next samples did not continue: wild stamps."""
+        stamps = ", ".join(f"{p[0]:.3f}" for p in dismissed)
+        self._drop(f"{what}_stamp_outlier", f"{len(dismissed)} {what} sample(s) with a wild stamp "
+                   f"({stamps} s; the time line continued)", n=len(dismissed))
+
+    def _ins_time_jump(self, last: float, t: float) -> None:
         self.get_logger().warning(
-            f"INS time jumped back from {last:.3f} s to {t:.3f} s: INS buffer reset")
+            f"INS time jumped from {last:.3f} s to {t:.3f} s (confirmed by "
+            f"{self.p['time_jump_confirm']} samples): INS buffer reset")
         self._new_aligner()
         self._last_ins_t = None
         limit = t + self.p["time_jump_reset_s"]
@@ -689,17 +747,36 @@ class FilterNode(Node):
         t = convert.parts_to_s(sec, nanosec)
         if self._bad_stamp("reference", t, sec, nanosec):
             return
-        last = ref.last_t
-        if last is not None and t <= last:
-            if t == last:
-                self._drop("reference_duplicate",
-                           f"reference sample on {ref.name} at t={t:.3f} s: duplicate stamp")
-                return
-            if last - t <= self.p["time_jump_reset_s"]:
-                self._drop("reference_out_of_order", f"reference sample on {ref.name} at "
-                           f"t={t:.3f} s: older than the last one ({last:.3f} s)")
-                return
-            self._reference_time_jump(t, last)
+        verdict = ref.line.check(t, (t, lin, var))
+        if verdict.dismissed:
+            self._outliers("reference", verdict.dismissed)
+        kind = verdict.kind
+        if kind == ACCEPT:
+            self._accept_reference(k, t, lin, var)
+        elif kind == NEW_LINE:
+            self._reference_time_jump(*verdict.jump)
+            # the other references start on the new line too; what they held is on it
+            todo = [(s_[0], k, s_, True) for s_ in verdict.released]
+            todo += [(s_[0], j, s_, False) for j, other in enumerate(self.refs) if j != k
+                     for s_ in other.line.reset()]
+            for _, j, (t_j, lin_j, var_j), accepted in sorted(todo, key=lambda e: e[0]):
+                if accepted:
+                    self._accept_reference(j, t_j, lin_j, var_j)
+                else:
+                    self._on_reference_sample(j, t_j, lin_j, var_j)
+        elif kind != HELD:
+            self._stamp_drop("reference", kind, t, ref)
+
+    def _on_reference_sample(self, k: int, t: float, lin: Any, var: Any) -> None:
+        ref = self.refs[k]
+        verdict = ref.line.check(t, (t, lin, var))
+        if verdict.kind == ACCEPT:
+            self._accept_reference(k, t, lin, var)
+        else:  # only after a reset of the line: cannot jump again
+            self._stamp_drop("reference", verdict.kind, t, ref)
+
+    def _accept_reference(self, k: int, t: float, lin: Any, var: Any) -> None:
+        ref = self.refs[k]
         ref.last_t = t
         ref.counters.inc("samples")
         if self._last_ref_t is None or t > self._last_ref_t:
@@ -752,13 +829,13 @@ class FilterNode(Node):
                 return False  # may still come
         return True
 
-    def _reference_time_jump(self, t: float, last: float) -> None:
+    def _reference_time_jump(self, last: float, t: float) -> None:
         self.counters.inc("time_jump_resets")
-        self.get_logger().warning(
-            f"reference time jumped back from {last:.3f} s to {t:.3f} s: filter reset")
+        reason = (f"reference time jumped from {last:.3f} s to {t:.3f} s (confirmed by "
+                  f"{self.p['time_jump_confirm']} samples)")
+        self.get_logger().warning(f"{reason}: filter reset")
         for ch in self.channels:
-            ch.reset()
-            ch.counters.inc("resets")
+            self._reset_channel(ch, reason)
         waiting = sum(len(e.samples) for e in self._pending)
         if waiting:
             self._drop("time_jump", f"{waiting} reference samples waiting across a time jump",
@@ -832,13 +909,19 @@ class FilterNode(Node):
         reset = ch.last_t is None
         dt = 0.0 if reset else t - ch.last_t
         if dt > self.p["reset_after_gap_s"]:
-            self.get_logger().warning(
-                f"channel {ch.name}: no update for {dt:.1f} s (> reset_after_gap_s "
-                f"{self.p['reset_after_gap_s']} s): filter restarted from the prior")
-            ch.reset()
-            ch.counters.inc("resets")
+            reason = (f"no update for {dt:.1f} s (> reset_after_gap_s "
+                      f"{self.p['reset_after_gap_s']} s)")
+            self.get_logger().warning(f"channel {ch.name}: {reason}: filter restarted from the "
+                                      "prior")
+            self._reset_channel(ch, reason)
             reset, dt = True, 0.0
         return dt, reset
+
+    @staticmethod
+    def _reset_channel(ch: _Channel, reason: str) -> None:
+        ch.reset()
+        ch.counters.inc("resets")
+        ch.last_reset = (time.monotonic(), reason)
 
     def _count(self, ch: _Channel, t: float, res: Any, now: float) -> None:
         ch.last_t = t
@@ -874,11 +957,12 @@ class FilterNode(Node):
             ch.rows_used = 1
             self._count(ch, t, res, now)
             self.pub_innovation.publish(
-                convert.innovation_bytes(stamp, ch.name, self._row_names, res))
+                convert.innovation_bytes(stamp, ch.name, self._row_names, res,
+                                         frame_id=self._frame))
             x, P = ch.kf.state_lists()
             states.append(convert.filter_state_bytes(
                 stamp, ch.name, self.model.state_names, x, P, z=[z], R=[r], H=self._h_list,
-                dt=dt, fused=res.fused, gated=res.exceeded, reset=reset))
+                dt=dt, fused=res.fused, gated=res.exceeded, reset=reset, frame_id=self._frame))
         for msg in states:
             self.pub_state.publish(msg)
         self.counters.inc("published", len(states))
@@ -913,11 +997,11 @@ class FilterNode(Node):
                 self._reference_event(ch, ev)
             self.pub_innovation.publish(convert.innovation_bytes(
                 stamp, ch.name, out.names, res, row_failed=out.row_failed,
-                row_excluded=out.row_excluded))
+                row_excluded=out.row_excluded, frame_id=self._frame))
             states.append(convert.filter_state_bytes(
                 stamp, ch.name, self.model.state_names, ch.kf.x, ch.kf.P, z=out.z_used,
                 R=out.R_used, H=out.H_used, dt=dt, fused=res.fused, gated=res.exceeded,
-                reset=reset))
+                reset=reset, frame_id=self._frame))
         for msg in states:
             self.pub_state.publish(msg)
         self.counters.inc("published", len(states))
@@ -952,74 +1036,7 @@ class FilterNode(Node):
     def diagnostic_statuses(self) -> list:
         if self.attitude is not None:
             return self.attitude.diagnostic_statuses()
-        name = self.get_name()
-        problems = self.inputs.problems()
-        values = self.inputs.key_values() + self.counters.key_values()
-        values.append(("waiting_reference_samples", str(len(self._pending))))
-        inputs = diag.make_status(
-            f"{name}: inputs", diag.WARN if problems else diag.OK,
-            "; ".join(problems) if problems else "inputs OK", values, hardware_id=name)
-        out = [inputs]
-        now = self._now()
-        for ch in self.channels:
-            res = ch.result
-            vals: list[tuple[str, Any]] = [
-                ("beta2", math.nan if res is None else res.beta2),
-                ("gate_threshold", self.gate.threshold(self.model.m)),
-                ("alarm_state", "never updated" if res is None
-                 else _ALARM_NAMES.get(res.alarm_state, str(res.alarm_state))),
-                ("alarm_since_s", ch.alarm_since),
-                ("last_stamp_s", ch.last_t),
-            ]
-            vals.append(("accuracy_J", ch.kf.accuracy()))
-            if ch.rf is not None:
-                vals.append(("rows_used", ch.rows_used))
-                vals.append(("failed_references", ",".join(
-                    self.refs[i].name for i in ch.rf.monitor.failed_references())))
-            vals += ch.counters.key_values()
-            vals += [(f"x.{nm}", float(v)) for nm, v in zip(self.model.state_names, ch.kf.x)]
-            alarm = ch.kf.alarm_active and ch.last_t is not None
-            since = math.nan if ch.last_step_clock is None else now - ch.last_step_clock
-            if alarm:
-                level, text = diag.ERROR, f"INS fault alarm since t={ch.alarm_since:.3f} s"
-            elif ch.last_step_clock is None:
-                level, text = diag.WARN, "no filter update yet"
-            elif since > self.p["stale_after_s"]:
-                level, text = diag.WARN, f"no filter update for {since:.1f} s"
-            else:
-                level, text = diag.OK, "filtering"
-            out.append(diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
-                                        hardware_id=ch.name))
-        if self.redundant:
-            out += [self._reference_status(name, ref) for ref in self.refs]
-        return out
-
-    def _reference_status(self, name: str, ref: _Reference):
-        """Per reference: failed / excluded on each channel, time since the failure (stamp
-        time, at the channel's last update), failures, readmissions, last row beta2."""
-        vals: list[tuple[str, Any]] = []
-        failed_on = []
-        handled = self.ref_config.mode != "nominal"
-        for ch in self.channels:
-            h = ch.rf.monitor.refs[ref.index]
-            since = None
-            if h.failed and ch.last_t is not None:
-                since = ch.last_t - h.failed_since
-                failed_on.append(f"{ch.name} since t={h.failed_since:.3f} s")
-            vals += [(f"{ch.name}.failed", h.failed), (f"{ch.name}.excluded", h.failed and handled),
-                     (f"{ch.name}.time_since_failure_s", since),
-                     (f"{ch.name}.failures", h.failures),
-                     (f"{ch.name}.readmissions", h.readmissions),
-                     (f"{ch.name}.row_beta2", h.last_beta2)]
-        vals += ref.counters.key_values()
-        if failed_on:
-            what = {"exclude": "excluded", "known_anomaly": "inflated",
-                    "nominal": "still fused"}[self.ref_config.mode]
-            level, text = diag.WARN, f"failed on channel {', '.join(failed_on)} ({what})"
-        else:
-            level, text = diag.OK, "healthy"
-        return diag.make_status(f"{name}: reference {ref.name}", level, text, vals,
-                                hardware_id=ref.name)
+        return filter_diag.statuses(self)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -410,10 +410,56 @@ def test_time_jump_backwards_resets_the_filter(ros):
     assert len(s) == 30 and s[0].reset and s[0].dt == 0.0 and not any(m.reset for m in s[1:])
     assert _stamps(s)[0] == pytest.approx(T0 - 500.0 + REF_OFFSET)
     assert rig.node.counters["time_jump_resets"] == 1
-    ros.spin_until(lambda: any(m.level == 30 and "time jumped back" in m.msg for m in rig.logs),
+    assert rig.node.counters.total() == 0  # the samples held until the jump was confirmed: used
+    ros.spin_until(lambda: any(m.level == 30 and "time jumped from" in m.msg for m in rig.logs),
                    what="a WARN log about the time jump")
-    v = _values(rig.next_diagnostics()["filter_node: inputs"])
-    assert v["time_jump_resets"] == "1"
+    st = rig.next_diagnostics()
+    assert _values(st["filter_node: inputs"])["time_jump_resets"] == "1"
+    ch = st["filter_node: channel x"]
+    assert ch.level == diag.WARN and "filter reset" in ch.message
+    assert "reference time jumped from 1002.904 s to 500.004 s" in ch.message
+    assert "reference time jumped" in _values(ch)["last_reset"]
+
+
+def _with_wild(evs, wild):
+    """``evs`` with the (kind, payload) events of ``wild`` inserted after the first half."""
+    k = len(evs) // 2
+    return evs[:k] + wild + evs[k:]
+
+
+@pytest.mark.parametrize("stamp", [0.0, T0 + 1e6])
+def test_a_single_wild_reference_stamp_is_an_outlier_not_a_reset(ros, stamp):
+    rig = Rig(ros, input_qos="reliable", channels=["x"])
+    t_ins, v_ins, t_ref, v_ref, var_ref = data = flight(4.0, seed=17)
+    rig.feed(_with_wild(events(*data), [("ref", (stamp, v_ref[0], var_ref[0]))]))
+    assert len(rig.states) == t_ref.size and not any(m.reset for m in rig.states[1:])
+    c = rig.node.counters
+    assert c["dropped_reference_stamp_outlier"] == 1 and c["time_jump_resets"] == 0
+    assert c.total() == 1 and rig.node.channels[0].counters["resets"] == 0
+    st = rig.next_diagnostics()
+    assert _values(st["filter_node: inputs"])["dropped_reference_stamp_outlier"] == "1"
+    assert st["filter_node: channel x"].level == diag.OK
+
+
+def test_a_burst_of_wild_stamps_on_both_inputs_is_outliers(ros):
+    rig = Rig(ros, input_qos="reliable", channels=["x"])
+    t_ins, v_ins, t_ref, v_ref, var_ref = data = flight(4.0, seed=18)
+    wild = [("ins", (0.0, v_ins[0])), ("ref", (0.0, v_ref[0], var_ref[0])),
+            ("ref", (0.0, v_ref[0], var_ref[0])), ("ins", (0.02, v_ins[1])),
+            ("ref", (0.1, v_ref[1], var_ref[1]))]  # 2 samples of a new line: < confirm (3)
+    rig.feed(_with_wild(events(*data), wild))
+    c = rig.node.counters
+    assert c["dropped_ins_stamp_outlier"] == 2 and c["dropped_reference_stamp_outlier"] == 3
+    assert c["time_jump_resets"] == 0 and c.total() == 5
+    assert len(rig.states) == t_ref.size and not any(m.reset for m in rig.states[1:])
+
+
+def test_time_jump_confirm_1_resets_at_the_first_wild_stamp(ros):
+    rig = Rig(ros, input_qos="reliable", channels=["x"], time_jump_confirm=1)
+    t_ins, v_ins, t_ref, v_ref, var_ref = data = flight(4.0, seed=17)
+    rig.feed(_with_wild(events(*data), [("ref", (0.0, v_ref[0], var_ref[0]))]))
+    assert rig.node.counters["time_jump_resets"] == 2  # to 0 and back
+    assert rig.node.channels[0].counters["resets"] == 2
 
 
 def test_topic_that_never_arrives_is_reported(ros):
