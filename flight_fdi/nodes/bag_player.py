@@ -77,8 +77,10 @@ PLAYER_PARAMS = (
               max=10000.0, min_exclusive=True),
     ParamSpec("fast", "bool", False, "play as fast as possible without losing messages"),
     ParamSpec("ack_topic", "string", "",
-              "fast mode: topic whose header stamps acknowledge consumed input (e.g. fdi/state);"
-              " empty = one message per executor cycle (loss-free only in one process)"),
+              "fast mode: topic whose header stamps acknowledge consumed input: fdi/state (the "
+              "filter took the input), or /recorder_node/recorded (std_msgs/Header: the "
+              "recorder has recorded the filter's output); empty = one message per executor "
+              "cycle (loss-free only in one process)"),
     ParamSpec("ack_window", "int", 20,
               "fast mode: most unacknowledged messages in flight (must cover the consumer's "
               "look-ahead, e.g. two reference periods of input)", "messages", min=2, max=100000),
@@ -266,11 +268,10 @@ class BagPlayer(Node):
         self.ack_topic = ""
         if p["ack_topic"]:
             self.ack_topic = self.resolve_topic_name(p["ack_topic"])
+            # a project topic, else a std_msgs/Header topic such as recorder_node's ~/recorded
             msgtype = KNOWN_TYPES.get(self.ack_topic.lstrip("/"),
-                                      KNOWN_TYPES.get(p["ack_topic"].lstrip("/")))
-            if msgtype is None:
-                fail("ack_topic", p["ack_topic"],
-                     f"one of the project's stamped topics ({', '.join(KNOWN_TYPES)})")
+                                      KNOWN_TYPES.get(p["ack_topic"].lstrip("/"),
+                                                      "std_msgs/msg/Header"))
             ack_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                                  reliability=ReliabilityPolicy.RELIABLE)
             self._ack_sub = self.create_subscription(rclpy_message_class(msgtype),

@@ -98,8 +98,14 @@ RECORDER_PARAMS = (
     ParamSpec("flush_interval", "double", 1.0,
               "write buffered messages to disk this often (at most this much is lost on a kill)",
               unit="s", min=0.01, max=60.0),
-    ParamSpec("queue_depth", "int", 1000, "subscription queue depth (keep last)", min=1,
-              max=100000),
+    ParamSpec("queue_depth", "int", 0,
+              "subscription history: 0 = keep all (reliable publishers keep what the recorder "
+              "has not taken yet: nothing is lost while it is behind), N = keep the last N",
+              "messages", min=0, max=100000),
+    ParamSpec("ack_topic", "string", "fdi/state",
+              "after recording a message of this topic, publish its header (std_msgs/Header) on "
+              "~/recorded, so that a fast bag_player can pace on what is recorded "
+              "(-p ack_topic:=/recorder_node/recorded); empty = publish nothing"),
     ParamSpec("overwrite", "bool", False, "replace an existing bag at 'output'"),
 )
 
@@ -609,6 +615,16 @@ def offered_qos(profile: Any) -> dict:
                     avoid_ros_namespace_conventions=profile.avoid_ros_namespace_conventions)
 
 
+def header_bytes(data: bytes) -> bytes | None:
+    """The std_msgs/Header (CDR) a serialized stamped message starts with: the encapsulation,
+    stamp and frame_id are the first fields of both (None when ``data`` is too short)."""
+    if len(data) < 16:
+        return None
+    fmt = "<I" if data[1] & 1 else ">I"
+    end = 16 + struct.unpack_from(fmt, data, 12)[0]
+    return bytes(data[:end]) if end <= len(data) else None
+
+
 def default_output_name(now: _dt.datetime | None = None) -> str:
     return (now or _dt.datetime.now()).strftime("fdi_%Y_%m_%d-%H_%M_%S")
 
@@ -676,6 +692,18 @@ class RecorderNode(Node):
         self._discovery = None
         if len(self._subs) < len(self._wanted):
             self._discovery = self.create_timer(0.2, self._discover, clock=self._steady)
+        self._ack_source = self._ack_pub = None
+        if p["ack_topic"]:
+            from std_msgs.msg import Header
+
+            try:
+                self._ack_source = self.resolve_topic_name(p["ack_topic"])
+            except Exception as exc:
+                fail("ack_topic", p["ack_topic"], f"a valid ROS topic name ({exc})")
+            if self._ack_source not in self._wanted:
+                fail("ack_topic", p["ack_topic"], f"one of the recorded topics "
+                     f"({', '.join(p['topics'])})")
+            self._ack_pub = self.create_publisher(Header, "~/recorded", 100)
         self._flush_timer = self.create_timer(p["flush_interval"], self.flush, clock=self._steady)
         self._diag = DiagnosticsTimer(self, 1.0, self._statuses)
         self.get_logger().info(
@@ -690,8 +718,10 @@ class RecorderNode(Node):
         pubs = self.get_publishers_info_by_topic(topic)
         best_effort = bool(pubs) and all(
             i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in pubs)
+        depth = self.params["queue_depth"]
         return QoSProfile(
-            history=HistoryPolicy.KEEP_LAST, depth=self.params["queue_depth"],
+            history=HistoryPolicy.KEEP_LAST if depth else HistoryPolicy.KEEP_ALL,
+            depth=depth or 1,
             reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else
             ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL if topic in self._latched else
@@ -740,7 +770,12 @@ class RecorderNode(Node):
             self.bag.write(topic, self._clock_reader.now_ns(), data)
         except BagError as exc:
             self._fail(str(exc))
+            return
         self.last_receive = self._steady_reader.now_s()
+        if topic == self._ack_source:
+            header = header_bytes(data)
+            if header is not None:
+                self._ack_pub.publish(header)
 
     def _fail(self, message: str) -> None:
         if not self.error:
