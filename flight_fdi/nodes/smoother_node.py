@@ -21,7 +21,10 @@ A missing or corrupt bag never crashes the node: it logs the error, publishes (a
 
 A recording where the filter was reset (``FilterState.reset`` after the first sample: time jump,
 long gap) holds several independent segments; the longest is analysed and the others are named in
-the log and counted in ``problems``.
+the log and counted in ``problems``. States missing from a recording (a recorder that lost
+messages: the stamp spacing exceeds the recorded dt) are bridged by prediction over the gap, as
+the filter does over a reference dropout; the result reports them in ``recording.gaps``
+({after_s, before_s, missing_states}, times relative to the flight start) and the log warns.
 """
 from __future__ import annotations
 
@@ -110,6 +113,7 @@ class Recording:
     first_stamp_s: float        # first recorded filter state of the channel (all segments)
     closed_cleanly: bool | None  # recorder's metadata flag (None: not a recorder_node bag)
     problems: dict[str, int] = field(default_factory=dict)
+    gaps: list = field(default_factory=list)  # states missing from the recording: _bridge_gaps
 
 
 def _mat(values: Any, rows: int, cols: int, what: str) -> np.ndarray:
@@ -256,13 +260,7 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
                        for s in seg], dtype=np.int64)
     dt = np.array([float(s.dt) for s in seg])
     dt[0] = 0.0  # the first step of a segment is an update on the prior
-    # the recorded dt must match the stamps (it is what the filter used)
-    gaps = np.diff(stamps) * 1e-9
-    if N > 1 and not np.allclose(dt[1:], gaps, rtol=1e-6, atol=1e-6):
-        k = int(np.argmax(~np.isclose(dt[1:], gaps, rtol=1e-6, atol=1e-6))) + 1
-        raise BagError(f"bag '{p}': FilterState #{k} of channel {channel!r} has dt "
-                       f"{dt[k]:.6g} s but its stamp is {gaps[k - 1]:.6g} s after the previous one "
-                       "(states missing from the recording?)")
+    dt, gaps = _bridge_gaps(dt, np.diff(stamps) * 1e-9, t, f"bag '{p}': channel {channel!r}")
     pdim = model.B.shape[1] if model.B is not None else 0
     u = None
     if pdim:
@@ -280,7 +278,34 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
         P=np.array([np.asarray(s.p, dtype=float) for s in seg]).reshape(N, n, n),
         fused=np.array([bool(s.fused) and len(s.z) > 0 for s in seg]),
         gated=np.array([bool(s.gated) for s in seg]),
-        first_stamp_s=first_stamp, closed_cleanly=_closed_cleanly(p), problems=problems)
+        first_stamp_s=first_stamp, closed_cleanly=_closed_cleanly(p), problems=problems,
+        gaps=gaps)
+
+
+def _bridge_gaps(dt: np.ndarray, spacing: np.ndarray, t: np.ndarray,
+                 where: str) -> tuple[np.ndarray, list[dict]]:
+    """States missing from a recording (a recorder that lost messages): the recorded dt of the
+    state after them is one filter step, but its stamp is further from the previous recorded
+    state. The analysis predicts across the gap, as the filter does over a reference dropout
+    (dt = the stamp spacing); each gap is reported as {"after_s", "before_s", "missing_states"}.
+    A stamp spacing SHORTER than the recorded dt cannot come from missing states: BagError."""
+    if dt.size < 2:
+        return dt, []
+    ok = np.isclose(dt[1:], spacing, rtol=1e-6, atol=1e-6)
+    short = ~ok & (spacing < dt[1:])
+    if short.any():
+        k = int(np.argmax(short)) + 1
+        raise BagError(f"{where}: FilterState #{k} has dt {dt[k]:.6g} s but its stamp is only "
+                       f"{spacing[k - 1]:.6g} s after the previous one")
+    gaps = []
+    for k in np.flatnonzero(~ok) + 1:
+        step = dt[k]
+        missing = int(round(spacing[k - 1] / step)) - 1 if step > 0 else -1
+        gaps.append({"after_s": float(t[k - 1]), "before_s": float(t[k]),
+                     "missing_states": max(missing, 0) if step > 0 else None})
+    out = dt.copy()
+    out[1:][~ok] = spacing[~ok]
+    return out, gaps
 
 
 # --------------------------------------------------------------------------- the analysis
@@ -318,7 +343,11 @@ def analyze_recording(rec: Recording, config: Any = None, flight_start_s: float 
     t0 = rec.first_stamp_s if not flight_start_s else float(flight_start_s)
     analysis = analyze_forward(rec.model, fwd, config, bag=bag_label or rec.path,
                                channel=rec.channel, t0=t0)
-    return SmootherRun(result=analysis.summary, recording=rec, analysis=analysis)
+    result = dict(analysis.summary)
+    # states missing from the recording, bridged by prediction (times relative to t0)
+    result["recording"] = {"gaps": [dict(g, after_s=g["after_s"] - t0,
+                                         before_s=g["before_s"] - t0) for g in rec.gaps]}
+    return SmootherRun(result=result, recording=rec, analysis=analysis)
 
 
 def decorrelated_residual(model: Any, a: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -468,6 +497,12 @@ class SmootherNode(Node):
                 self.get_logger().warning(
                     f"the filter was reset during the recording: {rec.problems['segments']} "
                     f"segments; the longest ({len(rec.t)} steps) was analysed")
+            if rec.gaps:
+                missing = sum(g["missing_states"] or 0 for g in rec.gaps)
+                self.get_logger().warning(
+                    f"{len(rec.gaps)} gap(s) in the recording ({missing} states missing, first "
+                    f"after t={rec.gaps[0]['after_s']:.3f} s): analysed across them by "
+                    "prediction (result: recording.gaps)")
             if rec.closed_cleanly is False:
                 self.get_logger().warning(f"bag {bag} was not closed cleanly (recorder killed?): "
                                           "its last second may be missing")

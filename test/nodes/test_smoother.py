@@ -42,7 +42,7 @@ def flight(tmp_path_factory):
 
 
 def write_recording(path: Path, model, fwd, channel: str = "x", resets: tuple = (),
-                    with_model: bool = True) -> None:
+                    with_model: bool = True, skip: tuple = ()) -> None:
     """A recorder_node-like bag: fdi/model once, one fdi/state per forward step (serialized by
     rosbags, as they travel on the wire)."""
     from flight_fdi.bagio import get_typestore, open_writer
@@ -76,6 +76,8 @@ def write_recording(path: Path, model, fwd, channel: str = "x", resets: tuple = 
             bag.add_topic("/fdi/model", "flight_fdi_msgs/msg/ModelInfo", qos="transient_local")
             bag.write("/fdi/model", "flight_fdi_msgs/msg/ModelInfo", info, int(fwd.t[0] * 1e9))
         for k in range(len(fwd.t)):
+            if k in skip:  # lost by the recorder
+                continue
             reset = k == 0 or k in resets
             msg = T["flight_fdi_msgs/msg/FilterState"](
                 header=header(fwd.t[k]), channel=channel, state_names=list(model.state_names),
@@ -217,6 +219,47 @@ def test_reset_segments_use_the_longest(ros, flight, tmp_path):
     rec = read_recording(tmp_path / "rec", "x")
     assert rec.problems["segments"] == 2 and len(rec.t) == len(a.fwd.t) - 200
     assert rec.t[0] == pytest.approx(a.fwd.t[200]) and rec.dt[0] == 0.0
+
+
+def test_missing_states_are_bridged_by_prediction_and_reported(ros, flight, tmp_path):
+    """A recording that lost states (a recorder behind its publisher, before KEEP_ALL): the
+    smoother predicts across each gap, as the filter does over a reference dropout, and reports
+    the gaps instead of refusing the flight."""
+    from flight_fdi.core.kalman import ForwardResult
+    from flight_fdi.nodes.smoother_node import SmootherNode, read_recording
+
+    a, f = flight["analysis"], flight["flight"]
+    skip = (400, 401, 1000)
+    write_recording(tmp_path / "rec", flight["model"], a.fwd, skip=skip)
+    rec = read_recording(tmp_path / "rec", "x")
+    keep = np.array([k for k in range(len(a.fwd.t)) if k not in skip])
+    assert len(rec.t) == keep.size and rec.problems["segments"] == 1
+    # the step after a gap predicts over the whole gap: dt = the stamp spacing
+    np.testing.assert_allclose(rec.dt[1:], np.diff(a.fwd.t[keep]), atol=1e-6)
+    assert [(g["after_s"], g["before_s"], g["missing_states"]) for g in rec.gaps] == [
+        (pytest.approx(a.fwd.t[399]), pytest.approx(a.fwd.t[402]), 2),
+        (pytest.approx(a.fwd.t[999]), pytest.approx(a.fwd.t[1001]), 1)]
+    # the rebuilt prior after the gap is Phi(gap) x(before the gap), the filter's own dropout rule
+    fwd = ForwardResult.from_record(rec.model, rec.t, rec.dt, rec.z, rec.R, rec.H, rec.fused,
+                                    None, rec.x, rec.P)
+    from scipy.linalg import expm
+
+    k = 400  # index in the recording of the first state after the first gap
+    Phi = expm(rec.model.A * (a.fwd.t[402] - a.fwd.t[399]))
+    np.testing.assert_allclose(fwd.x_prior[k], Phi @ rec.x[k - 1], rtol=1e-9,
+                               atol=1e-12 * np.abs(rec.x).max())
+
+    node = ros.node(SmootherNode, {"bag": str(tmp_path / "rec"), "flight_start_s": f.t0,
+                                   "publish_smoothed": False})
+    ros.spin_until(node.done, timeout=30)
+    res = node.last.result
+    assert not node.last.error and res["post_flight"]["verdict"] == "failure"
+    post = res["post_flight"]
+    assert post["glr"]["hypothesis"] == "accel_bias_step" and post["element"] == "accel_bias"
+    assert post["onset_s"] == pytest.approx(75.0, abs=2.0)
+    gaps = res["recording"]["gaps"]
+    assert [g["missing_states"] for g in gaps] == [2, 1]
+    assert gaps[0]["after_s"] == pytest.approx(a.fwd.t[399] - f.t0, abs=1e-6)
 
 
 # ------------------------------------------------------------------------------ bad input
