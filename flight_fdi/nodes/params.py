@@ -235,10 +235,27 @@ def declare_parameters(node: Any, specs: Sequence[ParamSpec],
         values[spec.name] = value
     if validator is not None:
         validator(dict(values))
+    warn_unknown(node)
 
     if any(not s.read_only for s in table.values()):
         _install_runtime_checks(node, table, values, validator, on_change)
     return values
+
+
+def warn_unknown(node: Any) -> list[str]:
+    """Warn about parameter overrides (command line, params file, ``parameter_overrides``) that
+    name no declared parameter -- a misspelt name would otherwise be ignored without a word.
+    Returns the unknown names."""
+    import difflib
+
+    overrides = getattr(node, "_parameter_overrides", None) or {}
+    unknown = sorted(n for n in overrides if not node.has_parameter(n))
+    declared = list(getattr(node, "_parameters", {}))
+    for name in unknown:
+        close = difflib.get_close_matches(name, declared, n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        node.get_logger().warning(f"unknown parameter '{name}' ignored{hint}")
+    return unknown
 
 
 def _install_runtime_checks(node, table, values, validator, on_change) -> None:
@@ -326,18 +343,28 @@ def render_yaml(node_name: str, specs: Sequence[ParamSpec], header: str = "") ->
     return "\n".join(lines) + "\n"
 
 
+def find_table(mod: Any) -> tuple:
+    """The one ``*_PARAMS`` table of ParamSpec of a node module (ValueError when not exactly
+    one)."""
+    tables = [v for k, v in vars(mod).items() if k.endswith("_PARAMS") and isinstance(v, tuple)
+              and v and all(isinstance(s, ParamSpec) for s in v)]
+    if len(tables) != 1:
+        raise ValueError(f"{mod.__name__}: expected one *_PARAMS table of ParamSpec, "
+                         f"found {len(tables)}")
+    return tables[0]
+
+
 def render_module(module_name: str) -> str:
     """The params file of a node module (its NODE_NAME, its one ``*_PARAMS`` table and, when it
     has one, its ``PARAMS_FILE_HEADER`` comment)."""
     import importlib
 
     mod = importlib.import_module(module_name)
-    tables = [v for k, v in vars(mod).items() if k.endswith("_PARAMS") and isinstance(v, tuple)
-              and v and all(isinstance(s, ParamSpec) for s in v)]
-    if len(tables) != 1:
-        raise SystemExit(f"{module_name}: expected one *_PARAMS table of ParamSpec, "
-                         f"found {len(tables)}")
-    return render_yaml(mod.NODE_NAME, tables[0], header=getattr(mod, "PARAMS_FILE_HEADER", ""))
+    try:
+        table = find_table(mod)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
+    return render_yaml(mod.NODE_NAME, table, header=getattr(mod, "PARAMS_FILE_HEADER", ""))
 
 
 if __name__ == "__main__":  # python -m flight_fdi.nodes.params flight_fdi.nodes.filter_node

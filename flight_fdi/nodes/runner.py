@@ -17,8 +17,10 @@ normally; a second SIGINT / SIGTERM gets the default action.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
+import textwrap
 import threading
 from typing import Any, Callable
 
@@ -50,12 +52,45 @@ def make_executor(kind: str, context: Any = None) -> Any:
 def executor_option(argv: list[str], prog: str, default: str = "single") -> str:
     """The ``--executor`` value among the non-ROS arguments of ``argv`` (argv[0]: program),
     ``default`` when it is not given."""
+    return _options(argv, prog, default).executor
+
+
+def _options(argv: list[str], prog: str, default: str) -> argparse.Namespace:
     from rclpy.utilities import remove_ros_args
 
     parser = argparse.ArgumentParser(prog=prog, add_help=False)
     parser.add_argument("--executor", choices=EXECUTORS, default=default)
+    parser.add_argument("-h", "--help", action="store_true")
     known, _ = parser.parse_known_args(remove_ros_args(args=argv)[1:])
-    return known.executor
+    return known
+
+
+def node_table(factory: Callable[[], Any]) -> tuple:
+    """The ``*_PARAMS`` table of the module that defines ``factory`` (empty when none)."""
+    from .params import find_table
+
+    try:
+        return find_table(sys.modules[factory.__module__])
+    except (KeyError, AttributeError, ValueError):
+        return ()
+
+
+def help_text(name: str, specs: tuple, default_executor: str) -> str:
+    """``<node> --help``: usage and every parameter of the table (type, default, allowed
+    values, meaning), as documented in config/<node>.yaml."""
+    from .params import format_yaml_value
+
+    lines = [f"usage: ros2 run flight_fdi {name} [--executor {{single,events}}] "
+             f"[--ros-args -p NAME:=VALUE ... --params-file FILE ...]", "",
+             f"  --executor   rclpy executor (default: {default_executor})",
+             "  -h, --help   print this help and exit", "", "parameters:"]
+    for s in specs:
+        unit = f" [{s.unit}]" if s.unit else ""
+        lines.append(f"  {s.name} ({s.type}, default {format_yaml_value(s.default)}){unit}")
+        lines += ["      " + ln for ln in textwrap.wrap(
+            f"{s.description}. Allowed: {s.allowed()}." +
+            ("" if s.read_only else " Can be changed at run time."), width=88)]
+    return "\n".join(lines) + "\n"
 
 
 class StopSignals:
@@ -109,9 +144,21 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
     is destroyed (a recorder completes its bag), the context shut down, and the return code is
     ``exit_status(node)`` (0 when no node was built).
     """
-    argv = list(sys.argv if args is None else args)
-    kind = executor_option(argv, name, default_executor)
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    from .param_args import normalize_ros_args
+
+    specs = node_table(factory)
+    # parameter values typed by the node's table (y is a string to a channel parameter ...)
+    argv, temps = normalize_ros_args(list(sys.argv if args is None else args), specs)
+    try:
+        opts = _options(argv, name, default_executor)
+        if opts.help:
+            sys.stdout.write(help_text(name, specs, default_executor))
+            return 0
+        kind = opts.executor
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    finally:  # rcl has read the params files
+        for path in temps:
+            os.unlink(path)
     node = executor = None
     with StopSignals() as signals:
         try:
