@@ -684,13 +684,13 @@ class AttitudeMode:
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_statuses(self) -> list:
         name = self.node.get_name()
-        problems = self.inputs.problems()
+        problems = self.inputs.problems(self.node.diagnostics.clock_stalled_s())
         values = self.inputs.key_values() + self.counters.key_values()
         values += [("waiting_samples", str(len(self._pending))),
                    ("buffered_commands", str(len(self._controls)))]
         out = [diag.make_status(f"{name}: inputs", diag.WARN if problems else diag.OK,
                                 "; ".join(problems) if problems else "inputs OK", values,
-                                hardware_id=name)]
+                                hardware_id=self.angle_name)]
         now = self.node._now()
         for ch in self.channels:
             out.append(self._channel_status(name, ch, now))
@@ -711,7 +711,8 @@ class AttitudeMode:
             ("accuracy_J", ch.kf.accuracy()),
         ]
         vals += ch.counters.key_values()
-        vals += [(f"x.{nm}", float(v)) for nm, v in zip(self.model.state_names, ch.kf.x)]
+        vals += [(f"{ch.name}.{nm}", float(v))
+                 for nm, v in zip(self.model.state_names, ch.kf.x)]
         since = math.nan if ch.last_step_clock is None else now - ch.last_step_clock
         if ch.kf.alarm_active and ch.last_t is not None:
             level, text = diag.WARN, (f"innovation alarm since t={ch.alarm_since:.3f} s (the "
@@ -723,7 +724,7 @@ class AttitudeMode:
         else:
             level, text = diag.OK, "filtering"
         return diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
-                                hardware_id=ch.name)
+                                hardware_id=f"{self.angle_name} {ch.name}")
 
     def _actuator_status(self, name: str, ch: _AxisChannel):
         c = self.config
@@ -750,4 +751,4 @@ class AttitudeMode:
             level, text = diag.OK, (f"no actuator fault (last window mean {w.mean:.3g} "
                                     f"rad/s^2{note})")
         return diag.make_status(f"{name}: actuator {ch.name}", level, text, vals,
-                                hardware_id=ch.name)
+                                hardware_id=f"actuator {ch.name}")

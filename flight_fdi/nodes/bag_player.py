@@ -475,7 +475,9 @@ class BagPlayer(Node):
             level = d.WARN if self.ack_timeouts else d.OK
             msg = "playing" + (f" ({self.ack_timeouts} ack timeouts)" if self.ack_timeouts
                                else "")
-        return [d.make_status(f"{self.get_name()}: replay", level, msg, values)]
+        # hardware_id: the bag (the replayed "sensor")
+        return [d.make_status(f"{self.get_name()}: replay", level, msg, values,
+                              hardware_id=f"bag {self.source.path}")]
 
     def destroy_node(self) -> None:
         if hasattr(self, "source"):

@@ -27,7 +27,8 @@ Inputs
     TwistWithCovarianceStamped or nav_msgs/Odometry (twist in child_frame_id, rotated into
     header.frame_id by the pose orientation; ``odometry_twist_frame``).
     ``reference_topics``: several redundant references instead (see "Redundant references").
-    QoS ``input_qos``: ``sensor_data`` (best effort, default) or ``reliable``.
+    QoS ``input_qos``: ``auto`` (default: reliable unless a publisher is best effort),
+    ``reliable`` or ``sensor_data`` (best effort); ``input_queue_depth`` (nodes/qos.py).
 
 Outputs (one message per channel and reference sample, header stamp = the reference stamp)
     ``fdi/innovation`` (flight_fdi_msgs/Innovation), ``fdi/state`` (flight_fdi_msgs/FilterState),
@@ -148,6 +149,7 @@ from ..core.references import ReferenceConfig, RedundantFilter
 from ..core.timeline import ACCEPT, DUPLICATE, HELD, NEW_LINE, OUT_OF_ORDER, OUTLIER, StampLine
 from . import attitude_mode, convert, filter_diag
 from .convert import VELOCITY_TYPES
+from .qos import INPUT_QOS_CHOICES, InputSubscriptions, input_profile, output_qos
 from . import diagnostics as diag
 from .clockutil import ClockReader
 from .errors import ParameterError
@@ -276,11 +278,13 @@ FILTER_PARAMS = (
               "estimate over it is at most the threshold / actuator_k_sigma", "",
               min=0.0, min_exclusive=True),
     # --- both modes
-    ParamSpec("input_qos", "string", "sensor_data",
-              "QoS of the inputs: sensor_data (best effort) or reliable",
-              choices=("sensor_data", "reliable")),
-    ParamSpec("input_queue_depth", "int", 100, "History depth of the input subscriptions",
-              "messages", min=1, max=100000),
+    ParamSpec("input_qos", "string", "auto",
+              "QoS of the inputs: reliable (nothing lost in transport), sensor_data (best "
+              "effort), or auto: reliable unless a publisher of the topic is best effort",
+              choices=INPUT_QOS_CHOICES),
+    ParamSpec("input_queue_depth", "int", 2000,
+              "History depth of the input subscriptions: the backlog a stalled node can catch "
+              "up (4 s of INS at 10x real time)", "messages", min=1, max=100000),
     ParamSpec("max_gap_s", "double", 0.5,
               "Largest gap between the two INS samples around a reference stamp; a reference "
               "sample inside a larger gap is dropped", "s", min=0.0, max=60.0,
@@ -416,22 +420,6 @@ def validate(values: dict[str, Any]) -> None:
     build_model(values)
 
 
-def output_qos() -> QoSProfile:
-    """fdi/innovation and fdi/state: reliable, KEEP_ALL. A KEEP_LAST writer history is the only
-    copy DDS retransmits from: a reader that falls more than ``depth`` samples behind (a recorder
-    process descheduled for tens of ms on a loaded machine, at replay speed) silently loses the
-    overwritten samples. KEEP_ALL keeps every unacknowledged sample (docs/hardening.md)."""
-    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
-                      reliability=ReliabilityPolicy.RELIABLE)
-
-
-def input_qos(kind: str, depth: int) -> QoSProfile:
-    reliability = (ReliabilityPolicy.BEST_EFFORT if kind == "sensor_data"
-                   else ReliabilityPolicy.RELIABLE)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
-                      durability=DurabilityPolicy.VOLATILE)
-
-
 class _Channel:
     """One axis: its filter, the stamp of its last step, its counts and last result.
 
@@ -519,7 +507,7 @@ class FilterNode(Node):
                                    action=p["gate_action"])
         except CoreError as exc:  # the table's checks should make this unreachable
             raise ParameterError(f"invalid gate parameters: {exc}") from None
-        qos = input_qos(p["input_qos"], p["input_queue_depth"])
+        qos = input_profile(p["input_qos"], p["input_queue_depth"])
         if self.model.B is not None:  # a model with a control input: the attitude mode
             self.attitude = attitude_mode.AttitudeMode(self, self.model, self.gate, qos)
             return
@@ -565,7 +553,7 @@ class FilterNode(Node):
         else:
             self.ref_config = None
             self.channels = [_Channel(a, k, self.model, self.gate) for k, a in enumerate(axes)]
-        self._subscribe_inputs(qos)
+        self._subscribe_inputs()
         self._row_names = [self.ref_name]
 
         self._create_outputs(len(self.channels))
@@ -587,7 +575,7 @@ class FilterNode(Node):
             f"filtering channels {', '.join(axes)} with model {self.model.name} "
             f"(gate {self.gate.rule}, alarm {self.gate.alarm_m} of {self.gate.alarm_n}, "
             f"action {self.gate.action}); inputs {self.ins_name}, {refs_text} "
-            f"({p['input_qos']})")
+            f"(input_qos {p['input_qos']}: {self.subs.reliability(self.ins_name)})")
 
     def _create_outputs(self, n_channels: int) -> None:
         """The publishers of both modes: fdi/innovation, fdi/state, fdi/model (latched)."""
@@ -641,7 +629,7 @@ class FilterNode(Node):
                    f"nanosec={nanosec}: after the last time a ROS stamp can hold")
         return True
 
-    def _subscribe_inputs(self, qos: Any) -> None:
+    def _subscribe_inputs(self) -> None:
         """Raw subscriptions of the INS and reference topics in their configured types: the few
         fields used are read from the CDR bytes (convert / wire), ~15 times cheaper than rclpy
         building the message objects (TwistStamped INS: the original fast decoder)."""
@@ -652,13 +640,12 @@ class FilterNode(Node):
         else:
             full = convert.velocity_decoder(p["ins_type"], p["odometry_twist_frame"])
             self._decode_ins = lambda data: full(data)[:3]
-        self.create_subscription(convert.message_class(p["ins_type"]), self.ins_name,
-                                 self._on_ins, qos, raw=True)
+        self.subs = InputSubscriptions(self, p["input_qos"], p["input_queue_depth"])
+        self.subs.subscribe(convert.message_class(p["ins_type"]), self.ins_name, self._on_ins)
         ref_cls = convert.message_class(p["reference_type"])
         for ref in self.refs:
-            self.create_subscription(ref_cls, ref.name,
-                                     lambda data, k=ref.index: self._on_reference(k, data), qos,
-                                     raw=True)
+            self.subs.subscribe(ref_cls, ref.name,
+                                lambda data, k=ref.index: self._on_reference(k, data))
 
     def _malformed(self, what: str, exc: Exception) -> None:
         """A message whose bytes are not its type (only a broken publisher sends that)."""

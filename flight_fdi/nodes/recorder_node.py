@@ -831,7 +831,8 @@ class RecorderNode(Node):
             level = d.WARN if silent else d.OK
             msg = (f"no messages yet on {', '.join(silent)}" if silent else
                    f"recording {self.bag.message_count} messages")
-        return [d.make_status(f"{self.get_name()}: recording", level, msg, values)]
+        return [d.make_status(f"{self.get_name()}: recording", level, msg, values,
+                              hardware_id=f"bag {self.bag.path}")]
 
 
 def main(args: list[str] | None = None) -> int:

@@ -8,9 +8,15 @@ throughput and half the latency, docs/performance.md). The in-flight monitors (f
 voter_node) default to ``events``: with ``single`` the filter's input -> innovation latency misses
 its p99 <= 2 ms target at 10x real time. The other nodes default to ``single``.
 
+``-h`` / ``--help`` prints the node's parameters (its ``*_PARAMS`` table) and exits 0 without
+starting anything. Before ``rclpy.init`` the values of the node's own parameters in ``-p`` and
+``--params-file`` are typed by its table (``param_args``: ``-p channel:=y`` is the string "y",
+the output of ``ros2 param dump`` loads back).
+
 An invalid parameter (``ParameterError`` from the node's constructor), or a node with guard
 conditions on the EventsExecutor (which does not support them: bag_player's fast replay without
-``ack_topic``), is logged as FATAL and the process exits 1 without spinning; an invalid ``--executor`` is an argparse error (exit 2);
+``ack_topic``), is logged as FATAL and the process exits 1 without spinning; an invalid
+``--executor`` is an argparse error (exit 2);
 SIGINT / SIGTERM (at any point after ``rclpy.init``) and an external shutdown end the process
 normally; a second SIGINT / SIGTERM gets the default action.
 """

@@ -564,7 +564,9 @@ class SmootherNode(Node):
             values += [(k, v) for k, v in (run.recording.problems if run.recording else {}).items()]
             level = d.WARN if post["verdict"] in ("failure", "glitch", "ambiguous") else d.OK
             msg = summary_line(run.result)
-        return [d.make_status(f"{self.get_name()}: post-flight analysis", level, msg, values)]
+        return [d.make_status(f"{self.get_name()}: post-flight analysis", level, msg, values,
+                              hardware_id=f"bag {self.params['bag']}" if self.params["bag"]
+                              else self.get_fully_qualified_name())]
 
 
 def _checked_node() -> "SmootherNode":

@@ -153,3 +153,47 @@ def test_a_stalled_recorder_loses_nothing(ros, bag40, tmp_path, ack_topic):
     c = one_replay(ros, probe, bag40, tmp_path, 99, stall_s=1.0, ack_topic=ack_topic)
     assert c["dropped"] == 0 and c["received_ins"] == 2000
     assert c["bag"] == {"/fdi/state": c["published"], "/fdi/innovation": c["published"]}
+
+
+@pytest.mark.slow
+def test_10x_real_time_across_processes_with_default_parameters_loses_no_input(ros, tmp_path):
+    """bag_player at rate 10 (600 messages/s) -> filter_node with its default parameters, two
+    processes; the filter is stopped for 0.5 s in the middle (a loaded machine descheduling it,
+    exaggerated): every input is received and fused, nothing dropped. The old defaults
+    (best effort, depth 100) lost ~150 INS samples in the same run (bench/bench_replay_10x.py)."""
+    from flight_fdi.sim import SimConfig, simulate_to_bag
+
+    bag = tmp_path / "flight30"
+    simulate_to_bag(SimConfig(duration_s=30.0, seed=13), str(bag))
+    probe = DiagnosticsProbe(ros)
+    f = "filter_10x"
+    procs = [start("filter_node", tmp_path, "-r", f"__node:={f}",
+                   "-p", "diagnostics_period_s:=0.25")]
+    try:
+        ros.spin_until(lambda: f"{f}: inputs" in probe.values, timeout=60,
+                       what="the filter starting")
+        player = start("bag_player", tmp_path, "-p", f"bag:={bag}", "-p", "rate:=10.0")
+        procs.append(player)
+        ros.spin_until(lambda: int(probe.get(f"{f}: inputs", "received_ins", "0")) > 0,
+                       timeout=60, what="the replay starting")
+        os.kill(procs[0].pid, signal.SIGSTOP)
+        time.sleep(0.5)  # the stall itself (not a synchronisation)
+        os.kill(procs[0].pid, signal.SIGCONT)
+        ros.spin_until(lambda: player.poll() is not None, timeout=60, what="the replay")
+        assert player.returncode == 0
+        ros.spin_until(lambda: probe.get(f"{f}: inputs", "received_ins") == "1500"
+                       and probe.get(f"{f}: inputs", "received_reference") == "300",
+                       timeout=20, what="every input received")
+        ros.spin_until(lambda: probe.get(f"{f}: inputs", "published") in ("598", "600"),
+                       timeout=10, what="every step published")
+    finally:
+        stop(procs)
+    v = probe.values[f"{f}: inputs"]
+    assert {k: x for k, x in v.items() if k.startswith("dropped_") and x != "0"} == {}
+    assert probe.get(f"{f}: channel x", "fused") == probe.get(f"{f}: channel y", "fused")
+    assert int(probe.get(f"{f}: channel x", "fused")) * 2 == int(v["published"])
+    # the diagnostics name what they are about
+    assert probe.hardware[f"{f}: inputs"] == "/ins/velocity"
+    assert probe.hardware[f"{f}: channel y"] == "/ins/velocity y"
+    assert "y.velocity_error" in probe.values[f"{f}: channel y"]
+    assert probe.hardware["bag_player: replay"]
