@@ -267,7 +267,10 @@ class BagPlayer(Node):
         self._watchdog = None
         self.ack_topic = ""
         if p["ack_topic"]:
-            self.ack_topic = self.resolve_topic_name(p["ack_topic"])
+            try:
+                self.ack_topic = self.resolve_topic_name(p["ack_topic"])
+            except Exception as exc:  # rclpy's InvalidTopicNameException and friends
+                fail("ack_topic", p["ack_topic"], f"a valid ROS topic name ({exc})")
             # a project topic, else a std_msgs/Header topic such as recorder_node's ~/recorded
             msgtype = KNOWN_TYPES.get(self.ack_topic.lstrip("/"),
                                       KNOWN_TYPES.get(p["ack_topic"].lstrip("/"),

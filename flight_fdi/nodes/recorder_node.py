@@ -674,6 +674,18 @@ class RecorderNode(Node):
                 fail("transient_local_topics", p["transient_local_topics"],
                      f"a subset of 'topics' ({', '.join(p['topics'])}); {name} is not recorded")
             self._latched.add(resolved)
+        self._ack_source = self._ack_pub = None
+        if p["ack_topic"]:
+            from std_msgs.msg import Header
+
+            try:
+                self._ack_source = self.resolve_topic_name(p["ack_topic"])
+            except Exception as exc:
+                fail("ack_topic", p["ack_topic"], f"a valid ROS topic name ({exc})")
+            if self._ack_source not in self._wanted:
+                fail("ack_topic", p["ack_topic"], f"one of the recorded topics "
+                     f"({', '.join(p['topics'])})")
+            self._ack_pub = self.create_publisher(Header, "~/recorded", 100)
         output = p["output"] or default_output_name()
         try:
             self.bag = RecordingBag(output, p["storage"], p["compression"], p["overwrite"])
@@ -692,18 +704,6 @@ class RecorderNode(Node):
         self._discovery = None
         if len(self._subs) < len(self._wanted):
             self._discovery = self.create_timer(0.2, self._discover, clock=self._steady)
-        self._ack_source = self._ack_pub = None
-        if p["ack_topic"]:
-            from std_msgs.msg import Header
-
-            try:
-                self._ack_source = self.resolve_topic_name(p["ack_topic"])
-            except Exception as exc:
-                fail("ack_topic", p["ack_topic"], f"a valid ROS topic name ({exc})")
-            if self._ack_source not in self._wanted:
-                fail("ack_topic", p["ack_topic"], f"one of the recorded topics "
-                     f"({', '.join(p['topics'])})")
-            self._ack_pub = self.create_publisher(Header, "~/recorded", 100)
         self._flush_timer = self.create_timer(p["flush_interval"], self.flush, clock=self._steady)
         self._diag = DiagnosticsTimer(self, 1.0, self._statuses)
         self.get_logger().info(

@@ -166,7 +166,8 @@ def test_invalid_parameters_stop_the_node(ros, tmp_path):
 
     cases = [({"storage": "hdf5"}, "'storage'.*mcap, sqlite3"),
              ({"flush_interval": 0.0}, "'flush_interval'"),
-             ({"queue_depth": 0}, "'queue_depth'"),
+             ({"queue_depth": -1}, "'queue_depth'"),
+             ({"ack_topic": "fdi/other"}, "'ack_topic'.*recorded topics"),
              ({"transient_local_topics": ["fdi/other"]}, "'transient_local_topics'.*subset"),
              ({"topics": ["fdi/model", "bad topic!"]}, "'topics'.*valid ROS topic"),
              ({"topics": ["/fdi/state", "fdi/model"], "transient_local_topics": ["/fdi/model"]},
