@@ -30,8 +30,9 @@ def statuses(node: Any) -> list:
     problems = node.inputs.problems(stalled)
     values = node.inputs.key_values() + node.counters.key_values()
     values.append(("waiting_reference_samples", str(len(node._pending))))
-    values.append(("held_stamps", str(node._ins_line.pending
-                                      + sum(r.line.pending for r in node.refs))))
+    # samples held while a jump of their stamps waits for confirmation (time_jump_confirm)
+    values.append(("held_ins_samples", str(node._ins_line.pending)))
+    values.append(("held_reference_samples", str(sum(r.line.pending for r in node.refs))))
     inputs = diag.make_status(
         f"{name}: inputs", diag.WARN if problems else diag.OK,
         "; ".join(problems) if problems else "inputs OK", values, hardware_id=node.ins_name)

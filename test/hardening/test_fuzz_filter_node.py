@@ -33,8 +33,10 @@ INS_TOPIC = "/ins/velocity"
 #: INS message-level drop counters (every other dropped_* of the inputs status is about
 #: reference samples)
 INS_DROPS = ("dropped_ins_invalid_stamp", "dropped_ins_nonfinite", "dropped_ins_duplicate",
-             "dropped_ins_out_of_order", "dropped_ins_core_error")
+             "dropped_ins_out_of_order", "dropped_ins_core_error", "dropped_ins_stamp_outlier")
 TIME_JUMP_RESET_S = 1.0  # the node's default time_jump_reset_s
+TIME_JUMP_CONFIRM = 3    # the node's default time_jump_confirm
+RESET_AFTER_GAP_S = 60.0  # the node's default reset_after_gap_s (the forward jump limit)
 AXES = (0, 1)            # channels x and y (the default)
 
 
@@ -146,12 +148,14 @@ class FilterFuzz:
         n_ref = len(msgs) - len(ins)
         assert int(inputs["received_ins"]) == len(ins)
         assert int(inputs["received_reference"]) == n_ref
-        # INS: received = accepted + counted drops
-        assert len(ins) == accepted_ins(ins) + _ints(inputs, INS_DROPS), inputs
+        # INS: received = accepted + counted drops + held (a stamp jump not confirmed yet)
+        held = int(inputs["held_ins_samples"])
+        assert len(ins) == accepted_ins(ins) + _ints(inputs, INS_DROPS) + held, inputs
         # reference samples: received = message drops + waiting + sample drops + rows stepped
         ref_drops = _ints(inputs, [k for k in inputs if k.startswith("dropped_")
                                    and k not in INS_DROPS])
-        waiting = int(inputs["waiting_reference_samples"])
+        waiting = int(inputs["waiting_reference_samples"]) + \
+            int(inputs["held_reference_samples"])
         for ch in node.p["channels"]:
             cv = values[f"{name}: channel {ch}"]
             rows = sum(len(m.row_names) for m in self.innov if m.channel == ch)
@@ -167,19 +171,21 @@ class FilterFuzz:
 
 def accepted_ins(ins: list[dict]) -> int:
     """INS messages the node must accept (filter_node's module docstring): a stamp a ROS stamp
-    can hold, finite on every configured axis, and a stamp later than the last accepted one --
-    or more than time_jump_reset_s earlier (the INS time line restarts). Stamps as the node
-    reads them (sec + nanosec * 1e-9)."""
-    last, n = None, 0
+    can hold, finite on every configured axis, and on the time line (core ``StampLine``, unit
+    tested on its own in test/core/test_timeline.py: later than the last accepted stamp, or a
+    jump that the next samples confirm). Stamps as the node reads them (sec + nanosec * 1e-9)."""
+    from flight_fdi.core.timeline import ACCEPT, NEW_LINE, StampLine
+
+    line = StampLine(TIME_JUMP_RESET_S, TIME_JUMP_CONFIRM, RESET_AFTER_GAP_S)
+    n = 0
     for m in ins:
         t = m["header.stamp.sec"] + m["header.stamp.nanosec"] * 1e-9
         if round(t * 1e9) >= 2**31 * fz.NS:
             continue
         if not all(math.isfinite(m[f"twist.linear.{'xyz'[a]}"]) for a in AXES):
             continue
-        if last is not None and t <= last and (t == last or last - t <= TIME_JUMP_RESET_S):
-            continue
-        last, n = t, n + 1
+        v = line.check(t, t)
+        n += 1 if v.kind == ACCEPT else len(v.released) if v.kind == NEW_LINE else 0
     return n
 
 
