@@ -143,12 +143,13 @@ from rclpy.validate_topic_name import validate_topic_name
 from ..core.actuator import MEASUREMENTS, ActuatorConfig
 from ..core.align import StreamingAligner
 from ..core.errors import CoreError
-from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig, KalmanFilter
+from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
-from ..core.references import ReferenceConfig, RedundantFilter
+from ..core.references import ReferenceConfig
 from ..core.timeline import ACCEPT, DUPLICATE, HELD, NEW_LINE, OUT_OF_ORDER, OUTLIER, StampLine
 from . import attitude_mode, convert, filter_diag
 from .convert import VELOCITY_TYPES
+from .filter_parts import Channel as _Channel, Epoch as _Epoch, Reference as _Reference
 from .qos import INPUT_QOS_CHOICES, InputSubscriptions, input_profile, output_qos
 from . import diagnostics as diag
 from .clockutil import ClockReader
@@ -418,68 +419,6 @@ def validate(values: dict[str, Any]) -> None:
     elif values["ins_topic"] == values["reference_topic"]:
         fail("reference_topic", values["reference_topic"], "a topic other than ins_topic")
     build_model(values)
-
-
-class _Channel:
-    """One axis: its filter, the stamp of its last step, its counts and last result.
-
-    With redundant references ``rf`` is the core RedundantFilter (its ``kf`` is ``self.kf``);
-    with one reference ``rf`` is None and the plain KalmanFilter steps on its own."""
-
-    def __init__(self, name: str, column: int, model: LinearModel, gate: GateConfig,
-                 ref_names: list[str] | None = None,
-                 ref_config: ReferenceConfig | None = None) -> None:
-        self.name = name
-        self.axis = convert.AXIS_INDEX[name]
-        self.column = column  # index in the INS vector given to the aligner
-        if ref_names is None:
-            self.rf = None
-            self.kf = KalmanFilter(model, gate)
-        else:
-            self.rf = RedundantFilter(model, ref_names, gate, ref_config)
-            self.kf = self.rf.kf
-        self.last_t: float | None = None
-        self.last_step_clock: float | None = None
-        self.counters = diag.Counters(("fused", "gated", "rejected", "covariance_invalid",
-                                       "alarms_raised", "resets"))
-        self.result = None
-        self.rows_used: int | None = None
-        self.alarm_since: float | None = None
-        self.last_reset: tuple[float, str] | None = None  # (wall time, reason) of the last reset
-
-    def reset(self) -> None:
-        if self.rf is None:
-            self.kf.reset()
-        else:
-            self.rf.reset()  # the filter and the health of every reference
-        self.last_t = None
-        self.alarm_since = None
-
-
-class _Reference:
-    """One reference input: its resolved topic name, the stamp of its last sample, its counts."""
-
-    def __init__(self, index: int, name: str) -> None:
-        self.index = index
-        self.name = name
-        self.last_t: float | None = None
-        self.line: StampLine | None = None  # its time line (set by the node)
-        self.counters = diag.Counters(("samples", "missing", "dropped_late"))
-
-
-class _Epoch:
-    """Reference samples waiting to be fused as one update at stamp ``t``:
-    ``samples[reference index] = (stamp, velocity (3,), variance (3,))``."""
-
-    __slots__ = ("t", "samples")
-
-    def __init__(self, t: float) -> None:
-        self.t = t
-        self.samples: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
-
-    @property
-    def latest(self) -> float:
-        return max(s[0] for s in self.samples.values())
 
 
 class FilterNode(Node):
