@@ -717,12 +717,9 @@ class AttitudeMode:
         if ch.kf.alarm_active and ch.last_t is not None:
             level, text = diag.WARN, (f"innovation alarm since t={ch.alarm_since:.3f} s (the "
                                       "measurements disagree with the model)")
-        elif ch.last_step_clock is None:
-            level, text = diag.WARN, "no filter update yet"
-        elif since > self.p["stale_after_s"]:
-            level, text = diag.WARN, f"no filter update for {since:.1f} s"
         else:
-            level, text = diag.OK, "filtering"
+            level, text = diag.update_freshness(None if ch.last_step_clock is None else since,
+                                                self.p["stale_after_s"])
         return diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
                                 hardware_id=f"{self.angle_name} {ch.name}")
 

@@ -10,6 +10,7 @@ API (stable; used by every node)::
     make_status(name, level, message, values: Mapping[str, Any] | Iterable[(k, v)],
                 hardware_id="") -> DiagnosticStatus
     make_array(stamp, statuses) -> DiagnosticArray        stamp: builtin_interfaces/Time
+    update_freshness(since_s, stale_after_s) -> (level, message)   a filter channel's update age
 
     Counters(names=())            named event counts (received, fused, gated, rejected,
         .inc(name, n=1)           dropped_<reason> ...); unknown names start at 0
@@ -92,6 +93,16 @@ def make_status(name: str, level: bytes, message: str,
         level=bytes(level), name=name, message=message, hardware_id=hardware_id,
         values=[KeyValue(key=str(k), value=v if isinstance(v, str) else format_value(v))
                 for k, v in items])
+
+
+def update_freshness(since_s: float | None, stale_after_s: float) -> tuple[bytes, str]:
+    """(level, message) of a filter channel from the time since its last update (None: never):
+    WARN "no filter update yet" / "no filter update for 3.2 s", or OK "filtering"."""
+    if since_s is None:
+        return WARN, "no filter update yet"
+    if since_s > stale_after_s:
+        return WARN, f"no filter update for {since_s:.1f} s"
+    return OK, "filtering"
 
 
 def make_array(stamp, statuses: Iterable[Any]):

@@ -67,12 +67,9 @@ def _channel_status(node: Any, name: str, ch: Any):
         level, text = diag.ERROR, f"INS fault alarm since t={ch.alarm_since:.3f} s"
     elif reset_ago <= node.p["reset_warn_s"]:
         level, text = diag.WARN, f"filter reset {reset_ago:.1f} s ago: {ch.last_reset[1]}"
-    elif ch.last_step_clock is None:
-        level, text = diag.WARN, "no filter update yet"
-    elif since > node.p["stale_after_s"]:
-        level, text = diag.WARN, f"no filter update for {since:.1f} s"
     else:
-        level, text = diag.OK, "filtering"
+        level, text = diag.update_freshness(None if ch.last_step_clock is None else since,
+                                            node.p["stale_after_s"])
     return diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
                             hardware_id=f"{node.ins_name} {ch.name}")
 

@@ -2,7 +2,7 @@
 
 * fast replay, bag_player -> filter_node -> recorder_node, three processes, ten times in a row:
   every message the filter published (its ``published`` diagnostic) is in the bag;
-* the recorder stopped (SIGSTOP) in the middle of a fast replay loses nothing: the fdi/* writers
+* the recorder stopped (SIGSTOP, 0.5 s) in the middle of a fast replay loses nothing: the fdi/* writers
   and the recorder keep every unacknowledged sample (KEEP_ALL); before, a KEEP_LAST writer history
   of 100 lost the samples a reader was more than 100 behind (~0.04 s of fast replay);
 * timed replay at 10x real time with the filter's default parameters: no input lost.
@@ -119,7 +119,8 @@ def one_replay(ros, probe, bag, tmp_path, run: int, stall_s: float = 0.0,
                        timeout=30, what="the filter publishing every step")
         published = int(probe.get(f"{f}: inputs", "published"))
         ros.spin_until(lambda: probe.get(f"{r}: recording", "/fdi/state count") ==
-                       str(published), timeout=20, what="the recorder catching up")
+                       probe.get(f"{r}: recording", "/fdi/innovation count") == str(published),
+                       timeout=20, what="the recorder catching up")
     finally:
         logs = stop(procs)
     assert [p.returncode for p in procs[:2]] == [0, 0], logs
@@ -147,10 +148,12 @@ def test_fast_replay_across_processes_records_every_message_ten_times(ros, bag40
 @pytest.mark.slow
 @pytest.mark.parametrize("ack_topic", ["/fdi/state", "/recorder_99/recorded"])
 def test_a_stalled_recorder_loses_nothing(ros, bag40, tmp_path, ack_topic):
-    """SIGSTOP on the recorder for 1 s in the middle of a fast replay (a loaded machine
-    descheduling it, exaggerated): nothing is lost, whichever acknowledgement paces the player."""
+    """SIGSTOP on the recorder for 0.5 s in the middle of a fast replay (a loaded machine
+    descheduling it, exaggerated; with the old KEEP_LAST 100 writers 0.2 s lost states): nothing
+    is lost, whichever acknowledgement paces the player. (Stops of 1 s and more are beyond Fast
+    DDS's shared-memory port health check, 1 s by default: see docs/design.md.)"""
     probe = DiagnosticsProbe(ros)
-    c = one_replay(ros, probe, bag40, tmp_path, 99, stall_s=1.0, ack_topic=ack_topic)
+    c = one_replay(ros, probe, bag40, tmp_path, 99, stall_s=0.5, ack_topic=ack_topic)
     assert c["dropped"] == 0 and c["received_ins"] == 2000
     assert c["bag"] == {"/fdi/state": c["published"], "/fdi/innovation": c["published"]}
 
