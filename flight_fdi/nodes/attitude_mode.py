@@ -360,7 +360,8 @@ class AttitudeMode:
         self.timer = node.create_timer(self.wait_s / 2.0, self._on_timer)
         stamp = node.get_clock().now().to_msg()
         for ch in self.channels:
-            node.pub_model.publish(convert.model_info_msg(stamp, ch.name, model, gate))
+            node.pub_model.publish(convert.model_info_msg(stamp, ch.name, model, gate,
+                                                          frame_id=self.p["frame_id"]))
         c = self.config
         node.get_logger().info(
             f"attitude mode: channels {', '.join(axes)}, model {model.name} measuring "
@@ -619,10 +620,11 @@ class AttitudeMode:
                 event = None
             ch.window_closed()
             node.pub_innovation.publish(convert.innovation_msg(
-                stamp, ch.name, [self._row_names[k] for k in rows], res))
+                stamp, ch.name, [self._row_names[k] for k in rows], res,
+                frame_id=self.p["frame_id"]))
             states.append(convert.filter_state_msg(
                 stamp, ch.name, self.model.state_names, x, P, z=z, R=R, H=H, u=(u,), dt=dt,
-                fused=res.fused, gated=res.exceeded, reset=reset))
+                fused=res.fused, gated=res.exceeded, reset=reset, frame_id=self.p["frame_id"]))
             if event is not None:
                 self._on_event(ch, event)
         for msg in states:

@@ -206,14 +206,14 @@ def _innovation_fields(channel: str, row_names: Sequence[str], result: Any,
 
 def innovation_msg(stamp, channel: str, row_names: Sequence[str], result: Any,
                    row_failed: Sequence[bool] | None = None,
-                   row_excluded: Sequence[bool] | None = None):
+                   row_excluded: Sequence[bool] | None = None, frame_id: str = ""):
     """flight_fdi_msgs/Innovation from the core's UpdateResult (nu, S, beta2, threshold,
     exceeded, alarm_state); per-row beta^2 = nu_k^2 / S_kk. ``row_failed`` / ``row_excluded``
     (one flag per row, default all false): the references declared failed, and the rows struck
     out or inflated in this update (see filter_node)."""
     from flight_fdi_msgs.msg import Innovation
 
-    return Innovation(header=header(stamp),
+    return Innovation(header=header(stamp, frame_id),
                       **_innovation_fields(channel, row_names, result, row_failed, row_excluded))
 
 
@@ -237,11 +237,12 @@ def _filter_state_fields(channel: str, state_names: Sequence[str], x: Any, P: An
 
 def filter_state_msg(stamp, channel: str, state_names: Sequence[str], x: Any, P: Any,
                      z: Any = (), R: Any = (), H: Any = (), u: Any = (), dt: float = 0.0,
-                     fused: bool = False, gated: bool = False, reset: bool = False):
+                     fused: bool = False, gated: bool = False, reset: bool = False,
+                     frame_id: str = ""):
     """flight_fdi_msgs/FilterState: x(i/i), P(i/i) and the measurement step that produced them."""
     from flight_fdi_msgs.msg import FilterState
 
-    return FilterState(header=header(stamp), **_filter_state_fields(
+    return FilterState(header=header(stamp, frame_id), **_filter_state_fields(
         channel, state_names, x, P, z, R, H, u, dt, fused, gated, reset))
 
 

@@ -32,7 +32,7 @@ def _opt(value: float) -> float | None:
 
 
 def fault_localization_msg(result: Mapping[str, Any], stamp: Any, flight_start_s: float,
-                           end_s: float | None = None):
+                           end_s: float | None = None, frame_id: str = ""):
     """flight_fdi_msgs/FaultLocalization from an analysis result dict.
 
     ``stamp``: header stamp (builtin_interfaces/Time, e.g. the node's clock); ``flight_start_s``:
@@ -49,7 +49,7 @@ def fault_localization_msg(result: Mapping[str, Any], stamp: Any, flight_start_s
         raise ValueError(f"unknown verdict {verdict!r}; expected one of {', '.join(VERDICTS)}")
     elements = seed["elements"]
     return FaultLocalization(
-        header=header(stamp),
+        header=header(stamp, frame_id),
         channel=str(result["channel"]),
         flight_start=s_to_stamp(flight_start_s),
         duration_s=float(result["duration_s"]),
@@ -107,7 +107,7 @@ def _flat(a: Any) -> list[float]:
 def smoothed_state_msgs(stamps_s: Sequence[float], channel: str, state_names: Sequence[str],
                         x_s: np.ndarray, P_s: np.ndarray, v: np.ndarray, v_tilde: np.ndarray,
                         delta_d: np.ndarray, J: np.ndarray, j_terms: np.ndarray, F: np.ndarray,
-                        dof: np.ndarray) -> list:
+                        dof: np.ndarray, frame_id: str = "") -> list:
     """One flight_fdi_msgs/SmoothedState per step (arrays over N steps, n states; NaN / Inf as
     the backward pass produced them)."""
     from flight_fdi_msgs.msg import SmoothedState
@@ -116,7 +116,7 @@ def smoothed_state_msgs(stamps_s: Sequence[float], channel: str, state_names: Se
     out = []
     for i, t in enumerate(stamps_s):
         out.append(SmoothedState(
-            header=header(s_to_stamp(float(t))), channel=channel, state_names=names,
+            header=header(s_to_stamp(float(t)), frame_id), channel=channel, state_names=names,
             x_smoothed=_flat(x_s[i]), p_smoothed=_flat(P_s[i]), v=_flat(v[i]),
             v_tilde=_flat(v_tilde[i]), delta_d=_flat(delta_d[i]), j=float(J[i]),
             j_terms=_flat(j_terms[i]), f=_flat(F[i]), dof=int(dof[i])))

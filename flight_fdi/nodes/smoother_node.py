@@ -114,6 +114,7 @@ class Recording:
     closed_cleanly: bool | None  # recorder's metadata flag (None: not a recorder_node bag)
     problems: dict[str, int] = field(default_factory=dict)
     gaps: list = field(default_factory=list)  # states missing from the recording: _bridge_gaps
+    frame_id: str = ""          # header.frame_id of the recorded states (the navigation frame)
 
 
 def _mat(values: Any, rows: int, cols: int, what: str) -> np.ndarray:
@@ -279,7 +280,7 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
         fused=np.array([bool(s.fused) and len(s.z) > 0 for s in seg]),
         gated=np.array([bool(s.gated) for s in seg]),
         first_stamp_s=first_stamp, closed_cleanly=_closed_cleanly(p), problems=problems,
-        gaps=gaps)
+        gaps=gaps, frame_id=str(seg[0].header.frame_id))
 
 
 def _bridge_gaps(dt: np.ndarray, spacing: np.ndarray, t: np.ndarray,
@@ -530,7 +531,8 @@ class SmootherNode(Node):
         rec = run.recording
         start = (self.params["flight_start_s"] or (rec.first_stamp_s if rec else 0.0))
         end = None if run.analysis is None else run.analysis.end_s
-        self.pub_result.publish(fault_localization_msg(res, stamp, start, end))
+        frame = rec.frame_id if rec else ""  # the filter's frame, as recorded
+        self.pub_result.publish(fault_localization_msg(res, stamp, start, end, frame_id=frame))
         if self.pub_smoothed is None or run.analysis is None:
             return
         a = run.analysis
@@ -538,7 +540,7 @@ class SmootherNode(Node):
         v_tilde, delta_d = decorrelated_residual(rec.model, a)
         for msg in smoothed_state_msgs(rec.t, rec.channel, rec.model.state_names, bwd.x_s,
                                        bwd.P_s, bwd.v, v_tilde, delta_d, bwd.J, seed.terms,
-                                       seed.F, bwd.dof):
+                                       seed.F, bwd.dof, frame_id=frame):
             self.pub_smoothed.publish(msg)
 
     def _on_analyze(self, request: Any, response: Any) -> Any:

@@ -191,6 +191,7 @@ def test_nominal_flight(ros):
         assert len(inn) == len(st) == N
         np.testing.assert_array_equal(_stamps(inn), t_ref)   # header stamp = reference stamp
         np.testing.assert_array_equal(_stamps(st), t_ref)
+        assert {m.header.frame_id for m in inn + st} == {"nav"}  # the frame_id parameter
         for m in inn:
             assert len(m.innovation) == 1 and len(m.innovation_covariance) == 1
             assert list(m.row_names) == ["/reference/velocity"]

@@ -42,7 +42,7 @@ def flight(tmp_path_factory):
 
 
 def write_recording(path: Path, model, fwd, channel: str = "x", resets: tuple = (),
-                    with_model: bool = True, skip: tuple = ()) -> None:
+                    with_model: bool = True, skip: tuple = (), frame_id: str = "") -> None:
     """A recorder_node-like bag: fdi/model once, one fdi/state per forward step (serialized by
     rosbags, as they travel on the wire)."""
     from flight_fdi.bagio import get_typestore, open_writer
@@ -56,7 +56,7 @@ def write_recording(path: Path, model, fwd, channel: str = "x", resets: tuple = 
         ns = int(round(t * 1e9))
         return T["std_msgs/msg/Header"](
             stamp=T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9),
-            frame_id="")
+            frame_id=frame_id)
 
     def arr(a) -> np.ndarray:
         return np.ascontiguousarray(np.asarray(a, dtype=float).reshape(-1))
@@ -361,3 +361,26 @@ def test_stacked_reference_rows_merge_into_the_information_equivalent_row():
     with pytest.raises(ValueError, match="not stacked copies"):
         measurement_of(SimpleNamespace(z=[1.0, 2.0], r=[0.01, 0, 0, 0.01],
                                        h=[1.0, 0, 0, 0, 0, 1.0, 0, 0]), model)
+
+
+def test_outputs_carry_the_recorded_frame(ros, flight, tmp_path):
+    """fdi/fault_localization and fdi/smoothed have the frame_id of the recorded states (the
+    filter's navigation frame, its frame_id parameter)."""
+    from flight_fdi.nodes.smoother_node import SmootherNode
+    from flight_fdi_msgs.msg import FaultLocalization, SmoothedState
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    a = flight["analysis"]
+    write_recording(tmp_path / "rec", flight["model"], a.fwd, frame_id="nav")
+    listener = ros.node("listener")
+    smoothed: list = []
+    result: list = []
+    listener.create_subscription(SmoothedState, "fdi/smoothed", smoothed.append, 5000)
+    listener.create_subscription(FaultLocalization, "fdi/fault_localization", result.append,
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    node = ros.node(SmootherNode, {"bag": str(tmp_path / "rec"), "smoothed_queue_depth": 5000})
+    ros.spin_until(node.done, timeout=30)
+    ros.spin_until(lambda: result and len(smoothed) == len(a.fwd.t), what="the outputs")
+    assert result[0].header.frame_id == "nav"
+    assert {m.header.frame_id for m in smoothed} == {"nav"}
