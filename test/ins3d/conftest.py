@@ -1,0 +1,30 @@
+"""Short simulated 3-D flights shared by the ins3d tests (seconds to simulate)."""
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import pytest
+
+from flight_fdi.sim.gnss import GnssConfig
+from flight_fdi.sim.imu3d import GRADES
+from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
+from flight_fdi.sim.trajectory import TrajectoryConfig
+
+
+@functools.lru_cache(maxsize=8)
+def flight(profile: str = "cruise_turns", duration_s: float = 1500.0, grade: str = "tactical",
+           vertical: str = "free", seed: int = 1, ideal_gnss: bool = False,
+           noise: bool = True):
+    """A seeded flight; ``noise=False`` zeroes the white noise (ARW, VRW) of the grade."""
+    g = GRADES[grade] if noise else dataclasses.replace(GRADES[grade], arw=0.0, vrw=0.0)
+    gnss = GnssConfig(vel_markov_h=0.0, vel_markov_v=0.0, latency_s=0.0) if ideal_gnss \
+        else GnssConfig()
+    cfg = Sim3DConfig(TrajectoryConfig(profile=profile, duration_s=duration_s, rate_hz=100.0),
+                      grade=g, vertical=vertical, seed=seed, gnss=gnss)
+    return simulate3d(cfg)
+
+
+@pytest.fixture
+def sim_flight():
+    return flight
