@@ -15,9 +15,13 @@ from flight_fdi.sim.trajectory import TrajectoryConfig
 @functools.lru_cache(maxsize=8)
 def flight(profile: str = "cruise_turns", duration_s: float = 1500.0, grade: str = "tactical",
            vertical: str = "free", seed: int = 1, ideal_gnss: bool = False,
-           noise: bool = True):
-    """A seeded flight; ``noise=False`` zeroes the white noise (ARW, VRW) of the grade."""
+           noise: bool = True, scale: bool = True):
+    """A seeded flight; ``noise=False`` zeroes the white noise (ARW, VRW) of the grade,
+    ``scale=False`` its scale-factor and misalignment errors (not states of the model)."""
     g = GRADES[grade] if noise else dataclasses.replace(GRADES[grade], arw=0.0, vrw=0.0)
+    if not scale:
+        g = dataclasses.replace(g, gyro_scale=0.0, gyro_misalign=0.0, accel_scale=0.0,
+                                accel_misalign=0.0)
     gnss = GnssConfig(vel_markov_h=0.0, vel_markov_v=0.0, latency_s=0.0) if ideal_gnss \
         else GnssConfig()
     cfg = Sim3DConfig(TrajectoryConfig(profile=profile, duration_s=duration_s, rate_hz=100.0),

@@ -25,7 +25,7 @@ def _level_steps(v=(0.0, 200.0, 0.0), lat=0.7, h=3000.0, yaw=0.3, n=3):
 
 def test_level_flight_reduces_to_the_single_axis_model():
     steps, g, yaw = _level_steps()
-    m = Ins3dModel.from_grade("navigation")
+    m = Ins3dModel.from_grade("navigation", vertical="free")
     F = F_matrix(m, steps, 0)
     assert F[IV, IPHI + 1] == pytest.approx(-g, rel=1e-12)      # dv_E' = -g phi_N
     assert F[IV + 1, IPHI] == pytest.approx(g, rel=1e-12)       # dv_N' = +g phi_E
@@ -39,6 +39,19 @@ def test_level_flight_reduces_to_the_single_axis_model():
     # the Schuler pair (dv_E, phi_N) alone oscillates at sqrt(g / R)
     w2 = -F[IV, IPHI + 1] * F[IPHI + 1, IV]
     assert 2 * np.pi / np.sqrt(w2) / 60 == pytest.approx(84.4, abs=0.3)
+
+
+def test_damped_vertical_channel_is_cut_from_the_other_states():
+    steps, _, _ = _level_steps(v=(150.0, 100.0, 5.0))
+    free = F_matrix(Ins3dModel.from_grade("navigation", vertical="free", position=True), steps, 0)
+    m = Ins3dModel.from_grade("navigation", position=True)
+    F = F_matrix(m, steps, 0)
+    assert free[IV, IV + 2] != 0.0 and free[IV + 2, IBA + 2] == 1.0
+    assert np.count_nonzero(F[IV + 2]) == 1 and F[IV + 2, IV + 2] == -1.0 / m.tau_vertical_s
+    assert np.count_nonzero(F[:, IV + 2]) == 2          # itself and dp_U' = dv_U
+    keep = [i for i in range(15) if i != IV + 2]
+    np.testing.assert_array_equal(F[np.ix_(keep, keep)], free[np.ix_(keep, keep)])
+    assert m.qc()[IV + 2] * m.tau_vertical_s / 2 == pytest.approx(m.sigma_vertical**2)
 
 
 def test_model_parameters_come_from_the_grade_presets():
@@ -103,7 +116,7 @@ def test_linear_model_predicts_the_true_ins_errors_through_turns(grade, tol):
     inp = from_flight(fl)
     tr = truth_from_flight(fl, inp)
     assert np.ptp(np.degrees(np.unwrap(np.arctan2(inp.steps.v[:, 1], inp.steps.v[:, 0])))) > 130
-    m = Ins3dModel.from_grade(grade, position=True)
+    m = Ins3dModel.from_grade(grade, position=True, vertical="free")
     x = propagate(m, inp.steps, tr["x"][0], tr["u_a"], tr["u_g"])
     out = {}
     for name, cols in (("dv_h", [0, 1]), ("dv_u", [2]), ("phi_h", [3, 4]), ("phi_u", [5]),
@@ -118,6 +131,6 @@ def test_a_wrong_sign_is_caught_by_the_truth_test():
     fl = flight("cruise_turns", 1500.0, "tactical", "free", 1, noise=False)
     inp = from_flight(fl)
     tr = truth_from_flight(fl, inp)
-    m = Ins3dModel.from_grade("tactical", position=True)
+    m = Ins3dModel.from_grade("tactical", position=True, vertical="free")
     x = propagate(m, inp.steps, tr["x"][0], tr["u_a"], -tr["u_g"])
     assert _relative_error(x, tr["x"], [3, 4, 5]) > 0.5

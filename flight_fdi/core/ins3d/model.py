@@ -39,6 +39,13 @@ first-order form misses the dt^3 / 3 of the position from the velocity noise by 
 against expm and Van Loan at the flight's step measured in test/ins3d/test_model.py
 (docs/ins3d.md).
 
+Vertical channel (``vertical``): ``free`` -- the equations above (unstable through dg, use with
+``position=True``); ``damped`` (default: the simulator's INS, like most, damps its height with a
+baro loop the analyst does not know) -- dv_U is cut from the other states and modelled as a
+first-order Markov state of its own (``tau_vertical_s``, ``sigma_vertical``), so an unmodelled
+loop cannot pull the horizontal channels through the Coriolis term; the vertical accelerometer
+bias still enters the horizontal channels through C when the aircraft banks.
+
 Measurement: z = v_INS - v_ref = H x + noise, H = [I 0 ...] on 2 (east, north) or 3 rows.
 """
 from __future__ import annotations
@@ -56,6 +63,7 @@ from ..errors import CoreError
 STATE_NAMES = ("dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u",
                "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "dp_e", "dp_n", "dp_u")
 IV, IPHI, IBA, IBG, IP = 0, 3, 6, 9, 12
+VERTICAL = ("damped", "free")
 
 
 def _tau_c(sigma0: float, sigma: float, tau: float) -> tuple[float, float]:
@@ -72,20 +80,29 @@ class Ins3dModel:
     grade: ImuGrade
     position: bool = False
     rows: int = 2
+    vertical: str = "damped"
+    tau_vertical_s: float = 100.0
+    sigma_vertical: float = 0.2
 
     def __post_init__(self) -> None:
         if self.rows not in (2, 3):
             raise CoreError(f"ins3d: the reference has 2 or 3 rows, got {self.rows!r}")
+        if self.vertical not in VERTICAL:
+            raise CoreError(f"ins3d: vertical must be one of {', '.join(VERTICAL)}, "
+                            f"got {self.vertical!r}")
+        if not (math.isfinite(self.tau_vertical_s) and self.tau_vertical_s > 0
+                and math.isfinite(self.sigma_vertical) and self.sigma_vertical > 0):
+            raise CoreError("ins3d: the vertical channel's tau and sigma must be > 0")
 
     @classmethod
-    def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2
-                   ) -> "Ins3dModel":
+    def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2,
+                   vertical: str = "damped") -> "Ins3dModel":
         if isinstance(name, ImuGrade):
-            return cls(name, position, rows)
+            return cls(name, position, rows, vertical)
         if name not in GRADES:
             raise CoreError(f"ins3d: unknown IMU grade {name!r}; choose one of "
                             f"{', '.join(GRADES)}")
-        return cls(GRADES[name], position, rows)
+        return cls(GRADES[name], position, rows, vertical)
 
     @property
     def n(self) -> int:
@@ -102,6 +119,13 @@ class Ins3dModel:
         ig, qg = _tau_c(g.gyro_bias, g.gyro_instability, g.gyro_tau_s)
         return np.array([ia, ig, qa, qg])
 
+    def kernel_params(self) -> np.ndarray:
+        """(3,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases and
+        1/tau of the damped vertical velocity error (0: free vertical channel)."""
+        ia, ig, _, _ = self.bias_params()
+        return np.array([ia, ig, 1.0 / self.tau_vertical_s if self.vertical == "damped"
+                         else 0.0])
+
     def qc(self) -> np.ndarray:
         """(n,) diagonal of the continuous process noise density."""
         _, _, qa, qg = self.bias_params()
@@ -110,6 +134,8 @@ class Ins3dModel:
         q[IPHI:IPHI + 3] = self.grade.arw**2
         q[IBA:IBA + 3] = qa
         q[IBG:IBG + 3] = qg
+        if self.vertical == "damped":
+            q[IV + 2] = 2.0 * self.sigma_vertical**2 / self.tau_vertical_s
         return q
 
     def p0(self, phi_sigma: tuple[float, float, float] | None = None,
@@ -127,6 +153,8 @@ class Ins3dModel:
             phi_sigma = (tilt, tilt, head)
         p = np.empty(self.n)
         p[IV:IV + 3] = v_sigma**2
+        if self.vertical == "damped":
+            p[IV + 2] = self.sigma_vertical**2
         p[IPHI:IPHI + 3] = np.square(phi_sigma)
         p[IBA:IBA + 3] = max(sa, 1e-7) ** 2
         p[IBG:IBG + 3] = max(sg, 1e-10) ** 2
@@ -161,7 +189,7 @@ def _cross_into(F, r0, c0, a0, a1, a2, s):
 
 @njit(cache=True)
 def fill_F(F, C, f_n, v, lat, h, bias):
-    """Fill the (n, n) F (n = 12 or 15) of one step; ``bias`` = Ins3dModel.bias_params()."""
+    """Fill the (n, n) F (n = 12 or 15) of one step; ``bias`` = Ins3dModel.kernel_params()."""
     n = F.shape[0]
     F[:, :] = 0.0
     r_n, r_m = radii(lat)
@@ -200,6 +228,13 @@ def fill_F(F, C, f_n, v, lat, h, bias):
         F[IBG + i, IBG + i] = -bias[1]
     if n > 12:
         _fill_position(F, ve, vn, vu, lat, h, rn, rm, sl, cl, tl)
+    if bias[2] > 0.0:          # damped vertical channel: dv_U a Markov state of its own
+        F[IV + 2, :] = 0.0
+        F[:, IV + 2] = 0.0
+        F[IV + 2, IV + 2] = -bias[2]
+        if n > 12:
+            F[IP + 2, IV + 2] = 1.0
+            F[IV + 2, IP + 2] = 0.0
 
 
 @njit(cache=True)
@@ -291,7 +326,7 @@ def propagate(model: Ins3dModel, steps, x0: np.ndarray, u_a: np.ndarray | None =
     ug = np.zeros((k, 3)) if u_g is None else np.ascontiguousarray(u_g, dtype=float)
     out = np.empty((k + 1, model.n))
     _propagate(x0, steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt,
-               model.bias_params(), ua, ug, override, out)
+               model.kernel_params(), ua, ug, override, out)
     return out
 
 
@@ -299,7 +334,7 @@ def F_matrix(model: Ins3dModel, steps, k: int) -> np.ndarray:
     """The continuous F of step k (for tests and reports)."""
     F = np.empty((model.n, model.n))
     fill_F(F, steps.C[k], steps.f_n[k], steps.v[k], float(steps.lat[k]), float(steps.h[k]),
-           model.bias_params())
+           model.kernel_params())
     return F
 
 
