@@ -162,6 +162,26 @@ class Ins3dModel:
             p[IP:IP + 3] = p_sigma**2
         return p
 
+    def p0_aligned(self, C0: np.ndarray, f_n0: np.ndarray, lat0: float,
+                   independent: float = 0.1) -> np.ndarray:
+        """(n, n) initial covariance of an INS aligned on the ground or in level flight: the
+        levelled tilt cancels the horizontal accelerometer error, phi_N = b_E / f_U,
+        phi_E = -b_N / f_U (b = C0 ba), and gyrocompassing (grades without an external
+        heading) leaves phi_U = -eps_E / (Omega cos L) (eps = C0 bg) -- the correlations the
+        simulator's ``consistent`` alignment has (``sim.imu3d.alignment_error``), with an
+        ``independent`` fraction of each attitude sigma added as uncorrelated."""
+        p = self.p0()
+        n = self.n
+        J = np.eye(n)                           # x0 = J w, w independent with variances p
+        fu = float(f_n0[2])
+        J[IPHI, IPHI] = J[IPHI + 1, IPHI + 1] = independent
+        J[IPHI, IBA:IBA + 3] = -C0[1] / fu
+        J[IPHI + 1, IBA:IBA + 3] = C0[0] / fu
+        if self.grade.heading_sigma == 0.0:
+            J[IPHI + 2, IPHI + 2] = independent
+            J[IPHI + 2, IBG:IBG + 3] = -C0[0] / (OMEGA_IE * math.cos(lat0))
+        return J @ np.diag(p) @ J.T
+
     def H(self) -> np.ndarray:
         h = np.zeros((self.rows, self.n))
         h[:, :self.rows] = np.eye(self.rows)
