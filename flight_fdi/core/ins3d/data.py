@@ -14,7 +14,8 @@ mid-interval navigation values the time-varying F is built from:
 
 ``RefRows`` holds the reference measurements: stamps ``t`` (M,), the innovation input
 z = v_INS(t) - v_ref(t) (M, 3) ENU and its variance ``r`` (M, 3) per row; ``step`` (M,) is the
-index of the step boundary the update is applied at (the first boundary at or after the stamp).
+index of the step boundary the update is applied at (the first boundary at or after the stamp);
+``a`` (M, 3) the INS acceleration over the Earth at the stamps (the latency state's H column).
 """
 from __future__ import annotations
 
@@ -83,6 +84,11 @@ class RefRows:
     z: np.ndarray
     r: np.ndarray
     step: np.ndarray
+    a: np.ndarray | None = None     # (M, 3) INS acceleration dv/dt (ENU) at the stamps
+
+    def __post_init__(self) -> None:
+        if self.a is None:
+            self.a = np.zeros_like(self.z)
 
 
 def ref_rows(steps: NavSteps, t_ins: np.ndarray, v_ins: np.ndarray, t_ref: np.ndarray,
@@ -96,9 +102,12 @@ def ref_rows(steps: NavSteps, t_ins: np.ndarray, v_ins: np.ndarray, t_ref: np.nd
     r_ref = np.broadcast_to(np.asarray(r_ref, dtype=float), (keep.size, 3))[keep]
     if np.any(r_ref <= 0) or not np.all(np.isfinite(r_ref)):
         raise CoreError("ref_rows: the reference variances must be finite and > 0")
-    v_i = np.stack([np.interp(t_ref, t_ins, np.asarray(v_ins)[:, i]) for i in range(3)], axis=1)
+    v_ins = np.asarray(v_ins, dtype=float)
+    v_i = np.stack([np.interp(t_ref, t_ins, v_ins[:, i]) for i in range(3)], axis=1)
+    acc = np.gradient(v_ins, t_ins, axis=0)
+    a_i = np.stack([np.interp(t_ref, t_ins, acc[:, i]) for i in range(3)], axis=1)
     step = np.searchsorted(steps.t, t_ref - 1e-9 * np.maximum(1.0, np.abs(t_ref)), side="left")
-    return RefRows(t_ref, v_i - v_ref, np.ascontiguousarray(r_ref), step.astype(np.int64))
+    return RefRows(t_ref, v_i - v_ref, np.ascontiguousarray(r_ref), step.astype(np.int64), a_i)
 
 
 __all__ = ["NavSteps", "RefRows", "nav_steps", "ref_rows"]

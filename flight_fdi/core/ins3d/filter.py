@@ -37,18 +37,25 @@ def _scale(Phi, Qd, s):
 
 
 @njit(cache=True)
-def _update(x, P, s, z, r, rows, thr, thr_row, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o):
+def scaled_H(s, a, il, rows):
+    """H' = H T of one update: the velocity rows, and the latency column a_n (il >= 0)."""
+    Hs = np.zeros((rows, s.size))
+    for i in range(rows):
+        Hs[i, i] = s[i]
+        if il >= 0:
+            Hs[i, il] = a[i] * s[il]
+    return Hs
+
+
+@njit(cache=True)
+def _update(x, P, s, z, r, a, il, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o):
     """One reference update (scaled x, P; z, r physical); fills output row j."""
     n = x.size
-    HP = np.empty((rows, n))
+    Hs = scaled_H(s, a, il, rows)
+    HP = Hs @ P
+    S = HP @ Hs.T
+    nu = z[:rows] - Hs @ x
     for i in range(rows):
-        HP[i, :] = s[i] * P[i, :]
-    S = np.empty((rows, rows))
-    nu = np.empty(rows)
-    for i in range(rows):
-        nu[i] = z[i] - s[i] * x[i]
-        for c in range(rows):
-            S[i, c] = HP[i, c] * s[c]
         S[i, i] += r[i]
     Si = np.linalg.inv(S)
     b2 = nu @ Si @ nu
@@ -62,23 +69,19 @@ def _update(x, P, s, z, r, rows, thr, thr_row, reject, j, nu_o, S_o, b2_o, b2r_o
         return
     K = HP.T @ Si                       # (n, rows) = P H' S^-1
     x += K @ nu
-    IKH = -K * s[:rows][None, :]
-    IKH_full = np.zeros((n, n))
-    for i in range(n):
-        IKH_full[i, i] = 1.0
-    IKH_full[:, :rows] += IKH
-    Pn = IKH_full @ P @ IKH_full.T
-    for a in range(n):
-        for b in range(n):
+    IKH = np.eye(n) - K @ Hs
+    Pn = IKH @ P @ IKH.T
+    for p_ in range(n):
+        for q_ in range(n):
             acc = 0.0
             for i in range(rows):
-                acc += K[a, i] * r[i] * K[b, i]
-            Pn[a, b] += acc
+                acc += K[p_, i] * r[i] * K[q_, i]
+            Pn[p_, q_] += acc
     P[:, :] = 0.5 * (Pn + Pn.T)
 
 
 @njit(cache=True)
-def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, rows, thr, thr_row,
+def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il, rows, thr,
              reject, keep_cov, x_o, sd_o, nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o):
     n = s.size
     F = np.empty((n, n))
@@ -101,8 +104,8 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, rows, t
             P = Phi @ P @ Phi.T + Qd
             P = 0.5 * (P + P.T)
         while j < m and ref_step[j] == k:
-            _update(x, P, s, z[j], r[j], rows, thr, thr_row, reject, j, nu_o, S_o, b2_o, b2r_o,
-                    exc_o)
+            _update(x, P, s, z[j], r[j], acc[j], il, rows, thr, reject, j, nu_o, S_o, b2_o,
+                    b2r_o, exc_o)
             if keep_cov:
                 for a in range(n):
                     for b in range(n):
@@ -156,7 +159,8 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     order = np.argsort(refs.step, kind="stable")
     _forward(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, model.kernel_params(),
              model.qc(), s, x0, P0, refs.step[order], np.ascontiguousarray(refs.z[order]),
-             np.ascontiguousarray(refs.r[order]), rows, thr, thr_row, gate.action == "reject",
+             np.ascontiguousarray(refs.r[order]), np.ascontiguousarray(refs.a[order]), model.il,
+             rows, thr, gate.action == "reject",
              keep_cov, x_o, sd_o, nu, S, b2, b2r, exc, Pp)
     return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,
                         b2r > thr_row, alarm_states(exc, gate), thr, thr_row,

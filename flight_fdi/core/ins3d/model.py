@@ -47,6 +47,9 @@ loop cannot pull the horizontal channels through the Coriolis term; the vertical
 bias still enters the horizontal channels through C when the aircraft banks.
 
 Measurement: z = v_INS - v_ref = H x + noise, H = [I 0 ...] on 2 (east, north) or 3 rows.
+Optional (``latency=True``) last state: the reference latency tau (s, a constant): the reference
+reports v(t - tau) ~ v(t) - a_n tau, so z = dv + a_n tau + noise, H's last column = a_n (the INS
+acceleration over the Earth at the update, ``data.RefRows.a``).
 """
 from __future__ import annotations
 
@@ -83,6 +86,8 @@ class Ins3dModel:
     vertical: str = "damped"
     tau_vertical_s: float = 100.0
     sigma_vertical: float = 0.2
+    latency: bool = False
+    latency_sigma_s: float = 0.05
 
     def __post_init__(self) -> None:
         if self.rows not in (2, 3):
@@ -96,21 +101,26 @@ class Ins3dModel:
 
     @classmethod
     def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2,
-                   vertical: str = "damped") -> "Ins3dModel":
+                   vertical: str = "damped", latency: bool = False) -> "Ins3dModel":
         if isinstance(name, ImuGrade):
-            return cls(name, position, rows, vertical)
+            return cls(name, position, rows, vertical, latency=latency)
         if name not in GRADES:
             raise CoreError(f"ins3d: unknown IMU grade {name!r}; choose one of "
                             f"{', '.join(GRADES)}")
-        return cls(GRADES[name], position, rows, vertical)
+        return cls(GRADES[name], position, rows, vertical, latency=latency)
 
     @property
     def n(self) -> int:
-        return 15 if self.position else 12
+        return (15 if self.position else 12) + (1 if self.latency else 0)
+
+    @property
+    def il(self) -> int:
+        """Index of the latency state (-1: none)."""
+        return self.n - 1 if self.latency else -1
 
     @property
     def names(self) -> tuple[str, ...]:
-        return STATE_NAMES[:self.n]
+        return STATE_NAMES[:15 if self.position else 12] + (("latency",) if self.latency else ())
 
     def bias_params(self) -> np.ndarray:
         """(4,) 1/tau_c and q of the accelerometer and the gyro biases."""
@@ -120,11 +130,12 @@ class Ins3dModel:
         return np.array([ia, ig, qa, qg])
 
     def kernel_params(self) -> np.ndarray:
-        """(3,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases and
-        1/tau of the damped vertical velocity error (0: free vertical channel)."""
+        """(4,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases,
+        1/tau of the damped vertical velocity error (0: free vertical channel), and 1 when the
+        position states are present."""
         ia, ig, _, _ = self.bias_params()
         return np.array([ia, ig, 1.0 / self.tau_vertical_s if self.vertical == "damped"
-                         else 0.0])
+                         else 0.0, 1.0 if self.position else 0.0])
 
     def qc(self) -> np.ndarray:
         """(n,) diagonal of the continuous process noise density."""
@@ -160,6 +171,8 @@ class Ins3dModel:
         p[IBG:IBG + 3] = max(sg, 1e-10) ** 2
         if self.position:
             p[IP:IP + 3] = p_sigma**2
+        if self.latency:
+            p[-1] = self.latency_sigma_s**2
         return p
 
     def p0_aligned(self, C0: np.ndarray, f_n0: np.ndarray, lat0: float,
@@ -182,9 +195,13 @@ class Ins3dModel:
             J[IPHI + 2, IBG:IBG + 3] = -C0[0] / (OMEGA_IE * math.cos(lat0))
         return J @ np.diag(p) @ J.T
 
-    def H(self) -> np.ndarray:
+    def H(self, a_n: np.ndarray | None = None) -> np.ndarray:
+        """The measurement matrix; with the latency state its column is the INS acceleration
+        a_n at the update (the reference reports v(t - latency) ~ v(t) - a_n latency)."""
         h = np.zeros((self.rows, self.n))
         h[:, :self.rows] = np.eye(self.rows)
+        if self.latency:
+            h[:, -1] = np.zeros(3)[:self.rows] if a_n is None else np.asarray(a_n)[:self.rows]
         return h
 
 
@@ -209,8 +226,8 @@ def _cross_into(F, r0, c0, a0, a1, a2, s):
 
 @njit(cache=True)
 def fill_F(F, C, f_n, v, lat, h, bias):
-    """Fill the (n, n) F (n = 12 or 15) of one step; ``bias`` = Ins3dModel.kernel_params()."""
-    n = F.shape[0]
+    """Fill the (n, n) F (n = 12, 15, +1 latency: a constant) of one step;
+    ``bias`` = Ins3dModel.kernel_params()."""
     F[:, :] = 0.0
     r_n, r_m = radii(lat)
     rn = r_n + h
@@ -246,13 +263,14 @@ def fill_F(F, C, f_n, v, lat, h, bias):
     for i in range(3):
         F[IBA + i, IBA + i] = -bias[0]
         F[IBG + i, IBG + i] = -bias[1]
-    if n > 12:
+    pos = bias[3] > 0.0
+    if pos:
         _fill_position(F, ve, vn, vu, lat, h, rn, rm, sl, cl, tl)
     if bias[2] > 0.0:          # damped vertical channel: dv_U a Markov state of its own
         F[IV + 2, :] = 0.0
         F[:, IV + 2] = 0.0
         F[IV + 2, IV + 2] = -bias[2]
-        if n > 12:
+        if pos:
             F[IP + 2, IV + 2] = 1.0
             F[IV + 2, IP + 2] = 0.0
 

@@ -25,12 +25,12 @@ from numba import njit
 
 from ..errors import CoreError
 from .data import NavSteps, RefRows
-from .filter import _scale
+from .filter import _scale, scaled_H
 from .model import Ins3dModel, discretize, fill_F
 
 
 @njit(cache=True)
-def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, rows, report_step, W_o):
+def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, rows, report_step, W_o):
     n = s.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
@@ -47,11 +47,12 @@ def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, rows, report_step, W_o):
             _scale(Phi, Qd, s)
             M = Phi @ M
         while j < ref_step.size and ref_step[j] == k:
+            HM = scaled_H(s, acc[j], il, rows) @ M
             for i in range(rows):
-                w = s[i] * s[i] / r[j, i]
+                w = 1.0 / r[j, i]
                 for a in range(n):
                     for b in range(n):
-                        W[a, b] += w * M[i, a] * M[i, b]
+                        W[a, b] += w * HM[i, a] * HM[i, b]
             j += 1
         while o < report_step.size and report_step[o] == k:
             W_o[o] = W
@@ -93,7 +94,7 @@ def observability(model: Ins3dModel, steps: NavSteps, refs: RefRows, every_s: fl
     order = np.argsort(refs.step, kind="stable")
     _gramian(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt,
              model.kernel_params(), s, refs.step[order], np.ascontiguousarray(refs.r[order]),
-             model.rows, rep.astype(np.int64), W)
+             np.ascontiguousarray(refs.a[order]), model.il, model.rows, rep.astype(np.int64), W)
     prior = np.eye(n)
     if P0 is not None:
         Si = np.diag(1.0 / s)
