@@ -61,11 +61,9 @@ def from_flight(flight, imu_rate_hz: float = 20.0, velocity_rate_hz: float = 20.
     every = int(round(rate / imu_rate_hz))
     n_int = flight.gyro.rate.shape[0]
     m = n_int // every
-    idx = every * np.arange(0, m + 1)
+    idx = every * np.arange(1, m + 1)       # as the bag: the first message ends interval 1
     w = flight.gyro.rate[:m * every].reshape(m, every, 3).mean(axis=1)
     f = flight.accel.rate[:m * every].reshape(m, every, 3).mean(axis=1)
-    w = np.vstack([np.zeros(3), w])
-    f = np.vstack([np.zeros(3), f])
     ins, t = flight.ins, flight.t
     iv = np.arange(0, t.size, int(round(rate / velocity_rate_hz)))
     ifx = np.arange(0, t.size, int(round(rate / fix_rate_hz)))
@@ -110,16 +108,18 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dI
     return build_input(*_decode({k: by_topic[v] for k, v in names.items()}, names, path))
 
 
-def _stamp(m) -> float:
-    return m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+def _stamp_ns(m) -> int:
+    return int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
 
 
 def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
     for k, v in names.items():
         if len(got[k]) < 2:
             raise BagError(f"{path}: topic {v} has fewer than two messages")
-    rows = {k: sorted(((_stamp(m), m) for m in ms), key=lambda p: p[0]) for k, ms in got.items()}
-    t0 = rows["ins_imu"][0][0]
+    ns = {k: sorted(((_stamp_ns(m), m) for m in ms), key=lambda p: p[0]) for k, ms in got.items()}
+    t0 = min(r[0][0] for r in ns.values())       # times in s from the first stamp, exact in ns
+    rows = {k: [((s_ - t0) * 1e-9, m) for s_, m in r] for k, r in ns.items()}
+    t0 = 0.0
     imu = rows["ins_imu"]
     t_imu = np.array([s for s, _ in imu]) - t0
     o = [m.orientation for _, m in imu]

@@ -41,7 +41,7 @@ def test_equals_filterpy_on_the_same_ltv_model():
             kf.update(refs.z[j], R=np.diag(refs.r[j]))
             assert kf.y == pytest.approx(res.nu[j], rel=1e-6, abs=1e-9)
             j += 1
-    assert j == 3501
+    assert j == 3500
     sd = np.sqrt(np.diag(kf.P))
     np.testing.assert_allclose(res.sd[K], sd, rtol=1e-6)
     assert np.max(np.abs(res.x[K] - kf.x) / sd) < 1e-5
@@ -61,7 +61,7 @@ def nominal():
 
 def test_beta2_is_chi2_on_a_nominal_flight(nominal):
     inp, _, m, res = nominal
-    assert res.beta2.size == 18001
+    assert res.beta2.size == 18000
     assert res.beta2.mean() == pytest.approx(2.0, abs=0.08)
     np.testing.assert_allclose(res.beta2_row.mean(axis=0), 1.0, atol=0.06)
     assert res.exceeded.mean() < 3e-3                   # the gate's per-sample 1e-3
@@ -114,3 +114,22 @@ def test_reference_jump_is_flagged_on_its_row_and_rejected():
     # the flag filter absorbs the jump over time; the rejecting one keeps gating it
     late = flag.t_ref > 700.0
     assert rej.exceeded[late].mean() > 0.9 > flag.exceeded[late].mean()
+
+
+def test_latency_state_estimates_the_reference_latency():
+    """Default GNSS (white + Markov noise, 20 ms latency; scale factor and misalignment on):
+    the latency state finds the 20 ms from the turns; without it the turns inflate beta^2."""
+    fl = flight("cruise_turns", 1200.0, "navigation", "baro", 2)
+    inp = from_flight(fl)
+    out = {}
+    for lat in (False, True):
+        m = Ins3dModel.from_grade("navigation", latency=lat)
+        P0 = m.p0_aligned(inp.steps.C[0], inp.steps.f_n[0], inp.steps.lat[0])
+        out[lat] = run_forward(m, inp.steps, inp.refs, P0=P0)
+    r = out[True]
+    assert r.names[-1] == "latency"
+    assert r.x[-1, -1] == pytest.approx(0.020, abs=max(3 * r.sd[-1, -1], 1e-3))
+    assert r.sd[-1, -1] < 1e-3 < r.sd[np.searchsorted(r.t, 295.0), -1]   # learnt in the turn
+    turn = (r.t_ref > 300.0) & (r.t_ref < 375.0)
+    assert out[False].beta2[turn].mean() > 1.5 * r.beta2[turn].mean()
+    assert not np.any(r.alarm == 1)
