@@ -133,3 +133,28 @@ def test_latency_state_estimates_the_reference_latency():
     turn = (r.t_ref > 300.0) & (r.t_ref < 375.0)
     assert out[False].beta2[turn].mean() > 1.5 * r.beta2[turn].mean()
     assert not np.any(r.alarm == 1)
+
+
+def test_reference_markov_states_make_the_filter_consistent_on_correlated_gnss():
+    """Default GNSS (white + 30-s Markov noise, 20 ms latency), no scale-factor error: fused as
+    white, the errors are ~20x their sigma (NEES in the hundreds); with the Markov states and the
+    latency state beta^2 is chi^2(2) and the NEES matches its 11 dof."""
+    fl = flight("cruise_turns", 1800.0, "navigation", "baro", 5, scale=False)
+    inp = from_flight(fl)
+    tr = truth_from_flight(fl, inp)
+    keep = [i for i in range(12) if i != 2]
+    nees = {}
+    for mk in (None, (0.02, 0.03, 30.0)):
+        m = Ins3dModel.from_grade("navigation", latency=True, ref_markov=mk)
+        P0 = m.p0_aligned(inp.steps.C[0], inp.steps.f_n[0], inp.steps.lat[0])
+        res = run_forward(m, inp.steps, inp.refs, P0=P0, keep_cov=True)
+        idx = inp.refs.step
+        e = (res.x[idx, :12] - tr["x"][idx, :12])[:, keep]
+        P = res.P_post[:, keep][:, :, keep]
+        nees[mk] = np.einsum("ki,kij,kj->k", e, np.linalg.inv(P), e)[idx.size // 2:].mean()
+    assert m.names[12:] == ("ref_m_e", "ref_m_n", "latency")
+    assert res.beta2.mean() == pytest.approx(2.0, abs=0.08)
+    assert not np.any(res.alarm == 1)
+    assert res.x[-1, -1] == pytest.approx(0.020, abs=3 * res.sd[-1, -1])
+    print({k: round(v, 1) for k, v in nees.items()})
+    assert nees[(0.02, 0.03, 30.0)] < 25.0 < 100.0 < nees[None]

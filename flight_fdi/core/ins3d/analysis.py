@@ -44,12 +44,13 @@ class Ins3dAnalysis:
 
 def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", rows: int = 2,
                   position: bool = False, vertical: str = "damped", latency: bool = True,
+                  ref_markov: tuple[float, float, float] | None = None,
                   gate: GateConfig = GateConfig(), aligned_prior: bool = True
                   ) -> Ins3dAnalysis:
     """Forward filter + observability report of one flight (see ``bagio.ins3d_input`` for the
     inputs from a bag or a simulated flight)."""
     model = Ins3dModel.from_grade(grade, position=position, rows=rows, vertical=vertical,
-                                  latency=latency)
+                                  latency=latency, ref_markov=ref_markov)
     P0 = model.p0_aligned(steps.C[0], steps.f_n[0], float(steps.lat[0])) if aligned_prior \
         else np.diag(model.p0())
     fwd = run_forward(model, steps, refs, gate=gate, P0=P0)

@@ -37,21 +37,24 @@ def _scale(Phi, Qd, s):
 
 
 @njit(cache=True)
-def scaled_H(s, a, il, rows):
-    """H' = H T of one update: the velocity rows, and the latency column a_n (il >= 0)."""
+def scaled_H(s, a, il, im, rows):
+    """H' = H T of one update: the velocity rows, the reference Markov states (im > 0) and the
+    latency column a_n (il >= 0)."""
     Hs = np.zeros((rows, s.size))
     for i in range(rows):
         Hs[i, i] = s[i]
+        if im > 0:
+            Hs[i, im + i] = s[im + i]
         if il >= 0:
             Hs[i, il] = a[i] * s[il]
     return Hs
 
 
 @njit(cache=True)
-def _update(x, P, s, z, r, a, il, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o):
+def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o):
     """One reference update (scaled x, P; z, r physical); fills output row j."""
     n = x.size
-    Hs = scaled_H(s, a, il, rows)
+    Hs = scaled_H(s, a, il, im, rows)
     HP = Hs @ P
     S = HP @ Hs.T
     nu = z[:rows] - Hs @ x
@@ -81,7 +84,7 @@ def _update(x, P, s, z, r, a, il, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, 
 
 
 @njit(cache=True)
-def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il, rows, thr,
+def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il, im, rows, thr,
              reject, keep_cov, x_o, sd_o, nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o):
     n = s.size
     F = np.empty((n, n))
@@ -104,8 +107,8 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il
             P = Phi @ P @ Phi.T + Qd
             P = 0.5 * (P + P.T)
         while j < m and ref_step[j] == k:
-            _update(x, P, s, z[j], r[j], acc[j], il, rows, thr, reject, j, nu_o, S_o, b2_o,
-                    b2r_o, exc_o)
+            _update(x, P, s, z[j], r[j], acc[j], il, im, rows, thr, reject, j, nu_o, S_o,
+                    b2_o, b2r_o, exc_o)
             if keep_cov:
                 for a in range(n):
                     for b in range(n):
@@ -137,6 +140,15 @@ class Ins3dForward:
     P_post: np.ndarray | None = None   # (M, n, n) posterior covariances (keep_cov)
 
 
+def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
+    """The white part of the reference variance: the published one minus the Markov states'
+    sigma^2 (floored at 10 % of the published one)."""
+    r = np.asarray(r, dtype=float)
+    s2 = np.zeros(3)
+    s2[:model.rows] = model.markov_sigma() ** 2
+    return np.ascontiguousarray(np.maximum(r - s2[None, :], 0.1 * r))
+
+
 def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                 gate: GateConfig = GateConfig(), x0: np.ndarray | None = None,
                 P0: np.ndarray | None = None, keep_cov: bool = False) -> Ins3dForward:
@@ -159,12 +171,12 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     order = np.argsort(refs.step, kind="stable")
     _forward(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, model.kernel_params(),
              model.qc(), s, x0, P0, refs.step[order], np.ascontiguousarray(refs.z[order]),
-             np.ascontiguousarray(refs.r[order]), np.ascontiguousarray(refs.a[order]), model.il,
-             rows, thr, gate.action == "reject",
+             white_variance(model, refs.r[order]), np.ascontiguousarray(refs.a[order]),
+             model.il, model.im if model.n_markov else 0, rows, thr, gate.action == "reject",
              keep_cov, x_o, sd_o, nu, S, b2, b2r, exc, Pp)
     return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,
                         b2r > thr_row, alarm_states(exc, gate), thr, thr_row,
                         Pp if keep_cov else None)
 
 
-__all__ = ["Ins3dForward", "run_forward"]
+__all__ = ["Ins3dForward", "run_forward", "scaled_H", "white_variance"]

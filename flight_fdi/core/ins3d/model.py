@@ -49,7 +49,10 @@ bias still enters the horizontal channels through C when the aircraft banks.
 Measurement: z = v_INS - v_ref = H x + noise, H = [I 0 ...] on 2 (east, north) or 3 rows.
 Optional (``latency=True``) last state: the reference latency tau (s, a constant): the reference
 reports v(t - tau) ~ v(t) - a_n tau, so z = dv + a_n tau + noise, H's last column = a_n (the INS
-acceleration over the Earth at the update, ``data.RefRows.a``).
+acceleration over the Earth at the update, ``data.RefRows.a``). Optional
+(``ref_markov=(sigma_h, sigma_v, tau)``) reference Markov noise states m (one per row, before
+the latency): z = dv + m + ..., m' = -m / tau + w; the white R is then the published variance
+minus sigma^2 (``filter.run_forward``).
 """
 from __future__ import annotations
 
@@ -67,6 +70,7 @@ STATE_NAMES = ("dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u",
                "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "dp_e", "dp_n", "dp_u")
 IV, IPHI, IBA, IBG, IP = 0, 3, 6, 9, 12
 VERTICAL = ("damped", "free")
+REF_MARKOV_NAMES = ("ref_m_e", "ref_m_n", "ref_m_u")
 
 
 def _tau_c(sigma0: float, sigma: float, tau: float) -> tuple[float, float]:
@@ -88,6 +92,7 @@ class Ins3dModel:
     sigma_vertical: float = 0.2
     latency: bool = False
     latency_sigma_s: float = 0.05
+    ref_markov: tuple[float, float, float] | None = None   # (sigma_h, sigma_v m/s, tau s)
 
     def __post_init__(self) -> None:
         if self.rows not in (2, 3):
@@ -95,23 +100,38 @@ class Ins3dModel:
         if self.vertical not in VERTICAL:
             raise CoreError(f"ins3d: vertical must be one of {', '.join(VERTICAL)}, "
                             f"got {self.vertical!r}")
+        if self.ref_markov is not None and not (
+                len(self.ref_markov) == 3 and all(math.isfinite(v) and v > 0
+                                                  for v in self.ref_markov)):
+            raise CoreError("ins3d: ref_markov must be (sigma_h, sigma_v, tau), all > 0")
         if not (math.isfinite(self.tau_vertical_s) and self.tau_vertical_s > 0
                 and math.isfinite(self.sigma_vertical) and self.sigma_vertical > 0):
             raise CoreError("ins3d: the vertical channel's tau and sigma must be > 0")
 
     @classmethod
     def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2,
-                   vertical: str = "damped", latency: bool = False) -> "Ins3dModel":
+                   vertical: str = "damped", latency: bool = False,
+                   ref_markov: tuple[float, float, float] | None = None) -> "Ins3dModel":
         if isinstance(name, ImuGrade):
-            return cls(name, position, rows, vertical, latency=latency)
+            return cls(name, position, rows, vertical, latency=latency, ref_markov=ref_markov)
         if name not in GRADES:
             raise CoreError(f"ins3d: unknown IMU grade {name!r}; choose one of "
                             f"{', '.join(GRADES)}")
-        return cls(GRADES[name], position, rows, vertical, latency=latency)
+        return cls(GRADES[name], position, rows, vertical, latency=latency,
+                   ref_markov=ref_markov)
 
     @property
     def n(self) -> int:
-        return (15 if self.position else 12) + (1 if self.latency else 0)
+        return self.im + self.n_markov + (1 if self.latency else 0)
+
+    @property
+    def im(self) -> int:
+        """Index of the first reference Markov state (the count is ``n_markov``)."""
+        return 15 if self.position else 12
+
+    @property
+    def n_markov(self) -> int:
+        return self.rows if self.ref_markov is not None else 0
 
     @property
     def il(self) -> int:
@@ -120,7 +140,14 @@ class Ins3dModel:
 
     @property
     def names(self) -> tuple[str, ...]:
-        return STATE_NAMES[:15 if self.position else 12] + (("latency",) if self.latency else ())
+        return (STATE_NAMES[:self.im] + REF_MARKOV_NAMES[:self.n_markov]
+                + (("latency",) if self.latency else ()))
+
+    def markov_sigma(self) -> np.ndarray:
+        """(rows,) stationary sigma of the reference Markov states (zeros without them)."""
+        if self.ref_markov is None:
+            return np.zeros(self.rows)
+        return np.array([self.ref_markov[0]] * 2 + [self.ref_markov[1]])[:self.rows]
 
     def bias_params(self) -> np.ndarray:
         """(4,) 1/tau_c and q of the accelerometer and the gyro biases."""
@@ -132,10 +159,13 @@ class Ins3dModel:
     def kernel_params(self) -> np.ndarray:
         """(4,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases,
         1/tau of the damped vertical velocity error (0: free vertical channel), and 1 when the
-        position states are present."""
+        position states are present, 1/tau of the reference Markov states, their first index
+        and their count."""
         ia, ig, _, _ = self.bias_params()
         return np.array([ia, ig, 1.0 / self.tau_vertical_s if self.vertical == "damped"
-                         else 0.0, 1.0 if self.position else 0.0])
+                         else 0.0, 1.0 if self.position else 0.0,
+                         1.0 / self.ref_markov[2] if self.ref_markov else 0.0,
+                         float(self.im), float(self.n_markov)])
 
     def qc(self) -> np.ndarray:
         """(n,) diagonal of the continuous process noise density."""
@@ -147,6 +177,8 @@ class Ins3dModel:
         q[IBG:IBG + 3] = qg
         if self.vertical == "damped":
             q[IV + 2] = 2.0 * self.sigma_vertical**2 / self.tau_vertical_s
+        if self.ref_markov:
+            q[self.im:self.im + self.n_markov] = 2.0 * self.markov_sigma()**2 / self.ref_markov[2]
         return q
 
     def p0(self, phi_sigma: tuple[float, float, float] | None = None,
@@ -171,6 +203,8 @@ class Ins3dModel:
         p[IBG:IBG + 3] = max(sg, 1e-10) ** 2
         if self.position:
             p[IP:IP + 3] = p_sigma**2
+        if self.ref_markov:
+            p[self.im:self.im + self.n_markov] = self.markov_sigma()**2
         if self.latency:
             p[-1] = self.latency_sigma_s**2
         return p
@@ -200,6 +234,8 @@ class Ins3dModel:
         a_n at the update (the reference reports v(t - latency) ~ v(t) - a_n latency)."""
         h = np.zeros((self.rows, self.n))
         h[:, :self.rows] = np.eye(self.rows)
+        if self.ref_markov:
+            h[:, self.im:self.im + self.rows] = np.eye(self.rows)
         if self.latency:
             h[:, -1] = np.zeros(3)[:self.rows] if a_n is None else np.asarray(a_n)[:self.rows]
         return h
@@ -273,6 +309,9 @@ def fill_F(F, C, f_n, v, lat, h, bias):
         if pos:
             F[IP + 2, IV + 2] = 1.0
             F[IV + 2, IP + 2] = 0.0
+    im = int(bias[5])
+    for i in range(int(bias[6])):  # reference Markov noise states
+        F[im + i, im + i] = -bias[4]
 
 
 @njit(cache=True)

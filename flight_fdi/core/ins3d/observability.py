@@ -25,12 +25,12 @@ from numba import njit
 
 from ..errors import CoreError
 from .data import NavSteps, RefRows
-from .filter import _scale, scaled_H
+from .filter import _scale, scaled_H, white_variance
 from .model import Ins3dModel, discretize, fill_F
 
 
 @njit(cache=True)
-def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, rows, report_step, W_o):
+def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, im, rows, report_step, W_o):
     n = s.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
@@ -47,7 +47,7 @@ def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, rows, report_st
             _scale(Phi, Qd, s)
             M = Phi @ M
         while j < ref_step.size and ref_step[j] == k:
-            HM = scaled_H(s, acc[j], il, rows) @ M
+            HM = scaled_H(s, acc[j], il, im, rows) @ M
             for i in range(rows):
                 w = 1.0 / r[j, i]
                 for a in range(n):
@@ -93,8 +93,9 @@ def observability(model: Ins3dModel, steps: NavSteps, refs: RefRows, every_s: fl
     W = np.zeros((rep.size, n, n))
     order = np.argsort(refs.step, kind="stable")
     _gramian(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt,
-             model.kernel_params(), s, refs.step[order], np.ascontiguousarray(refs.r[order]),
-             np.ascontiguousarray(refs.a[order]), model.il, model.rows, rep.astype(np.int64), W)
+             model.kernel_params(), s, refs.step[order], white_variance(model, refs.r[order]),
+             np.ascontiguousarray(refs.a[order]), model.il, model.im if model.n_markov else 0,
+             model.rows, rep.astype(np.int64), W)
     prior = np.eye(n)
     if P0 is not None:
         Si = np.diag(1.0 / s)
