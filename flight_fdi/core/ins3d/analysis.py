@@ -44,7 +44,7 @@ class Ins3dAnalysis:
 
 def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", rows: int = 2,
                   position: bool = False, vertical: str = "damped", latency: bool = True,
-                  ref_markov: tuple[float, float, float] | None = None,
+                  ref_markov: tuple[float, float, float] | None = (0.02, 0.03, 30.0),
                   gate: GateConfig = GateConfig(), aligned_prior: bool = True
                   ) -> Ins3dAnalysis:
     """Forward filter + observability report of one flight (see ``bagio.ins3d_input`` for the
