@@ -23,17 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...sim.rotation import dcm_array
 from ..errors import CoreError
-
-
-def _quat_dcm(q: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) C(q) of (N, 4) Hamilton quaternions (w, x, y, z), body -> navigation."""
-    w, x, y, z = (q[:, i] for i in range(4))
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
 
 
 @dataclass
@@ -69,7 +60,7 @@ def nav_steps(t: np.ndarray, q: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, v:
     q1 = q[1:] * np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0)[:, None]
     qm = q[:-1] + q1
     qm /= np.linalg.norm(qm, axis=1)[:, None]
-    C = _quat_dcm(qm)
+    C = dcm_array(qm)
     f_n = np.einsum("kij,kj->ki", C, np.asarray(f_b, dtype=float))
     mid = lambda y: 0.5 * (np.asarray(y, dtype=float)[:-1] + np.asarray(y, dtype=float)[1:])
     return NavSteps(t, dt, np.ascontiguousarray(C), f_n, np.asarray(w_b, dtype=float), mid(v),
