@@ -1,0 +1,147 @@
+"""The 3-D estimator's input: the contract topics (/ins/velocity, /ins/imu, /ins/fix,
+/reference/velocity; docs/sim3d.md) decoded into ``core.ins3d.data`` arrays -- from a bag
+(``read_ins3d``) or from a simulated flight in memory (``from_flight``, same decimation as the
+bag writer), plus the simulator's truth on the step grid (``truth_from_flight``) for tests and
+evaluation.
+
+The propagation grid is the /ins/imu stamps: step k runs from IMU message k to k+1 with the mean
+specific force and rate of message k+1 (the mean over the interval that ends at its stamp). The
+INS velocity, latitude and height at the boundaries are interpolated from their own topics.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.ins3d.data import NavSteps, RefRows, nav_steps, ref_rows
+from .errors import BagError
+
+TOPICS = {"ins_velocity": "/ins/velocity", "ins_imu": "/ins/imu", "ins_fix": "/ins/fix",
+          "ref_velocity": "/reference/velocity"}
+
+
+@dataclass
+class Ins3dInput:
+    """Decoded inputs: the steps, the reference rows, and the INS attitude at the boundaries."""
+
+    steps: NavSteps
+    refs: RefRows
+    q: np.ndarray          # (K+1, 4) INS q_b^n (w, x, y, z) at the step boundaries
+
+
+def _interp(t_out: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    y = np.asarray(y, dtype=float)
+    if y.ndim == 1:
+        return np.interp(t_out, t, y)
+    return np.stack([np.interp(t_out, t, y[:, i]) for i in range(y.shape[1])], axis=1)
+
+
+def build_input(t_imu: np.ndarray, q: np.ndarray, f_b: np.ndarray, w_b: np.ndarray,
+                t_vel: np.ndarray, v: np.ndarray, t_fix: np.ndarray, lat: np.ndarray,
+                h: np.ndarray, t_ref: np.ndarray, v_ref: np.ndarray, r_ref: np.ndarray
+                ) -> Ins3dInput:
+    """Arrays per topic (IMU: stamps, (w, x, y, z) quaternions, mean f and w over the interval
+    ending at the stamp; velocity ENU; fix lat rad, h m; reference velocity and variances)."""
+    if np.size(t_imu) < 2:
+        raise BagError("ins3d input: need at least two /ins/imu messages")
+    t_imu = np.asarray(t_imu, dtype=float)
+    v_b = _interp(t_imu, t_vel, v)
+    steps = nav_steps(t_imu, q, np.asarray(f_b)[1:], np.asarray(w_b)[1:], v_b,
+                      _interp(t_imu, t_fix, lat), _interp(t_imu, t_fix, h))
+    refs = ref_rows(steps, np.asarray(t_vel, dtype=float), v, t_ref, v_ref, r_ref)
+    return Ins3dInput(steps, refs, np.asarray(q, dtype=float))
+
+
+def from_flight(flight, imu_rate_hz: float = 20.0, velocity_rate_hz: float = 20.0,
+                fix_rate_hz: float = 5.0) -> Ins3dInput:
+    """The inputs a bag of ``flight`` (sim.ins3d.Flight3D) would give, without the bag."""
+    rate = flight.config.trajectory.rate_hz
+    every = int(round(rate / imu_rate_hz))
+    n_int = flight.gyro.rate.shape[0]
+    m = n_int // every
+    idx = every * np.arange(1, m + 1)       # as the bag: the first message ends interval 1
+    w = flight.gyro.rate[:m * every].reshape(m, every, 3).mean(axis=1)
+    f = flight.accel.rate[:m * every].reshape(m, every, 3).mean(axis=1)
+    ins, t = flight.ins, flight.t
+    iv = np.arange(0, t.size, int(round(rate / velocity_rate_hz)))
+    ifx = np.arange(0, t.size, int(round(rate / fix_rate_hz)))
+    g = flight.gnss
+    return build_input(t[idx], ins.q[idx], f, w, t[iv], ins.v[iv], t[ifx], ins.lat[ifx],
+                       ins.h[ifx], g.t, g.v, np.broadcast_to(g.vel_var, g.v.shape))
+
+
+def truth_from_flight(flight, inp: Ins3dInput) -> dict[str, np.ndarray]:
+    """The true error states on the step grid: ``x`` (K+1, 15) [dv, phi, b_a, b_g, dp] (biases:
+    the total systematic error (S+M) r + b + fault, mean over the next step; the last repeats)
+    and ``u_a``, ``u_g`` (K, 3) the same per step."""
+    t = flight.t
+    rate = flight.config.trajectory.rate_hz
+    idx = np.rint((inp.steps.t - t[0]) * rate).astype(int)
+    every = int(idx[1] - idx[0])
+    from ..sim.earth import radii
+    dv = flight.velocity_error()[idx]
+    phi = flight.attitude_error()[idx]
+    tr, ins = flight.truth.nav, flight.ins
+    r_n, r_m = radii(tr.lat[idx])
+    dp = np.stack([(r_n + tr.h[idx]) * np.cos(tr.lat[idx]) * (ins.lon[idx] - tr.lon[idx]),
+                   (r_m + tr.h[idx]) * (ins.lat[idx] - tr.lat[idx]),
+                   ins.h[idx] - tr.h[idx]], axis=1)
+    dt = flight.dt
+    ea = flight.accel.systematic(flight.ideal_dv / dt)
+    eg = flight.gyro.systematic(flight.ideal_dtheta / dt)
+    k = idx.size - 1
+    u_a = ea[idx[0]:idx[0] + k * every].reshape(k, every, 3).mean(axis=1)
+    u_g = eg[idx[0]:idx[0] + k * every].reshape(k, every, 3).mean(axis=1)
+    x = np.hstack([dv, phi, np.vstack([u_a, u_a[-1:]]), np.vstack([u_g, u_g[-1:]]), dp])
+    return {"x": x, "u_a": u_a, "u_g": u_g}
+
+
+def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dInput:
+    """Decode a bag's contract topics (names configurable) into the estimator's input."""
+    from .reader import read_messages
+    names = {**TOPICS, **(topics or {})}
+    by_topic: dict[str, list] = {v: [] for v in names.values()}
+    for topic, _, _, msg in read_messages(path, list(names.values())):
+        by_topic[topic].append(msg)
+    return build_input(*_decode({k: by_topic[v] for k, v in names.items()}, names, path))
+
+
+def _stamp_ns(m) -> int:
+    return int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+
+
+def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
+    for k, v in names.items():
+        if len(got[k]) < 2:
+            raise BagError(f"{path}: topic {v} has fewer than two messages")
+    ns = {k: sorted(((_stamp_ns(m), m) for m in ms), key=lambda p: p[0]) for k, ms in got.items()}
+    t0 = min(r[0][0] for r in ns.values())       # times in s from the first stamp, exact in ns
+    rows = {k: [((s_ - t0) * 1e-9, m) for s_, m in r] for k, r in ns.items()}
+    t0 = 0.0
+    imu = rows["ins_imu"]
+    t_imu = np.array([s for s, _ in imu]) - t0
+    o = [m.orientation for _, m in imu]
+    q = np.array([[a.w, a.x, a.y, a.z] for a in o])
+    f = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z]
+                  for _, m in imu])
+    w = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z]
+                  for _, m in imu])
+    vel = rows["ins_velocity"]
+    t_vel = np.array([s for s, _ in vel]) - t0
+    v = np.array([[m.twist.linear.x, m.twist.linear.y, m.twist.linear.z] for _, m in vel])
+    fix = rows["ins_fix"]
+    t_fix = np.array([s for s, _ in fix]) - t0
+    lat = np.radians([m.latitude for _, m in fix])
+    h = np.array([m.altitude for _, m in fix])
+    ref = rows["ref_velocity"]
+    t_ref = np.array([s for s, _ in ref]) - t0
+    lin = [m.twist.twist.linear for _, m in ref]
+    v_ref = np.array([[a.x, a.y, a.z] for a in lin])
+    r_ref = np.array([np.asarray(m.twist.covariance)[[0, 7, 14]] for _, m in ref])
+    return t_imu, q, f, w, t_vel, v, t_fix, lat, h, t_ref, v_ref, r_ref
+
+
+__all__ = ["Ins3dInput", "TOPICS", "build_input", "from_flight", "read_ins3d",
+           "truth_from_flight"]

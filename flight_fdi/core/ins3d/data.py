@@ -1,0 +1,104 @@
+"""Input arrays of the 3-D INS error model: the navigation solution per propagation step and the
+reference measurements (the four contract topics of docs/sim3d.md, already decoded).
+
+``NavSteps`` holds, for each propagation step k (t_k -> t_k+1, the /ins/imu message grid), the
+mid-interval navigation values the time-varying F is built from:
+
+- ``C`` (K, 3, 3): C_b^n (body x fwd / y left / z up -> ENU), the mean of the INS attitude at the
+  two ends of the step (the quaternion mean, normalised);
+- ``f_n`` (K, 3): the measured specific force of the step (the /ins/imu mean over the interval,
+  body) rotated into ENU by ``C``;
+- ``w_b`` (K, 3): the measured body rate of the step (only for reports: turn detection);
+- ``v`` (K, 3) ENU m/s, ``lat`` (K,) rad, ``h`` (K,) m: INS values at mid-step;
+- ``dt`` (K,) the actual step lengths, ``t`` (K + 1,) the step boundaries (s).
+
+``RefRows`` holds the reference measurements: stamps ``t`` (M,), the innovation input
+z = v_INS(t) - v_ref(t) (M, 3) ENU and its variance ``r`` (M, 3) per row; ``step`` (M,) is the
+index of the step boundary the update is applied at (the first boundary at or after the stamp);
+``a`` (M, 3) the INS acceleration over the Earth at the stamps (the latency state's H column).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...sim.rotation import dcm_array
+from ..errors import CoreError
+
+
+@dataclass
+class NavSteps:
+    """The navigation solution per propagation step (see the module docstring)."""
+
+    t: np.ndarray
+    dt: np.ndarray
+    C: np.ndarray
+    f_n: np.ndarray
+    w_b: np.ndarray
+    v: np.ndarray
+    lat: np.ndarray
+    h: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.dt.size)
+
+
+def nav_steps(t: np.ndarray, q: np.ndarray, f_b: np.ndarray, w_b: np.ndarray, v: np.ndarray,
+              lat: np.ndarray, h: np.ndarray) -> NavSteps:
+    """Steps from INS states at the boundaries t (K+1,): q (K+1, 4) (w, x, y, z), v (K+1, 3),
+    lat/h (K+1,); f_b, w_b (K, 3) the mean measured specific force and rate of each step."""
+    t = np.asarray(t, dtype=float)
+    n = t.size
+    q = np.asarray(q, dtype=float)
+    if n < 2 or q.shape != (n, 4) or np.shape(v) != (n, 3) or np.shape(lat) != (n,) \
+            or np.shape(h) != (n,) or np.shape(f_b) != (n - 1, 3) or np.shape(w_b) != (n - 1, 3):
+        raise CoreError("nav_steps: need K+1 >= 2 states (t, q, v, lat, h) and K (f_b, w_b)")
+    dt = np.diff(t)
+    if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
+        raise CoreError("nav_steps: the step times must increase strictly")
+    q1 = q[1:] * np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0)[:, None]
+    qm = q[:-1] + q1
+    qm /= np.linalg.norm(qm, axis=1)[:, None]
+    C = dcm_array(qm)
+    f_n = np.einsum("kij,kj->ki", C, np.asarray(f_b, dtype=float))
+    mid = lambda y: 0.5 * (np.asarray(y, dtype=float)[:-1] + np.asarray(y, dtype=float)[1:])
+    return NavSteps(t, dt, np.ascontiguousarray(C), f_n, np.asarray(w_b, dtype=float), mid(v),
+                    mid(lat), mid(h))
+
+
+@dataclass
+class RefRows:
+    """Reference velocity measurements as innovation inputs (see the module docstring)."""
+
+    t: np.ndarray
+    z: np.ndarray
+    r: np.ndarray
+    step: np.ndarray
+    a: np.ndarray | None = None     # (M, 3) INS acceleration dv/dt (ENU) at the stamps
+
+    def __post_init__(self) -> None:
+        if self.a is None:
+            self.a = np.zeros_like(self.z)
+
+
+def ref_rows(steps: NavSteps, t_ins: np.ndarray, v_ins: np.ndarray, t_ref: np.ndarray,
+             v_ref: np.ndarray, r_ref: np.ndarray) -> RefRows:
+    """z = v_INS(t_ref) - v_ref (INS velocity linearly interpolated at the reference stamps);
+    references outside the step grid are dropped."""
+    t_ref = np.asarray(t_ref, dtype=float)
+    keep = (t_ref >= steps.t[0]) & (t_ref <= steps.t[-1])
+    t_ref = t_ref[keep]
+    v_ref = np.asarray(v_ref, dtype=float)[keep]
+    r_ref = np.broadcast_to(np.asarray(r_ref, dtype=float), (keep.size, 3))[keep]
+    if np.any(r_ref <= 0) or not np.all(np.isfinite(r_ref)):
+        raise CoreError("ref_rows: the reference variances must be finite and > 0")
+    v_ins = np.asarray(v_ins, dtype=float)
+    v_i = np.stack([np.interp(t_ref, t_ins, v_ins[:, i]) for i in range(3)], axis=1)
+    acc = np.gradient(v_ins, t_ins, axis=0)
+    a_i = np.stack([np.interp(t_ref, t_ins, acc[:, i]) for i in range(3)], axis=1)
+    step = np.searchsorted(steps.t, t_ref - 1e-9 * np.maximum(1.0, np.abs(t_ref)), side="left")
+    return RefRows(t_ref, v_i - v_ref, np.ascontiguousarray(r_ref), step.astype(np.int64), a_i)
+
+
+__all__ = ["NavSteps", "RefRows", "nav_steps", "ref_rows"]

@@ -1,0 +1,182 @@
+"""Forward Kalman filter on the time-varying ins3d model, with the beta^2 gate.
+
+One numba kernel (``_forward``, ``njit(cache=True)``) runs the whole flight: per propagation step
+k the continuous F is built from the navigation solution (``model.fill_F``), discretised at the
+step's dt (``model.discretize``), scaled, and the prediction x = Phi x, P = Phi P Phi' + Q is
+taken; at the step boundaries that carry reference messages the update follows (Joseph form)::
+
+    nu = z - H x,  S = H P H' + R,  K = P H' S^-1,
+    x += K nu,     P = (I - K H) P (I - K H)' + K R K'
+
+Scaled coordinates (SPEC §1, numerics): x' = T^-1 x with T = diag(sqrt(P0)), Phi' = T^-1 Phi T,
+Q' = T^-1 Q T^-1, H' = H T; everything returned is in physical units. The gate (SPEC §2):
+beta^2 = nu' S^-1 nu against the chi^2(m) threshold of ``GateConfig`` for the m = 2 or 3 rows,
+and per row beta_i^2 = nu_i^2 / S_ii against the chi^2(1) threshold; the persistence alarm (M of
+the last N updates) of ``kalman.alarm_states``; ``action="reject"`` skips a gated update.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ..errors import CoreError
+from ..kalman import GateConfig, alarm_states
+from .data import NavSteps, RefRows
+from .model import Ins3dModel, discretize, fill_F
+
+
+@njit(cache=True)
+def _scale(Phi, Qd, s):
+    n = s.size
+    for i in range(n):
+        for j in range(n):
+            Phi[i, j] *= s[j] / s[i]
+            Qd[i, j] /= s[i] * s[j]
+
+
+@njit(cache=True)
+def scaled_H(s, a, il, im, rows):
+    """H' = H T of one update: the velocity rows, the reference Markov states (im > 0) and the
+    latency column a_n (il >= 0)."""
+    Hs = np.zeros((rows, s.size))
+    for i in range(rows):
+        Hs[i, i] = s[i]
+        if im > 0:
+            Hs[i, im + i] = s[im + i]
+        if il >= 0:
+            Hs[i, il] = a[i] * s[il]
+    return Hs
+
+
+@njit(cache=True)
+def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o):
+    """One reference update (scaled x, P; z, r physical); fills output row j."""
+    n = x.size
+    Hs = scaled_H(s, a, il, im, rows)
+    HP = Hs @ P
+    S = HP @ Hs.T
+    nu = z[:rows] - Hs @ x
+    for i in range(rows):
+        S[i, i] += r[i]
+    Si = np.linalg.inv(S)
+    b2 = nu @ Si @ nu
+    b2_o[j] = b2
+    nu_o[j, :] = nu
+    S_o[j, :, :] = S
+    for i in range(rows):
+        b2r_o[j, i] = nu[i] * nu[i] / S[i, i]
+    exc_o[j] = b2 > thr
+    if reject and b2 > thr:
+        return
+    K = HP.T @ Si                       # (n, rows) = P H' S^-1
+    x += K @ nu
+    IKH = np.eye(n) - K @ Hs
+    Pn = IKH @ P @ IKH.T
+    for p_ in range(n):
+        for q_ in range(n):
+            acc = 0.0
+            for i in range(rows):
+                acc += K[p_, i] * r[i] * K[q_, i]
+            Pn[p_, q_] += acc
+    P[:, :] = 0.5 * (Pn + Pn.T)
+
+
+@njit(cache=True)
+def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il, im, rows, thr,
+             reject, keep_cov, x_o, sd_o, nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o):
+    n = s.size
+    F = np.empty((n, n))
+    Phi = np.empty((n, n))
+    Qd = np.empty((n, n))
+    x = x0 / s
+    P = P0.copy()
+    for i in range(n):
+        for c in range(n):
+            P[i, c] /= s[i] * s[c]
+    j = 0
+    m = ref_step.size
+    K = dt.size
+    for k in range(K + 1):
+        if k > 0:
+            fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], bias)
+            discretize(F, dt[k - 1], qc, Phi, Qd)
+            _scale(Phi, Qd, s)
+            x = Phi @ x
+            P = Phi @ P @ Phi.T + Qd
+            P = 0.5 * (P + P.T)
+        while j < m and ref_step[j] == k:
+            _update(x, P, s, z[j], r[j], acc[j], il, im, rows, thr, reject, j, nu_o, S_o,
+                    b2_o, b2r_o, exc_o)
+            if keep_cov:
+                for a in range(n):
+                    for b in range(n):
+                        Ppost_o[j, a, b] = P[a, b] * s[a] * s[b]
+            j += 1
+        for i in range(n):
+            x_o[k, i] = x[i] * s[i]
+            sd_o[k, i] = np.sqrt(max(P[i, i], 0.0)) * s[i]
+
+
+@dataclass
+class Ins3dForward:
+    """The forward pass: states on the step grid, innovations and gate per reference update."""
+
+    names: tuple[str, ...]
+    t: np.ndarray            # (K+1,) step boundaries
+    x: np.ndarray            # (K+1, n) filtered state (after the updates at the boundary)
+    sd: np.ndarray           # (K+1, n) its standard deviations
+    t_ref: np.ndarray        # (M,) update times
+    nu: np.ndarray           # (M, rows) innovations
+    S: np.ndarray            # (M, rows, rows)
+    beta2: np.ndarray        # (M,)
+    beta2_row: np.ndarray    # (M, rows)
+    exceeded: np.ndarray     # (M,) bool: beta^2 > the chi^2(rows) gate
+    exceeded_row: np.ndarray  # (M, rows) bool: per row against the chi^2(1) gate
+    alarm: np.ndarray        # (M,) alarm states (kalman.ALARM_*)
+    threshold: float
+    threshold_row: float
+    P_post: np.ndarray | None = None   # (M, n, n) posterior covariances (keep_cov)
+
+
+def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
+    """The white part of the reference variance: the published one minus the Markov states'
+    sigma^2 (floored at 10 % of the published one)."""
+    r = np.asarray(r, dtype=float)
+    s2 = np.zeros(3)
+    s2[:model.rows] = model.markov_sigma() ** 2
+    return np.ascontiguousarray(np.maximum(r - s2[None, :], 0.1 * r))
+
+
+def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
+                gate: GateConfig = GateConfig(), x0: np.ndarray | None = None,
+                P0: np.ndarray | None = None, keep_cov: bool = False) -> Ins3dForward:
+    """Filter the whole flight (x0 default 0, P0 default diag(model.p0()))."""
+    n, rows = model.n, model.rows
+    p0 = model.p0()
+    P0 = np.diag(p0) if P0 is None else np.asarray(P0, dtype=float)
+    x0 = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
+    if P0.shape != (n, n) or x0.shape != (n,):
+        raise CoreError(f"ins3d filter: x0 and P0 must be ({n},) and ({n}, {n})")
+    if refs.step.size and (refs.step.min() < 0 or refs.step.max() > len(steps)):
+        raise CoreError("ins3d filter: reference updates outside the step grid")
+    s = np.sqrt(p0)
+    m = refs.t.size
+    x_o, sd_o = np.empty((len(steps) + 1, n)), np.empty((len(steps) + 1, n))
+    nu, S = np.empty((m, rows)), np.empty((m, rows, rows))
+    b2, b2r, exc = np.empty(m), np.empty((m, rows)), np.zeros(m, dtype=np.bool_)
+    Pp = np.empty((m if keep_cov else 0, n, n))
+    thr, thr_row = gate.threshold(rows), gate.threshold(1)
+    order = np.argsort(refs.step, kind="stable")
+    _forward(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, model.kernel_params(),
+             model.qc(), s, x0, P0, refs.step[order], np.ascontiguousarray(refs.z[order]),
+             white_variance(model, refs.r[order]), np.ascontiguousarray(refs.a[order]),
+             model.il, model.im if model.n_markov else 0, rows, thr, gate.action == "reject",
+             keep_cov, x_o, sd_o, nu, S, b2, b2r, exc, Pp)
+    return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,
+                        b2r > thr_row, alarm_states(exc, gate), thr, thr_row,
+                        Pp if keep_cov else None)
+
+
+__all__ = ["Ins3dForward", "run_forward", "scaled_H", "white_variance"]
