@@ -90,7 +90,8 @@ if [ "$(cat "$VENV/.flight_fdi-build" 2>/dev/null)" != "$BUILD_HASH" ] || [ ! -d
 #!$VPY
 import sys
 from flight_fdi.cli.main import main
-sys.exit(main())
+if __name__ == "__main__":  # worker processes started by spawn (Dask) import this file
+    sys.exit(main())
 EOF
     chmod +x "$VENV/bin/flight-fdi"
     echo "$BUILD_HASH" > "$VENV/.flight_fdi-build"

@@ -27,6 +27,7 @@ SUBCOMMANDS = {
     "voter-experiment": "flight_fdi.cli.voter_experiment",
     "vote": "flight_fdi.cli.vote",
     "imu-csv": "flight_fdi.cli.imu_csv",
+    "batch": "flight_fdi.cli.batch",
 }
 
 EXIT_ERROR = 1

@@ -7,17 +7,22 @@ magnitudes (random sign, random onset) in memory, analyses each with the same co
 detections, the in-flight detection delay, the isolation confusion matrix of both methods,
 onset and magnitude errors, type I / II error rates, and per magnitude the detection and
 isolation rates with the smallest fault each method isolates in 95 % of the runs.
-The result depends only on the options (--seed included), not on --jobs.
+The flights run on Dask: a local cluster of --jobs worker processes (default one per core;
+1: in this process), or an existing cluster with --scheduler tcp://HOST:PORT. The result depends
+only on the options (--seed included), not on where or on how many workers it ran. --records
+streams every flight's record to a JSON-lines file as it arrives (for very large studies).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import sys
 from pathlib import Path
 
 from flight_fdi.cli.analyze import add_gate_options
+from flight_fdi.cli.batch import add_engine_options, engine_spec
 from flight_fdi.cli.errors import CliError
 
 
@@ -61,12 +66,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="fault onset uniform in [A, B] x duration (default 0.1,0.8)")
     p.add_argument("--channel", choices=("x", "y"), default="x", help="axis (default x)")
     p.add_argument("--seed", type=int, default=0, help="seed of the study (default 0)")
-    p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    add_engine_options(p, "--jobs", "--workers")
     add_gate_options(p)
     p.add_argument("--glr-p-false-alarm", type=float, default=1e-3,
                    help="GLR per-flight false-alarm probability (default 1e-3)")
     p.add_argument("--out", default=None, metavar="FILE",
                    help="also write the full result (settings, metrics, every flight) as JSON")
+    p.add_argument("--records", default=None, metavar="FILE.jsonl",
+                   help="stream every flight's record to this file as it arrives (JSON lines, "
+                        "completion order)")
     p.add_argument("--json", action="store_true",
                    help="print the settings and metrics as one JSON object instead of tables")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -87,16 +95,33 @@ def study_config(args: argparse.Namespace):
                        analysis=analysis)
 
 
+def _writable(path: str | None, option: str) -> Path | None:
+    out = Path(path) if path else None
+    if out is not None and not out.parent.is_dir():
+        raise CliError(f"{option}: cannot write {out}: directory '{out.parent}' does not exist")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
+    from flight_fdi.campaign.engine import default_workers
     from flight_fdi.eval.montecarlo import format_metrics, run_study
 
     config = study_config(args)
-    if args.jobs < 1:
-        raise CliError(f"--jobs must be >= 1, got {args.jobs}")
-    out = Path(args.out) if args.out else None
-    if out is not None and not out.parent.is_dir():
-        raise CliError(f"cannot write {out}: directory '{out.parent}' does not exist")
-    result = run_study(config, jobs=args.jobs, progress=not args.no_progress)
+    spec = engine_spec(args)
+    out = _writable(args.out, "--out")
+    records = _writable(args.records, "--records")
+    with contextlib.ExitStack() as stack:
+        on_record = None
+        if records is not None:
+            stream = stack.enter_context(records.open("w", encoding="utf-8"))
+
+            def on_record(rec: dict) -> None:
+                stream.write(json.dumps(rec, allow_nan=False) + "\n")
+                stream.flush()
+
+        result = run_study(config, jobs=spec.workers or default_workers(),
+                           progress=not args.no_progress, on_record=on_record,
+                           scheduler=spec.scheduler)
     if out is not None:
         out.write_text(json.dumps(result.to_dict(with_records=True), indent=1) + "\n")
     if args.json:
@@ -105,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_metrics(result.metrics))
         print(f"\n{len(result.records)} flights of {config.duration_s:g} s in "
-              f"{result.elapsed_s:.1f} s with {result.jobs} process(es)"
-              + (f"; full result in {out}" if out else ""))
+              f"{result.elapsed_s:.1f} s on {result.engine}"
+              + (f"; full result in {out}" if out else "")
+              + (f"; records in {records}" if records else ""))
     return 0

@@ -34,14 +34,13 @@ unexplained has the class ``ambiguous``). A fault is *isolated* when it is decla
 class equals the true element; GLR *names* it when it is isolated or among the candidates of
 an ambiguous result (:func:`onset_errors` reports onset errors over the named faults).
 
-Everything here is pure (numpy, no rclpy); :func:`run_study` runs the flights over ``jobs``
-processes. The result depends only on the study's configuration and seed, never on ``jobs``.
+Everything here is pure (numpy, no rclpy); :func:`run_study` runs the flights on the campaign
+engine (:mod:`flight_fdi.campaign.engine`: this process, a local Dask cluster or an existing
+one). The result depends only on the study's configuration and seed, never on where it ran.
 """
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
-import sys
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Iterable, Sequence
@@ -499,67 +498,75 @@ class StudyResult:
     records: list[dict]
     metrics: dict
     elapsed_s: float
-    jobs: int
+    jobs: int  # workers the flights ran on
+    engine: str = ""  # where they ran (campaign engine)
 
     def to_dict(self, with_records: bool = True) -> dict:
-        d = {"config": self.config.describe(), "jobs": self.jobs,
+        d = {"config": self.config.describe(), "jobs": self.jobs, "engine": self.engine,
              "elapsed_s": self.elapsed_s, "metrics": self.metrics}
         if with_records:
             d["flights"] = self.records
         return d
 
 
-def _pool_context():
-    methods = mp.get_all_start_methods()
-    # fork is the cheapest (the workers inherit the imported core); elsewhere spawn
-    return mp.get_context("fork" if "fork" in methods and sys.platform.startswith("linux")
-                          else "spawn")
-
-
 def parallel_map(fn: Callable[[Any], dict], items: Sequence[Any], jobs: int = 1,
                  progress: bool = False, desc: str = "montecarlo",
-                 on_result: Callable[[dict], None] | None = None) -> list[dict]:
-    """``[fn(item) for item in items]`` over ``jobs`` processes (results in completion order),
-    with an optional tqdm progress bar on stderr. ``fn`` must be a module-level function."""
+                 on_result: Callable[[dict], None] | None = None, scheduler: str | None = None,
+                 info: dict | None = None) -> list[dict]:
+    """``[fn(item) for item in items]`` on the campaign engine (results in completion order),
+    with an optional tqdm progress bar on stderr: in this process when ``jobs`` is 1, else on a
+    local Dask cluster of ``jobs`` worker processes, or on the existing cluster at
+    ``scheduler`` (tcp://HOST:PORT). ``fn`` must be a module-level function and each item carry
+    its own seed: the results do not depend on where they ran. The first item that raises stops
+    the map (the others are cancelled) and its exception is raised here. ``info``, when given,
+    receives ``engine`` (where it ran) and ``workers``."""
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
         raise EvalError(f"jobs must be an integer >= 1, got {jobs!r}")
-    from tqdm import tqdm
+    from flight_fdi.campaign.engine import Engine, EngineError, EngineSpec
 
-    jobs = max(1, min(int(jobs), len(items)))
-    pool = _pool_context().Pool(jobs) if jobs > 1 else None
-    out: list[dict] = []
     try:
-        results = pool.imap_unordered(fn, items, chunksize=2) if pool else map(fn, items)
-        with tqdm(total=len(items), desc=desc, unit="flight", disable=not progress,
-                  file=sys.stderr) as bar:
-            for rec in results:
-                out.append(rec)
-                if on_result is not None:
-                    on_result(rec)
-                bar.update(1)
-    finally:
-        if pool is not None:
-            pool.terminate()
-            pool.join()
+        spec = EngineSpec(workers=max(1, min(int(jobs), len(items))), scheduler=scheduler)
+    except EngineError as exc:
+        raise EvalError(str(exc)) from None
+    out: list[dict] = []
+
+    def arrived(_i: int, rec: dict, err: BaseException | None) -> None:
+        if err is not None:
+            raise err
+        out.append(rec)
+        if on_result is not None:
+            on_result(rec)
+
+    with Engine(spec) as engine:
+        if scheduler is not None:
+            engine.wait_for_workers(1)
+        if info is not None:
+            info.update(engine=engine.describe(), workers=engine.worker_count())
+        engine.run(fn, items, progress=progress, desc=desc, unit="flight", on_outcome=arrived)
     return out
 
 
 def run_study(config: StudyConfig, jobs: int = 1, progress: bool = False,
-              on_record: Callable[[dict], None] | None = None) -> StudyResult:
-    """Run every flight of the study over ``jobs`` processes and summarise.
+              on_record: Callable[[dict], None] | None = None,
+              scheduler: str | None = None) -> StudyResult:
+    """Run every flight of the study on the campaign engine (:func:`parallel_map`: ``jobs``
+    local worker processes, or the Dask cluster at ``scheduler``) and summarise.
 
     progress: show a tqdm progress bar on stderr. on_record: called with each record as it
-    arrives (any order). The records are returned in flight order.
+    arrives (any order; e.g. to stream the records to disk). The records are returned in
+    flight order.
     """
     if not isinstance(config, StudyConfig):
         raise EvalError(f"run_study: config must be a StudyConfig, got {type(config).__name__}")
     cases = plan_study(config)
     start = time.perf_counter()
+    info: dict = {}
     records = parallel_map(_run_indexed, [(c, config) for c in cases], jobs, progress,
-                           on_result=on_record)
+                           on_result=on_record, scheduler=scheduler, info=info)
     records.sort(key=lambda r: r["index"])
     return StudyResult(config=config, records=records, metrics=summarize(records),
-                       elapsed_s=time.perf_counter() - start, jobs=max(1, min(jobs, len(cases))))
+                       elapsed_s=time.perf_counter() - start, jobs=info["workers"],
+                       engine=info["engine"])
 
 
 # --------------------------------------------------------------------------- text output

@@ -1,0 +1,322 @@
+"""``flight-fdi batch``: analyse a fleet's flights on the campaign engine.
+
+Every bag is analysed by the per-bag function of ``flight-fdi analyze``
+(:func:`flight_fdi.cli.analyze.analyze_bag`) with the options of ``analyze``
+(:func:`~flight_fdi.cli.analyze.add_analysis_options`), one engine task per flight. The output
+folder holds::
+
+    DIR/flights/<flight>.json   the result of each flight (what ``analyze --json`` prints)
+    DIR/summary.csv             one row per flight (campaign.summary.COLUMNS)
+    DIR/index.html              the fleet page (campaign.fleet)
+    DIR/batch.json              the analysis options, the inputs and the last run's counts
+    DIR/reports/<flight>/       per-flight reports, made on demand (--reports)
+
+Resumable: a flight whose result is newer than its bag (and was made from the same bag with the
+same analysis options) is not analysed again. A bag that cannot be analysed is a summary row with
+its error; the batch goes on. The results are written by this process as they arrive, so an
+interrupted batch keeps every finished flight.
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import hashlib
+import json
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from .engine import Engine, EngineSpec
+from .summary import summary_row
+
+BAG_SUFFIXES = (".mcap", ".db3")
+#: options that say where and how to run, not what the analysis computes
+RUN_OPTIONS = ("json", "jobs")
+
+
+class BatchError(RuntimeError):
+    """The batch cannot start (no bags, an output folder that cannot be written)."""
+
+
+# --------------------------------------------------------------------------- finding bags
+
+def is_bag(path: Path) -> bool:
+    """A rosbag2 bag: a folder with metadata.yaml, or a lone .mcap / .db3 file."""
+    return (path.is_dir() and (path / "metadata.yaml").is_file()) or \
+        (path.is_file() and path.suffix in BAG_SUFFIXES)
+
+
+def _bags_under(root: Path) -> list[Path]:
+    found = []
+    for here, dirs, files in os.walk(root, followlinks=False):
+        d = Path(here)
+        if "metadata.yaml" in files:
+            found.append(d)
+            dirs[:] = []
+            continue
+        dirs[:] = sorted(x for x in dirs if not x.startswith("."))
+        found += [d / f for f in sorted(files) if Path(f).suffix in BAG_SUFFIXES]
+    return found
+
+
+def find_bags(inputs: Iterable[str]) -> tuple[list[tuple[Path, Path]], list[tuple[str, str]]]:
+    """([(bag, the folder its name is relative to)], [(input, why it gave no bag)]) of bag
+    folders, bag files, globs and folders searched for bags; each bag once."""
+    bags: dict[Path, Path] = {}
+    problems: list[tuple[str, str]] = []
+    for text in inputs:
+        paths = [Path(text)]
+        if not paths[0].exists() and any(c in text for c in "*?["):
+            paths = [Path(p) for p in sorted(glob.glob(text, recursive=True))]
+            if not paths:
+                problems.append((text, f"no path matches {text!r}"))
+                continue
+        for p in paths:
+            if not p.exists():
+                problems.append((text, f"{text!r} does not exist"))
+            elif is_bag(p):
+                bags.setdefault(p.resolve(), p.resolve().parent)
+            elif p.is_dir():
+                under = _bags_under(p)
+                if not under:
+                    problems.append((text, f"no rosbag2 bag in {str(p)!r}"))
+                for b in under:
+                    bags.setdefault(b.resolve(), p.resolve())
+            else:
+                problems.append((text, f"{str(p)!r} is neither a bag nor a folder"))
+    return sorted(bags.items()), problems
+
+
+def flight_names(bags: list[tuple[Path, Path]]) -> dict[Path, str]:
+    """A file-name-safe name per bag: its path below the input folder ('/' -> '__', no bag
+    suffix); names that collide get a short hash of the bag's absolute path."""
+    raw: dict[Path, str] = {}
+    for bag, root in bags:
+        rel = bag.relative_to(root) if bag != root else Path(bag.name)
+        text = "__".join(rel.with_suffix("").parts if bag.is_file() else rel.parts)
+        raw[bag] = re.sub(r"[^A-Za-z0-9._-]", "_", text) or "flight"
+    counts: dict[str, int] = {}
+    for n in raw.values():
+        counts[n] = counts.get(n, 0) + 1
+    return {b: n if counts[n] == 1 else f"{n}-{hashlib.sha1(str(b).encode()).hexdigest()[:8]}"
+            for b, n in raw.items()}
+
+
+def bag_mtime(bag: Path) -> float:
+    """When the bag last changed: its newest file."""
+    if bag.is_file():
+        return bag.stat().st_mtime
+    return max([f.stat().st_mtime for f in bag.iterdir() if f.is_file()] or
+               [bag.stat().st_mtime])
+
+
+# --------------------------------------------------------------------------- one flight
+
+@dataclass(frozen=True)
+class FlightTask:
+    """One flight for the engine: everything its result depends on."""
+
+    name: str
+    bag: str
+    args: argparse.Namespace
+
+
+def analyze_task(task: FlightTask) -> dict:
+    """Analyse one flight like ``flight-fdi analyze`` (runs on a worker): ``{"result": dict |
+    None, "error": str | None, "seconds": float}``; never raises for a bad bag."""
+    from flight_fdi.cli.analyze import analyze_bag
+
+    start = time.perf_counter()
+    try:
+        result = analyze_bag(task.bag, task.args)
+        json.dumps(result, allow_nan=False)  # what analyze --json would refuse
+    except Exception as exc:  # a bad bag is a row with its error
+        return {"result": None, "error": error_text(exc),
+                "seconds": time.perf_counter() - start}
+    return {"result": result, "error": None, "seconds": time.perf_counter() - start}
+
+
+def error_text(exc: BaseException) -> str:
+    """One line: the message of a user error, else the exception's type and message."""
+    from flight_fdi.cli.main import _user_errors
+
+    msg = " ".join(str(exc).split()) or type(exc).__name__
+    return msg if isinstance(exc, _user_errors()) else f"{type(exc).__name__}: {msg}"
+
+
+# --------------------------------------------------------------------------- the batch
+
+def analysis_options(args: argparse.Namespace) -> dict:
+    """The options of ``analyze`` that change a result (the ones add_analysis_options
+    declares, whatever they are), as plain data."""
+    from flight_fdi.cli.analyze import add_analysis_options
+
+    probe = argparse.ArgumentParser(add_help=False)
+    add_analysis_options(probe)
+    dests = sorted(a.dest for a in probe._actions if a.dest not in RUN_OPTIONS)
+    return {d: _plain(getattr(args, d, None)) for d in dests}
+
+
+def option_flags(args: argparse.Namespace) -> list[str]:
+    """The analysis options of ``args`` that differ from their defaults, as command-line
+    arguments (for the report command shown on the fleet page)."""
+    from flight_fdi.cli.analyze import add_analysis_options
+
+    probe = argparse.ArgumentParser(add_help=False)
+    add_analysis_options(probe)
+    defaults = probe.parse_args([])
+    out: list[str] = []
+    for a in probe._actions:
+        if not a.option_strings or a.dest in RUN_OPTIONS:
+            continue
+        value = getattr(args, a.dest, None)
+        if value == getattr(defaults, a.dest):
+            continue
+        flag = a.option_strings[-1]
+        if a.nargs == 0:
+            out.append(flag)
+        else:
+            for v in value if isinstance(value, (list, tuple)) else [value]:
+                out += [flag, str(v)]
+    return out
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v if v is None or isinstance(v, (bool, int, float, str)) else str(v)
+
+
+@dataclass
+class BatchResult:
+    rows: list[dict]
+    analysed: int = 0
+    skipped: int = 0
+    failed: int = 0
+    elapsed_s: float = 0.0
+    engine: str = ""
+    seconds: list[float] = field(default_factory=list)  # per analysed flight, on its worker
+
+
+class Batch:
+    """The flights of one ``flight-fdi batch`` and its output folder."""
+
+    def __init__(self, inputs: Iterable[str], out: str | Path, args: argparse.Namespace,
+                 force: bool = False) -> None:
+        self.out = Path(out)
+        self.flights_dir = self.out / "flights"
+        self.args = argparse.Namespace(**{k: v for k, v in vars(args).items() if k != "func"})
+        self.args.jobs = 1  # parallel over flights, not inside one
+        self.options = analysis_options(self.args)
+        bags, self.problems = find_bags(inputs)
+        if not bags and not self.problems:
+            raise BatchError("no inputs")
+        self.names = flight_names(bags)
+        self.force = force or self._options_changed()
+
+    def result_path(self, name: str) -> Path:
+        return self.flights_dir / f"{name}.json"
+
+    def _options_changed(self) -> bool:
+        try:
+            before = json.loads((self.out / "batch.json").read_text())["options"]
+        except (OSError, ValueError, KeyError, TypeError):
+            return False
+        return before != self.options
+
+    def up_to_date(self, bag: Path, name: str) -> dict | None:
+        """The stored result of ``bag`` when it is newer than the bag, from this bag, with
+        today's options; else None."""
+        path = self.result_path(name)
+        if self.force or not path.is_file():
+            return None
+        try:
+            if path.stat().st_mtime <= bag_mtime(bag):
+                return None
+            doc = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return None
+        return doc if isinstance(doc, dict) and doc.get("bag") == str(bag) else None
+
+    def run(self, engine: Engine, progress: bool = False,
+            say: Callable[[str], None] = lambda s: None) -> BatchResult:
+        """Analyse every flight that is not up to date; write results, summary and fleet page
+        (also when interrupted: what finished is kept)."""
+        try:
+            self.flights_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise BatchError(f"cannot create {self.flights_dir}: {exc.strerror}") from None
+        start = time.perf_counter()
+        rows: dict[str, dict] = {}
+        tasks: list[FlightTask] = []
+        for bag, name in sorted(self.names.items(), key=lambda kv: kv[1]):
+            done = self.up_to_date(bag, name)
+            if done is not None:
+                rows[name] = summary_row(name, done, bag=str(bag))
+            else:
+                tasks.append(FlightTask(name, str(bag), self.args))
+        for text, why in self.problems:
+            name = re.sub(r"[^A-Za-z0-9._-]", "_", text).strip("_.") or "input"
+            rows[name] = summary_row(name, None, error=why, bag=text)
+        res = BatchResult(rows=[], skipped=len(self.names) - len(tasks), engine=engine.describe(),
+                          failed=len(self.problems))
+        say(f"batch: {len(self.names)} flight(s), {res.skipped} up to date, {len(tasks)} to "
+            f"analyse; running on {res.engine}")
+
+        def arrived(i: int, out: dict | None, err: BaseException | None) -> None:
+            task = tasks[i]
+            if err is not None:  # the engine lost it (e.g. it killed every worker it ran on)
+                out = {"result": None, "error": error_text(err), "seconds": None}
+            if out["result"] is not None:
+                _write_json(self.result_path(task.name), out["result"])
+                res.analysed += 1
+                res.seconds.append(out["seconds"])
+            else:
+                res.failed += 1
+            rows[task.name] = summary_row(task.name, out["result"], error=out["error"],
+                                          bag=task.bag)
+
+        try:
+            engine.run(analyze_task, tasks, progress=progress, desc="batch", unit="flight",
+                       on_outcome=arrived)
+        finally:
+            res.rows = [rows[k] for k in sorted(rows)]
+            res.elapsed_s = time.perf_counter() - start
+            self.write_outputs(res)
+        return res
+
+    def write_outputs(self, res: BatchResult) -> None:
+        from .fleet import write_fleet_page, write_summary_csv
+
+        write_summary_csv(res.rows, self.out / "summary.csv")
+        write_fleet_page(res.rows, self.out, self.reports_of(res.rows),
+                         report_options=option_flags(self.args),
+                         note=f"{res.analysed} analysed, {res.skipped} up to date, "
+                              f"{res.failed} failed in the last run ({res.elapsed_s:.1f} s on "
+                              f"{res.engine}).")
+        _write_json(self.out / "batch.json", {
+            "options": self.options, "flights": len(res.rows), "analysed": res.analysed,
+            "skipped": res.skipped, "failed": res.failed, "elapsed_s": res.elapsed_s,
+            "engine": res.engine}, indent=1)
+
+    def reports_of(self, rows: list[dict]) -> dict[str, str]:
+        """flight -> its report page (relative to the output folder), for the reports that
+        exist."""
+        out = {}
+        for r in rows:
+            index = self.out / "reports" / r["flight"] / "index.html"
+            result = self.result_path(r["flight"])
+            if index.is_file() and result.is_file() \
+                    and index.stat().st_mtime > result.stat().st_mtime:
+                out[r["flight"]] = index.relative_to(self.out).as_posix()
+        return out
+
+
+def _write_json(path: Path, doc: Any, indent: int | None = None) -> None:
+    """Write atomically (a reader never sees half a file; a rerun replaces, never appends)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(doc, allow_nan=False, indent=indent) + "\n", encoding="utf-8")
+    os.replace(tmp, path)

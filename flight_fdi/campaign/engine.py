@@ -1,0 +1,263 @@
+"""The campaign engine: one function over many seeded tasks, on Dask (``dask.distributed``).
+
+Generic on purpose: a *task* is any picklable object that carries everything its result depends
+on (a bag path and the options, a Monte Carlo case and its seed), and ``fn`` a module-level
+function. The engine runs ``fn(task)`` for every task and yields ``(index, result, error)`` in
+completion order; callers that need a fixed order sort by index. A result never depends on where
+or in which order it ran, so a study gives the same records on 1, 2 or 200 workers.
+
+Where the tasks run (:class:`EngineSpec`):
+
+* ``scheduler="tcp://HOST:PORT"``: an existing Dask cluster (``dask scheduler`` /
+  ``dask worker``); the workers must be able to import flight_fdi and see the input paths;
+* otherwise a local cluster started here (embedded, nothing to start): ``workers`` worker
+  *processes* of one thread each (default: one per core) -- the analysis holds the GIL, threads
+  would not run it in parallel;
+* ``inline``: in this process, a plain loop (the default for one local worker: a cluster of one
+  would only add its start-up).
+
+A task whose worker dies is run again on another worker by the scheduler (up to Dask's
+``distributed.scheduler.allowed-failures`` times, then its error is ``KilledWorker``), so a lost
+worker loses no task and each task yields once. Tasks are submitted in a sliding window
+(a few per worker), so a study of 10^5 flights holds only that many futures.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import uuid
+from contextlib import ExitStack
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+
+class EngineError(RuntimeError):
+    """The engine cannot start or reach its cluster (one sentence for the user)."""
+
+
+def default_workers() -> int:
+    """Worker processes of the embedded local cluster: one per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@dataclass(frozen=True)
+class EngineSpec:
+    """Where tasks run: ``scheduler`` (an existing cluster), else a local cluster of ``workers``
+    processes (None: :func:`default_workers`), or ``inline`` in this process (None: inline when
+    there is no scheduler and one worker)."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    inline: bool | None = None
+
+    def __post_init__(self) -> None:
+        w = self.workers
+        if w is not None and (isinstance(w, bool) or not isinstance(w, int) or w < 1):
+            raise EngineError(f"workers must be an integer >= 1, got {w!r}")
+        if self.scheduler is not None:
+            if not isinstance(self.scheduler, str) or "://" not in self.scheduler:
+                raise EngineError(f"scheduler must be an address like tcp://HOST:PORT, got "
+                                  f"{self.scheduler!r}")
+            if self.inline:
+                raise EngineError("inline and scheduler exclude each other")
+
+    @property
+    def runs_inline(self) -> bool:
+        if self.inline is not None:
+            return bool(self.inline)
+        return self.scheduler is None and (self.workers or default_workers()) == 1
+
+
+#: (index, result, error): error is None, or the exception ``fn`` raised / the engine's
+#: (e.g. distributed.KilledWorker when the task killed every worker it ran on)
+Outcome = tuple[int, Any, BaseException | None]
+
+
+class Engine:
+    """A started engine (use as a context manager: the local cluster and the client are closed
+    on exit, whatever happened)::
+
+        with Engine(EngineSpec(workers=2)) as engine:
+            for i, result, error in engine.run(fn, tasks, progress=True):
+                ...
+    """
+
+    def __init__(self, spec: EngineSpec | None = None) -> None:
+        self.spec = spec or EngineSpec()
+        self.client = None
+        self._stack = ExitStack()
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> "Engine":
+        if self.spec.runs_inline:
+            return self
+        try:
+            self._start()
+        except BaseException:
+            self._stack.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._stack.close()
+        self.client = None
+
+    def _start(self) -> None:
+        from distributed import Client, LocalCluster
+
+        if self.spec.scheduler is not None:
+            try:
+                self.client = self._stack.enter_context(
+                    Client(self.spec.scheduler, timeout=_connect_timeout()))
+            except OSError as exc:
+                raise EngineError(f"cannot reach the Dask scheduler at {self.spec.scheduler}: "
+                                  f"{exc}") from None
+            return
+        workers = self.spec.workers or default_workers()
+        cluster = self._stack.enter_context(LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+            dashboard_address=None, silence_logs=logging.ERROR))
+        self.client = self._stack.enter_context(Client(cluster))
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def kind(self) -> str:
+        if self.client is None:
+            return "inline"
+        return "cluster" if self.spec.scheduler else "local"
+
+    def worker_count(self) -> int:
+        """Workers now connected (1 inline)."""
+        if self.client is None:
+            return 1
+        return len(self.client.scheduler_info(n_workers=-1)["workers"])
+
+    def wait_for_workers(self, n: int = 1, timeout: float = 60.0) -> None:
+        if self.client is None:
+            return
+        try:
+            self.client.wait_for_workers(n, timeout=timeout)
+        except TimeoutError:
+            raise EngineError(f"the Dask cluster at {self.client.scheduler.address} has "
+                              f"{self.worker_count()} worker(s) after {timeout:g} s, expected "
+                              f">= {n}") from None
+
+    def describe(self) -> str:
+        if self.client is None:
+            return "this process (no cluster)"
+        n = self.worker_count()
+        where = (f"the Dask cluster at {self.spec.scheduler}" if self.spec.scheduler
+                 else "a local Dask cluster")
+        return f"{where} ({n} worker{'s' if n != 1 else ''})"
+
+    # ------------------------------------------------------------------ running
+    def run(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, progress: bool = False,
+            desc: str = "tasks", unit: str = "task",
+            on_outcome: Callable[[int, Any, BaseException | None], None] | None = None,
+            window: int | None = None) -> list[Outcome]:
+        """Run ``fn`` on every task; the outcomes in completion order (``on_outcome`` is called
+        with each as it arrives, e.g. to write it to disk). A tqdm bar on stderr with
+        ``progress``."""
+        from tqdm import tqdm
+
+        out: list[Outcome] = []
+        errors = 0
+        with tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress,
+                  file=sys.stderr, dynamic_ncols=True) as bar:
+            for outcome in self.iter(fn, tasks, window=window):
+                out.append(outcome)
+                if on_outcome is not None:
+                    on_outcome(*outcome)
+                if outcome[2] is not None:
+                    errors += 1
+                    bar.set_postfix(errors=errors, refresh=False)
+                bar.update(1)
+        return out
+
+    def iter(self, fn: Callable[[Any], Any], tasks: Iterable[Any],
+             window: int | None = None) -> Iterator[Outcome]:
+        """``(index, result, error)`` of ``fn(task)`` as each completes."""
+        if self.client is None:
+            yield from _iter_inline(fn, tasks)
+        else:
+            yield from self._iter_dask(fn, tasks, window)
+
+    def _iter_dask(self, fn: Callable[[Any], Any], tasks: Iterable[Any],
+                   window: int | None) -> Iterator[Outcome]:
+        from distributed import as_completed
+
+        client = self.client
+        name = getattr(fn, "__name__", "task")
+        prefix = f"{name}-{uuid.uuid4().hex[:12]}"
+        if window is None:
+            window = max(8, 4 * max(1, self._threads()))
+        todo = iter(enumerate(tasks))
+        index: dict[str, int] = {}
+        live: dict[str, Any] = {}  # key -> future not yet yielded
+        pending = as_completed()
+
+        def submit_next() -> bool:
+            try:
+                i, task = next(todo)
+            except StopIteration:
+                return False
+            fut = client.submit(fn, task, key=f"{prefix}-{i}", pure=False)
+            index[fut.key] = i
+            live[fut.key] = fut
+            pending.add(fut)
+            return True
+
+        try:
+            for _ in range(window):
+                if not submit_next():
+                    break
+            for fut in pending:
+                i = index.pop(fut.key)
+                live.pop(fut.key, None)
+                if fut.status == "finished":
+                    try:
+                        outcome: Outcome = (i, fut.result(), None)
+                    except Exception as exc:  # lost between the status and the fetch
+                        outcome = (i, None, exc)
+                else:
+                    outcome = (i, None, fut.exception())
+                fut.release()
+                submit_next()
+                yield outcome
+        finally:
+            if live:  # stopped early (an error or the caller's break): nothing left running
+                client.cancel(list(live.values()))
+            pending.clear()
+
+    def _threads(self) -> int:
+        info = self.client.scheduler_info(n_workers=-1)["workers"]
+        return sum(int(w.get("nthreads", 1)) for w in info.values()) or 1
+
+
+def _iter_inline(fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Outcome]:
+    for i, task in enumerate(tasks):
+        try:
+            result = fn(task)
+        except Exception as exc:
+            yield i, None, exc
+        else:
+            yield i, result, None
+
+
+def _connect_timeout() -> float:
+    return float(os.environ.get("FLIGHT_FDI_DASK_TIMEOUT", "30"))
+
+
+def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], spec: EngineSpec | None = None,
+              **kwargs: Any) -> list[Outcome]:
+    """Start an engine, :meth:`Engine.run` the tasks, stop it."""
+    with Engine(spec) as engine:
+        return engine.run(fn, tasks, **kwargs)
+

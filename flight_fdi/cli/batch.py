@@ -1,0 +1,93 @@
+"""``flight-fdi batch INPUT... --out DIR``: analyse a fleet's flights on Dask.
+
+INPUT: bag folders or files, globs (quoted: 'campaign/**/flight_*'), or folders searched for
+bags. Every flight is analysed as ``flight-fdi analyze`` does, with the same options. DIR gets one
+result JSON per flight (flights/<flight>.json), summary.csv (flight, bag, duration, verdict,
+sensor, axis, kind, onset, magnitude, unit, confidence, dropped samples, error) and the fleet page
+index.html. A second run analyses only flights whose bag is newer than their result (or all of
+them when the analysis options changed); a bag that cannot be analysed is a row with its error.
+
+The flights run on an embedded local Dask cluster of one worker process per core (nothing to
+start), or with --scheduler tcp://HOST:PORT on an existing cluster (``dask scheduler``,
+``dask worker``) whose workers see the bags under the same paths. See docs/scaling.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from flight_fdi.cli.analyze import add_analysis_options
+from flight_fdi.cli.errors import CliError
+
+
+def add_engine_options(p: argparse.ArgumentParser, *flags: str) -> None:
+    """Where the tasks run (read by :func:`engine_spec`): ``flags`` name the worker count
+    (default ``--workers``), and ``--scheduler``."""
+    from flight_fdi.campaign.engine import default_workers
+
+    p.add_argument(*(flags or ("--workers",)), dest="workers", type=int, default=None,
+                   metavar="N", help="worker processes of the local Dask cluster (default: one "
+                   f"per core, {default_workers()} here; 1: in this process, no cluster)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="run on this existing Dask cluster (its workers) instead of a local one")
+
+
+def engine_spec(args: argparse.Namespace):
+    from flight_fdi.campaign.engine import EngineError, EngineSpec
+
+    try:
+        return EngineSpec(workers=args.workers, scheduler=args.scheduler)
+    except EngineError as exc:
+        raise CliError(f"--workers/--scheduler: {exc}") from None
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("batch", help="analyse many bags (a fleet) on Dask, with a summary "
+                       "table and a fleet page", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="bag folders/files, globs or folders searched for bags")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    add_analysis_options(p)
+    add_engine_options(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true",
+                   help="analyse every flight again, even when its result is up to date")
+    p.add_argument("--reports", default=None, metavar="WHICH",
+                   help="also make per-flight reports: 'faults', 'all' or flight names A,B,...")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from flight_fdi.campaign.batch import Batch, BatchError
+    from flight_fdi.campaign.engine import Engine, EngineError
+    from flight_fdi.campaign.reports import make_reports
+
+    spec = engine_spec(args)
+    say = (lambda s: None) if args.json else (lambda s: print(s, file=sys.stderr))
+    try:
+        batch = Batch(args.inputs, args.out, args, force=args.force)
+        with Engine(spec) as engine:
+            if spec.scheduler:
+                engine.wait_for_workers(1)
+            res = batch.run(engine, progress=not args.no_progress, say=say)
+            report_errors = (make_reports(batch, res, engine, args.reports,
+                                          progress=not args.no_progress)
+                             if args.reports else [])
+    except (BatchError, EngineError) as exc:
+        raise CliError(str(exc)) from None
+    for line in [f"{r['flight']}: {r['error']}" for r in res.rows if r["error"]][:20] \
+            + report_errors[:20]:
+        print(f"flight-fdi batch: {line}", file=sys.stderr)
+    if args.json:
+        json.dump({"out": str(batch.out), "analysed": res.analysed, "skipped": res.skipped,
+                   "failed": res.failed, "elapsed_s": res.elapsed_s, "engine": res.engine,
+                   "flights": res.rows}, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        errors = sum(1 for r in res.rows if r["error"])
+        print(f"{len(res.rows)} flights: {res.analysed} analysed, {res.skipped} up to date, "
+              f"{errors} with an error, in {res.elapsed_s:.1f} s on {res.engine}\n"
+              f"summary {batch.out / 'summary.csv'}, fleet page {batch.out / 'index.html'}")
+    return 0
