@@ -242,9 +242,11 @@ class Batch:
         return doc if isinstance(doc, dict) and doc.get("bag") == str(bag) else None
 
     def run(self, engine: Engine, progress: bool = False,
-            say: Callable[[str], None] = lambda s: None) -> BatchResult:
+            say: Callable[[str], None] = lambda s: None,
+            on_flight: Callable[[dict], None] | None = None) -> BatchResult:
         """Analyse every flight that is not up to date; write results, summary and fleet page
-        (also when interrupted: what finished is kept)."""
+        (also when interrupted: what finished is kept). ``on_flight`` gets the summary row of
+        each flight analysed (or failed) in this run, as it arrives."""
         try:
             self.flights_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -278,6 +280,8 @@ class Batch:
                 res.failed += 1
             rows[task.name] = summary_row(task.name, out["result"], error=out["error"],
                                           bag=task.bag)
+            if on_flight is not None:
+                on_flight(rows[task.name])
 
         try:
             engine.run(analyze_task, tasks, progress=progress, desc="batch", unit="flight",

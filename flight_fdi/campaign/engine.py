@@ -27,6 +27,7 @@ import logging
 import os
 import sys
 import uuid
+import warnings
 from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
@@ -90,6 +91,7 @@ class Engine:
         self.spec = spec or EngineSpec()
         self.client = None
         self._stack = ExitStack()
+        self._imported: set[str] = set()
 
     # ------------------------------------------------------------------ life cycle
     def __enter__(self) -> "Engine":
@@ -121,9 +123,13 @@ class Engine:
                                   f"{exc}") from None
             return
         workers = self.spec.workers or default_workers()
-        cluster = self._stack.enter_context(LocalCluster(
-            n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-            dashboard_address=None, silence_logs=logging.ERROR))
+        with warnings.catch_warnings():
+            # no dashboard; the scheduler's small HTTP server takes a free port when 8787 is
+            # taken (another cluster on this machine) and would say so
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
+            cluster = self._stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=None, silence_logs=logging.ERROR))
         self.client = self._stack.enter_context(Client(cluster))
 
     # ------------------------------------------------------------------ facts
@@ -194,6 +200,7 @@ class Engine:
         from distributed import as_completed
 
         client = self.client
+        self._check_import(fn)
         name = getattr(fn, "__name__", "task")
         prefix = f"{name}-{uuid.uuid4().hex[:12]}"
         if window is None:
@@ -236,6 +243,20 @@ class Engine:
                 client.cancel(list(live.values()))
             pending.clear()
 
+    def _check_import(self, fn: Callable[[Any], Any]) -> None:
+        """Fail now, with the reason, when a worker cannot import ``fn``'s module (a worker
+        that cannot unpickle a task never returns it)."""
+        module = getattr(fn, "__module__", None)
+        if not module or module == "__main__" or module in self._imported:
+            return
+        errors = {w: e for w, e in self.client.run(_import_error, module).items() if e}
+        if errors:
+            worker, why = next(iter(sorted(errors.items())))
+            raise EngineError(f"{len(errors)} Dask worker(s) cannot import {module} (e.g. "
+                              f"{worker}: {why}); start the workers in an environment with "
+                              "flight_fdi installed")
+        self._imported.add(module)
+
     def _threads(self) -> int:
         info = self.client.scheduler_info(n_workers=-1)["workers"]
         return sum(int(w.get("nthreads", 1)) for w in info.values()) or 1
@@ -249,6 +270,17 @@ def _iter_inline(fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Out
             yield i, None, exc
         else:
             yield i, result, None
+
+
+def _import_error(module: str) -> str | None:
+    """On a worker: why ``module`` cannot be imported (None: it can)."""
+    import importlib
+
+    try:
+        importlib.import_module(module)
+    except Exception as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return None
 
 
 def _connect_timeout() -> float:
