@@ -261,7 +261,9 @@ class Batch:
             else:
                 tasks.append(FlightTask(name, str(bag), self.args))
         for text, why in self.problems:
-            name = re.sub(r"[^A-Za-z0-9._-]", "_", text).strip("_.") or "input"
+            name = re.sub(r"[^A-Za-z0-9._-]", "_", Path(text).name).strip("_.") or "input"
+            while name in rows or name in self.names.values():
+                name += "-input"
             rows[name] = summary_row(name, None, error=why, bag=text)
         res = BatchResult(rows=[], skipped=len(self.names) - len(tasks), engine=engine.describe(),
                           failed=len(self.problems))

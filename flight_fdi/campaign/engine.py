@@ -125,11 +125,12 @@ class Engine:
         workers = self.spec.workers or default_workers()
         with warnings.catch_warnings():
             # no dashboard; the scheduler's small HTTP server takes a free port when 8787 is
-            # taken (another cluster on this machine) and would say so
+            # taken (another cluster on this machine) and would say so. Logs: critical only
+            # (workers' shutdown chatter is not for the user; task errors come back as outcomes)
             warnings.filterwarnings("ignore", message="Port .* is already in use")
             cluster = self._stack.enter_context(LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address=None, silence_logs=logging.ERROR))
+                dashboard_address=None, silence_logs=logging.CRITICAL))
         self.client = self._stack.enter_context(Client(cluster))
 
     # ------------------------------------------------------------------ facts

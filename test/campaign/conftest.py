@@ -62,11 +62,15 @@ def dask_cluster():
     """A LocalCluster of 2 worker processes (1 thread each) on 127.0.0.1; yields its
     scheduler address."""
     import logging
+    import warnings
 
     from distributed import Client, LocalCluster
 
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=logging.ERROR)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                               host="127.0.0.1", dashboard_address=None,
+                               silence_logs=logging.ERROR)
     try:
         with Client(cluster) as client:
             client.wait_for_workers(2, timeout=60)
