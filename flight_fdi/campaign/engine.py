@@ -33,6 +33,15 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 
+#: settings of the local cluster's scheduler, nannies and workers (given to the worker processes
+#: they start): fewer event-loop wake-ups beside a task that holds the GIL for a whole flight --
+#: each one takes the GIL from the task, which costs most on a machine busy with other work
+QUIET_WORKERS = {"distributed.admin.tick.interval": "500ms",
+                 "distributed.admin.system-monitor.interval": "2s",
+                 "distributed.admin.system-monitor.gil.enabled": False,
+                 "distributed.worker.memory.monitor-interval": "1s"}
+
+
 class EngineError(RuntimeError):
     """The engine cannot start or reach its cluster (one sentence for the user)."""
 
@@ -112,6 +121,7 @@ class Engine:
         self.client = None
 
     def _start(self) -> None:
+        import dask
         from distributed import Client, LocalCluster
 
         if self.spec.scheduler is not None:
@@ -123,7 +133,7 @@ class Engine:
                                   f"{exc}") from None
             return
         workers = self.spec.workers or default_workers()
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), dask.config.set(QUIET_WORKERS):
             # no dashboard; the scheduler's small HTTP server takes a free port when 8787 is
             # taken (another cluster on this machine) and would say so. Logs: critical only
             # (workers' shutdown chatter is not for the user; task errors come back as outcomes)
