@@ -15,3 +15,11 @@ def square_or_fail(x: int) -> tuple[int, int, int]:
     # ~10 ms of work that holds the GIL, so that both workers get tasks
     v = np.random.default_rng(x).standard_normal(200_000).sum()
     return x, x * x, os.getpid() if np.isfinite(v) else -1
+
+
+def from_a_module_the_workers_lack(x: int) -> int:
+    return x
+
+
+# as if defined in a module that exists only where the batch is started
+from_a_module_the_workers_lack.__module__ = "flight_fdi_not_installed_on_workers"

@@ -116,6 +116,7 @@ def run_cli(*argv: str, timeout: float = 180, env: dict | None = None):
                           env={**os.environ, **(env or {})})
 
 
+@pytest.mark.slow
 def test_cli_batch_on_the_embedded_local_cluster(short_bags, tmp_path):
     out = tmp_path / "out"
     r = run_cli("batch", *(str(b) for b in short_bags.values()), "--out", str(out),

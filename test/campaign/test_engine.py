@@ -74,6 +74,7 @@ STUDY = StudyConfig(nominal=3, per_fault=3, accel_levels_mg=(2.0, 10.0),
                     gyro_levels_deg_h=(5.0, 30.0), duration_s=120.0, seed=11)
 
 
+@pytest.mark.filterwarnings("ignore:Port .* is already in use")
 def test_montecarlo_records_do_not_depend_on_the_number_of_workers(dask_cluster):
     from distributed import LocalCluster
 
@@ -100,3 +101,14 @@ def test_montecarlo_stops_on_the_first_failing_flight(dask_cluster):
         parallel_map(square_or_fail, list(range(10)), scheduler=dask_cluster)
     with pytest.raises(ValueError, match="task 3 fails"):
         parallel_map(square_or_fail, list(range(10)), jobs=1)
+
+
+def test_a_worker_that_cannot_import_the_task_is_one_clear_error(dask_cluster):
+    from campaign_tasks import from_a_module_the_workers_lack
+
+    with Engine(EngineSpec(scheduler=dask_cluster)) as engine:
+        with pytest.raises(EngineError, match="2 Dask worker.*cannot import "
+                                              "flight_fdi_not_installed_on_workers"):
+            engine.run(from_a_module_the_workers_lack, [1, 2])
+        # the engine is still usable
+        assert [r for _, r, _ in engine.run(square_or_fail, [1])][0][:2] == (1, 1)
