@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from .engine import Engine, EngineSpec
+from .engine import Engine
 from .summary import summary_row
 
 BAG_SUFFIXES = (".mcap", ".db3")
