@@ -28,7 +28,7 @@ import os
 import sys
 import uuid
 import warnings
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
@@ -186,9 +186,11 @@ class Engine:
 
         out: list[Outcome] = []
         errors = 0
-        with tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress,
-                  file=sys.stderr, dynamic_ncols=True) as bar:
-            for outcome in self.iter(fn, tasks, window=window):
+        outcomes = self.iter(fn, tasks, window=window)
+        with closing(outcomes), tqdm(total=len(tasks), desc=desc, unit=unit,
+                                     disable=not progress, file=sys.stderr,
+                                     dynamic_ncols=True) as bar:
+            for outcome in outcomes:  # closing(): a raising on_outcome cancels the rest now
                 out.append(outcome)
                 if on_outcome is not None:
                     on_outcome(*outcome)

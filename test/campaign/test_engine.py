@@ -112,3 +112,22 @@ def test_a_worker_that_cannot_import_the_task_is_one_clear_error(dask_cluster):
             engine.run(from_a_module_the_workers_lack, [1, 2])
         # the engine is still usable
         assert [r for _, r, _ in engine.run(square_or_fail, [1])][0][:2] == (1, 1)
+
+
+def _scheduler_tasks(dask_scheduler=None) -> int:
+    return len(dask_scheduler.tasks)
+
+
+def test_a_raising_callback_cancels_the_remaining_tasks(dask_cluster):
+    import time
+
+    def stop(i, res, err):
+        raise KeyboardInterrupt  # e.g. Ctrl-C while a result is written
+
+    with Engine(EngineSpec(scheduler=dask_cluster)) as engine:
+        with pytest.raises(KeyboardInterrupt):
+            engine.run(square_or_fail, list(range(200)), on_outcome=stop)
+        deadline = time.monotonic() + 30
+        while engine.client.run_on_scheduler(_scheduler_tasks) and time.monotonic() < deadline:
+            engine.client.run_on_scheduler(_scheduler_tasks)  # spin on the scheduler's state
+        assert engine.client.run_on_scheduler(_scheduler_tasks) == 0
