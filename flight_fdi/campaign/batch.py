@@ -8,7 +8,7 @@ folder holds::
     DIR/flights/<flight>.json   the result of each flight (what ``analyze --json`` prints)
     DIR/summary.csv             one row per flight (campaign.summary.COLUMNS)
     DIR/index.html              the fleet page (campaign.fleet)
-    DIR/batch.json              the analysis options, the inputs and the last run's counts
+    DIR/batch.json              the analysis options and the last run's counts
     DIR/reports/<flight>/       per-flight reports, made on demand (--reports)
 
 Resumable: a flight whose result is newer than its bag (and was made from the same bag with the
@@ -208,7 +208,9 @@ class Batch:
                  force: bool = False) -> None:
         self.out = Path(out)
         self.flights_dir = self.out / "flights"
-        self.args = argparse.Namespace(**{k: v for k, v in vars(args).items() if k != "func"})
+        # what each task carries (not the list of inputs: 10^4 paths in every task)
+        self.args = argparse.Namespace(**{k: v for k, v in vars(args).items()
+                                          if k not in ("func", "inputs")})
         self.args.jobs = 1  # parallel over flights, not inside one
         self.options = analysis_options(self.args)
         bags, self.problems = find_bags(inputs)
