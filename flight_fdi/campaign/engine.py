@@ -36,7 +36,8 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 #: settings of the local cluster's scheduler, nannies and workers (given to the worker processes
 #: they start): fewer event-loop wake-ups beside a task that holds the GIL for a whole flight --
 #: each one takes the GIL from the task, which costs most on a machine busy with other work
-QUIET_WORKERS = {"distributed.admin.tick.interval": "500ms",
+QUIET_WORKERS = {"distributed.worker.profile.enabled": False,  # samples stacks every 10 ms
+                 "distributed.admin.tick.interval": "500ms",
                  "distributed.admin.system-monitor.interval": "2s",
                  "distributed.admin.system-monitor.gil.enabled": False,
                  "distributed.worker.memory.monitor-interval": "1s"}
