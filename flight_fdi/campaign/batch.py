@@ -34,7 +34,7 @@ from .summary import summary_row
 
 BAG_SUFFIXES = (".mcap", ".db3")
 #: options that say where and how to run, not what the analysis computes
-RUN_OPTIONS = ("json", "jobs")
+RUN_OPTIONS = ("json", "jobs", "fail_on_fault")
 
 
 class BatchError(RuntimeError):

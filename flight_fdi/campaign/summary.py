@@ -8,6 +8,9 @@
 * the earlier form: ``post_flight.element`` / ``onset_s`` / ``magnitude`` with ``channel`` as the
   axis, GLR's hypothesis for the kind, and ``input.dropped_unaligned``.
 
+An ambiguous result (``fault`` null, ``post_flight.candidates`` listed) gives the candidates'
+sensors, axes and kinds joined with '|' (e.g. ``gyro|accelerometer``, ``step|ramp``).
+
 ``confidence`` is how clearly the best GLR hypothesis beats the runner-up:
 1 - runner_up.statistic / statistic (1: no rival, 0: a tie); the result's own ``confidence``
 when it has one; empty when there is no fault or no runner-up (the earlier form has none).
@@ -62,6 +65,22 @@ def _confidence(fault: dict) -> float | None:
     return min(1.0, max(0.0, 1.0 - rival / stat))
 
 
+def _ambiguous(candidates: Any) -> dict:
+    """An ambiguous result (no single fault; its candidates named): the candidates' sensors,
+    axes and kinds joined with '|', the onset and confidence of the best one, no magnitude
+    (the candidates' magnitudes differ in kind and unit)."""
+    cands = [c for c in candidates or [] if isinstance(c, dict)]
+    if not cands:
+        return {}
+
+    def join(key: str) -> str | None:
+        seen = list(dict.fromkeys(str(c[key]) for c in cands if c.get(key) is not None))
+        return "|".join(seen) or None
+
+    return {"sensor": join("sensor"), "axis": join("axis"), "kind": join("kind"),
+            "onset_s": _num(cands[0].get("onset_s")), "confidence": _confidence(cands[0])}
+
+
 def summary_row(flight: str, result: dict | None, error: str | None = None,
                 bag: str | None = None) -> dict:
     """The summary row (keys :data:`COLUMNS`) of one flight's result; a row with only the
@@ -82,6 +101,8 @@ def summary_row(flight: str, result: dict | None, error: str | None = None,
                        kind=fault.get("kind"), onset_s=_num(fault.get("onset_s")),
                        magnitude=_num(fault.get("magnitude")), unit=fault.get("unit"),
                        confidence=_confidence(fault))
+        else:
+            row.update(_ambiguous(post.get("candidates")))
         return row
     element = post.get("element")
     if element is None:

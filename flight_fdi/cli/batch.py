@@ -6,6 +6,7 @@ result JSON per flight (flights/<flight>.json), summary.csv (flight, bag, durati
 sensor, axis, kind, onset, magnitude, unit, confidence, dropped samples, error) and the fleet page
 index.html. A second run analyses only flights whose bag is newer than their result (or all of
 them when the analysis options changed); a bag that cannot be analysed is a row with its error.
+Exit status 0 (errors are rows), 3 with --fail-on-fault when any flight declared a fault.
 
 The flights run on an embedded local Dask cluster of one worker process per core (nothing to
 start), or with --scheduler tcp://HOST:PORT on an existing cluster (``dask scheduler``,
@@ -90,4 +91,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"{len(res.rows)} flights: {res.analysed} analysed, {res.skipped} up to date, "
               f"{errors} with an error, in {res.elapsed_s:.1f} s on {res.engine}\n"
               f"summary {batch.out / 'summary.csv'}, fleet page {batch.out / 'index.html'}")
+    return batch_status(res.rows, args)
+
+
+def batch_status(rows: list[dict], args: argparse.Namespace) -> int:
+    """0, or analyze's EXIT_FAULT with --fail-on-fault when any flight declared a fault."""
+    from flight_fdi.cli.analyze import EXIT_FAULT, FAULT_VERDICTS
+
+    if getattr(args, "fail_on_fault", False) and \
+            any(r["verdict"] in FAULT_VERDICTS for r in rows):
+        return EXIT_FAULT
     return 0

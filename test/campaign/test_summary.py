@@ -1,14 +1,20 @@
-"""The summary row reads both forms of the result JSON (today's and the schema-versioned one
-with post_flight.fault and per-topic drop counts)."""
+"""The summary row reads both forms of the result JSON: the one before the schema (stored
+outputs of ``flight-fdi analyze --json`` of that version, test/campaign/data/) and the
+schema-versioned one with post_flight.fault and per-topic drop counts (made here by today's
+analyze)."""
 from __future__ import annotations
 
 import argparse
 import copy
+import json
+import pathlib
 
 import pytest
 
 from flight_fdi.campaign.summary import COLUMNS, summary_row
 from flight_fdi.cli.analyze import add_analysis_options, analyze_bag
+
+DATA = pathlib.Path(__file__).resolve().parent / "data"
 
 
 def analyze_args(*argv: str) -> argparse.Namespace:
@@ -24,34 +30,67 @@ def results(short_bags) -> dict[str, dict]:
     return {k: analyze_bag(str(b), analyze_args()) for k, b in short_bags.items()}
 
 
-def test_todays_result_gives_sensor_axis_kind_unit(results):
-    accel = summary_row("a", results["accel"])
+def before_schema(name: str) -> dict:
+    return json.loads((DATA / f"result_before_schema_{name}.json").read_text())
+
+
+def test_result_before_the_schema_gives_sensor_axis_kind_unit():
+    doc = before_schema("accel")
+    assert "schema" not in doc and "fault" not in doc["post_flight"]
+    accel = summary_row("a", doc)
     assert list(accel) == list(COLUMNS)
     assert (accel["verdict"], accel["sensor"], accel["axis"], accel["kind"], accel["unit"]) == \
         ("failure", "accelerometer", "x", "step", "m/s^2")
-    post = results["accel"]["post_flight"]
+    post = doc["post_flight"]
     assert accel["onset_s"] == post["onset_s"] and accel["magnitude"] == post["magnitude"]
     assert accel["magnitude"] == pytest.approx(0.015, rel=0.1)
-    assert accel["duration_s"] == results["accel"]["duration_s"]
-    assert accel["dropped_samples"] == results["accel"]["input"]["dropped_unaligned"] == 0
-    assert accel["confidence"] is None  # today's result has no runner-up
-    gyro = summary_row("g", results["gyro"])
-    assert (gyro["sensor"], gyro["kind"], gyro["unit"]) == ("gyro", "step", "rad/s")
-    nominal = summary_row("n", results["nominal"])
+    assert accel["duration_s"] == doc["duration_s"]
+    assert accel["dropped_samples"] == doc["input"]["dropped_unaligned"] == 0
+    assert accel["confidence"] is None  # that form has no runner-up
+    nominal = summary_row("n", before_schema("nominal"))
     assert nominal["verdict"] == "no_fault"
     assert nominal["sensor"] is None and nominal["magnitude"] is None and nominal["error"] is None
-
-
-def test_dropped_unaligned_is_counted(results):
-    doc = copy.deepcopy(results["nominal"])
     doc["input"]["dropped_unaligned"] = 7
-    assert summary_row("n", doc)["dropped_samples"] == 7
+    assert summary_row("a", doc)["dropped_samples"] == 7
 
 
-def new_form(base: dict, fault: dict | None) -> dict:
-    """``base`` turned into the schema-versioned result (issue 11's fields)."""
+def test_schema_result_of_todays_analyze(results):
+    doc = results["accel"]
+    fault = doc["post_flight"]["fault"]
+    assert "schema" in doc and fault is not None
+    row = summary_row("accel", doc)
+    assert (row["verdict"], row["sensor"], row["axis"], row["kind"], row["unit"]) == \
+        ("failure", "accelerometer", "x", "step", "m/s^2")
+    assert row["onset_s"] == fault["onset_s"] == pytest.approx(100.0, abs=2.0)
+    assert row["magnitude"] == fault["magnitude"] == pytest.approx(0.015, rel=0.1)
+    assert row["confidence"] == pytest.approx(
+        1 - fault["runner_up"]["statistic"] / fault["statistic"])
+    assert 0 < row["confidence"] <= 1
+    assert row["dropped_samples"] == sum(n for t in doc["input"].values()
+                                         if isinstance(t, dict) and "dropped" in t
+                                         for n in t["dropped"].values()) == 0
+    nominal = summary_row("n", results["nominal"])
+    assert results["nominal"]["post_flight"]["fault"] is None
+    assert nominal["verdict"] == "no_fault" and nominal["sensor"] is None
+    assert nominal["confidence"] is None and nominal["dropped_samples"] == 0
+
+
+def test_schema_result_ambiguous_names_every_candidate(results):
+    # one velocity channel cannot tell a gyro drift step from an accelerometer bias ramp
+    doc = results["gyro"]
+    post = doc["post_flight"]
+    assert post["verdict"] == "ambiguous" and post["fault"] is None
+    row = summary_row("gyro", doc)
+    sensors = [c["sensor"] for c in post["candidates"]]
+    assert set(row["sensor"].split("|")) == set(sensors) and "gyro" in sensors
+    assert row["axis"] == "x" and row["magnitude"] is None and row["unit"] is None
+    assert row["onset_s"] == post["candidates"][0]["onset_s"]
+    assert row["confidence"] == pytest.approx(0.0, abs=1e-6)  # a tie, said as such
+
+
+def with_fault_and_drops(base: dict, fault: dict | None) -> dict:
+    """``base`` with another fault and drops on two topics."""
     doc = copy.deepcopy(base)
-    doc["schema"] = "flight_fdi/result-v1"
     doc["post_flight"]["fault"] = fault
     doc["input"] = {
         "/ins/velocity": {"messages": 10000, "dropped": {"non_finite": 3, "duplicate_stamp": 2}},
@@ -61,29 +100,20 @@ def new_form(base: dict, fault: dict | None) -> dict:
     return doc
 
 
-def test_new_form_reads_the_fault_and_sums_drops_over_topics_and_reasons(results):
+def test_schema_form_reads_every_field_from_the_fault(results):
     fault = {"sensor": "gyro", "axis": "y", "kind": "ramp", "onset_s": 301.5, "end_s": None,
              "magnitude": 2.5e-8, "unit": "rad/s^2", "statistic": 400.0, "threshold": 28.75,
              "runner_up": {"hypothesis": "accel_bias_ramp", "statistic": 100.0}}
-    # the base says accelerometer step on x: every field must come from the new 'fault'
-    row = summary_row("f", new_form(results["accel"], fault))
+    # the base says accelerometer step on x: every field must come from 'fault'
+    row = summary_row("f", with_fault_and_drops(results["accel"], fault))
     assert (row["sensor"], row["axis"], row["kind"], row["onset_s"], row["magnitude"],
             row["unit"]) == ("gyro", "y", "ramp", 301.5, 2.5e-8, "rad/s^2")
     assert row["confidence"] == pytest.approx(0.75)   # 1 - 100/400
     assert row["dropped_samples"] == 6
-    assert row["verdict"] == "failure"
-
-
-def test_new_form_without_fault_and_with_own_confidence(results):
-    row = summary_row("n", new_form(results["nominal"], None))
-    assert row["sensor"] is None and row["kind"] is None and row["confidence"] is None
-    assert row["dropped_samples"] == 6
-    tie = {"sensor": "reference", "axis": "x", "kind": "jump", "onset_s": 10.0, "end_s": 10.0,
-           "magnitude": 0.5, "unit": "m/s", "statistic": 50.0, "threshold": 28.75,
-           "runner_up": {"hypothesis": "accel_bias_step", "statistic": 50.0}}
-    assert summary_row("t", new_form(results["nominal"], tie))["confidence"] == 0.0
-    tie["confidence"] = 0.42
-    assert summary_row("t", new_form(results["nominal"], tie))["confidence"] == 0.42
+    tie = dict(fault, runner_up={"hypothesis": "accel_bias_step", "statistic": 400.0})
+    assert summary_row("t", with_fault_and_drops(results["accel"], tie))["confidence"] == 0.0
+    tie["confidence"] = 0.42  # a result's own confidence wins
+    assert summary_row("t", with_fault_and_drops(results["accel"], tie))["confidence"] == 0.42
 
 
 def test_error_row_has_only_name_bag_and_error():
