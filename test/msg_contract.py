@@ -12,7 +12,8 @@ REQUIRED_FIELDS = {
     "ModelInfo": ["model_name", "state_names", "state_units", "a", "qc", "h", "r"],
     "FaultLocalization": ["verdict", "element", "onset_s", "end_s", "magnitude", "j_peak", "gamma2",
                           "f_peak", "eta2", "exceed_fraction", "dof", "glr_hypothesis",
-                          "glr_onset_s", "glr_magnitude", "glr_statistic", "glr_threshold"],
+                          "glr_onset_s", "glr_magnitude", "glr_statistic", "glr_threshold",
+                          "headline", "isolation", "sensor", "axis", "kind", "unit"],
     "SmoothedState": ["x_smoothed", "v", "v_tilde", "delta_d", "j", "j_terms", "f"],
     "VoteStatus": ["epsilon", "epsilon_sum", "isolated_imu", "selected_imu"],
 }

@@ -48,6 +48,7 @@ def fault_localization_msg(result: Mapping[str, Any], stamp: Any, flight_start_s
     if verdict not in VERDICT_CODES:
         raise ValueError(f"unknown verdict {verdict!r}; expected one of {', '.join(VERDICTS)}")
     elements = seed["elements"]
+    fault = post.get("fault") or {}
     return FaultLocalization(
         header=header(stamp, frame_id),
         channel=str(result["channel"]),
@@ -61,6 +62,11 @@ def fault_localization_msg(result: Mapping[str, Any], stamp: Any, flight_start_s
         end_s=_num(end_s),
         magnitude=_num(post["magnitude"]),
         methods_agree=bool(post["methods_agree"]),
+        headline=str(post.get("headline") or ""),
+        isolation=str(post.get("isolation") or ""),
+        sensor=str(fault.get("sensor") or ""), axis=str(fault.get("axis") or ""),
+        kind=str(fault.get("kind") or ""), unit=str(fault.get("unit") or ""),
+        magnitude_eng=_num(fault.get("magnitude_eng")), unit_eng=str(fault.get("unit_eng") or ""),
         seed_verdict=str(seed["verdict"]),
         seed_element=seed["element"] or "",
         element_names=[str(e["name"]) for e in elements],
@@ -86,8 +92,14 @@ def post_flight_from_msg(msg: Any) -> dict:
          "eta2": _opt(e), "exceed_fraction": float(x), "dof": int(d)}
         for name, j, g, f, e, x, d in zip(msg.element_names, msg.j_peak, msg.gamma2, msg.f_peak,
                                           msg.eta2, msg.exceed_fraction, msg.dof)]
+    fault = None
+    if msg.sensor:
+        fault = {"sensor": str(msg.sensor), "axis": str(msg.axis), "kind": str(msg.kind),
+                 "unit": str(msg.unit), "magnitude_eng": _opt(msg.magnitude_eng),
+                 "unit_eng": str(msg.unit_eng)}
     return {
         "verdict": str(msg.verdict_name),
+        "headline": str(msg.headline), "isolation": str(msg.isolation), "fault": fault,
         "element": str(msg.element) or None,
         "onset_s": _opt(msg.onset_s),
         "magnitude": _opt(msg.magnitude),

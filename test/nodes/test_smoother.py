@@ -169,6 +169,9 @@ def test_recording_gives_the_analysis_of_the_flight(ros, flight, tmp_path):
     assert msg.verdict == FaultLocalization.VERDICT_FAILURE and msg.verdict_name == "failure"
     assert msg.element == "accel_bias" and msg.samples == len(a.fwd.t)
     assert msg.flight_start.sec == int(f.t0)
+    # the person's terms travel on the message too (ros2 topic echo shows them)
+    assert (msg.sensor, msg.kind, msg.isolation) == ("accelerometer", "step", "single")
+    assert msg.headline == written["post_flight"]["headline"] and "accelerometer" in msg.headline
     from_msg = post_flight_from_msg(msg)  # (the message carries the seed/GLR fields)
 
     def common(e, g):
