@@ -1,19 +1,9 @@
 """Post-flight diagnosis by the seed method (SPEC section 3; seed 000, formulas 7.12-7.20).
 
-* :func:`udu` -- P = U diag(D) U^T with U unit upper triangular (7.15).
-* :func:`localize` -- the decomposition of J into element terms and the first element whose
-  cumulative bound J(i/k) <= gamma_k^2 = k + 3 sqrt(2k) is violated (7.16, 7.17), from the
-  difference covariance dP (seed form) or from its information W = dP^-1 (information form).
+* :func:`udu`, :func:`ldl`, :func:`localize` -- the decompositions and the element terms of J
+  (7.15-7.17), in :mod:`flight_fdi.core.ldl` (re-exported here).
 * :func:`fisher` / :func:`fisher_threshold` -- the sliding-window variance ratio (7.18-7.20).
 * :func:`diagnose` -- all of it over a record: per step, per element, and a verdict.
-
-Information form (used over a flight, where the backward information Y is often singular):
-W = L Lam L^T with L = dU^-T unit lower triangular and Lam = dD^-1 (top-down LDL^T). With
-q = L^-1 (W v) = Lam L^T v = Lam v~, the k-th term is v~_k^2 / dD_kk = q_k^2 / Lam_k. A pivot
-Lam_k that is zero (no backward information on element k given elements 1..k-1) contributes 0
-and one degree of freedom fewer. Pivots are judged relative to the same pivot of the forward
-information P_f^-1 (which bounds W from above, so the ratio lies in [0, 1]); a ratio at or below
-``rank_tol`` counts as zero.
 """
 from __future__ import annotations
 
@@ -24,181 +14,16 @@ import numpy as np
 from scipy.special import chdtri
 
 from .errors import CoreError
-from .kalman import ForwardResult, scaled_model
+from .ldl import DEFAULT_RANK_TOL, Localization, ldl, localize, seed_threshold, udu
 from .models import LinearModel
-from .smoother import DEFAULT_RANK_TOL, BackwardResult, seed_threshold
+from .records import ForwardResult
+from .scaled import scaled_model
+from .smoother import BackwardResult
+
+__all__ = ["VERDICTS", "DiagnosisConfig", "ElementReport", "Localization", "SeedDiagnosis",
+           "diagnose", "fisher", "fisher_threshold", "ldl", "localize", "udu"]
 
 VERDICTS = ("no_fault", "glitch", "failure", "ambiguous", "insufficient_data")
-
-
-# --------------------------------------------------------------------------- decompositions
-
-def _square(P: Any, what: str) -> np.ndarray:
-    arr = np.asarray(P, dtype=float)
-    if arr.ndim < 2 or arr.shape[-1] != arr.shape[-2]:
-        raise CoreError(f"{what}: expected square matrices, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise CoreError(f"{what}: contains NaN or Inf")
-    sym = np.abs(arr - np.swapaxes(arr, -1, -2))
-    if np.any(sym > 1e-9 * np.maximum(np.abs(arr), np.abs(np.swapaxes(arr, -1, -2))) + 1e-300):
-        raise CoreError(f"{what}: not symmetric")
-    return arr
-
-
-def udu(P: Any, *, check: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """U, D with P = U diag(D) U^T, U unit upper triangular (bottom-up). Works on stacks
-    (..., n, n). P must be symmetric positive definite (CoreError otherwise; ``check=False``
-    skips the finiteness / symmetry checks for arrays the core computed itself)."""
-    A = _square(P, "udu") if check else P
-    n = A.shape[-1]
-    U = np.zeros(A.shape)
-    D = np.zeros(A.shape[:-1])
-    idx = np.arange(n)
-    U[..., idx, idx] = 1.0
-    for j in range(n - 1, -1, -1):
-        UD = U[..., j, j + 1:] * D[..., j + 1:]                     # U_jk D_k, k > j
-        D[..., j] = A[..., j, j] - np.sum(UD * U[..., j, j + 1:], axis=-1)
-        if np.any(~(D[..., j] > 0)):
-            raise CoreError("udu: matrix is not positive definite "
-                            f"(pivot {j} = {np.min(D[..., j]):.3g})")
-        # U_ij = (P_ij - sum_k>j U_ik U_jk D_k) / D_j, i < j
-        U[..., :j, j] = (A[..., :j, j] - np.einsum("...ik,...k->...i", U[..., :j, j + 1:], UD)) \
-            / D[..., j][..., None]
-    return U, D
-
-
-def ldl(W: Any, ref: Any = None, rank_tol: float = DEFAULT_RANK_TOL, *, check: bool = True
-        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """L, Lam, informative with W = L diag(Lam) L^T, L unit lower triangular (top-down), for
-    symmetric positive *semi*definite W (stacks allowed). Pivot k counts as zero when
-    Lam_k <= rank_tol * ref_k (``ref``: reference pivots, default the diagonal of W); its
-    column of L is then left as that of the identity."""
-    A = _square(W, "ldl") if check else W
-    n = A.shape[-1]
-    refs = np.abs(A[..., np.arange(n), np.arange(n)]) if ref is None else np.asarray(ref, float)
-    L = np.zeros(A.shape)
-    Lam = np.zeros(A.shape[:-1])
-    informative = np.zeros(A.shape[:-1], dtype=bool)
-    idx = np.arange(n)
-    L[..., idx, idx] = 1.0
-    for j in range(n):
-        LD = L[..., j, :j] * Lam[..., :j]                              # L_jk Lam_k, k < j
-        piv = A[..., j, j] - np.sum(LD * L[..., j, :j], axis=-1)
-        ok = piv > rank_tol * refs[..., j]
-        informative[..., j] = ok
-        Lam[..., j] = np.where(ok, piv, 0.0)
-        col = (A[..., j + 1:, j] - np.einsum("...ik,...k->...i", L[..., j + 1:, :j], LD))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            col = col / np.where(ok, piv, 1.0)[..., None]
-        L[..., j + 1:, j] = np.where(ok[..., None], col, 0.0)
-    return L, Lam, informative
-
-
-def _solve_unit_upper(U: np.ndarray, b: np.ndarray) -> np.ndarray:
-    n = b.shape[-1]
-    x = np.array(b, dtype=float)
-    for i in range(n - 2, -1, -1):
-        x[..., i] -= np.einsum("...k,...k->...", U[..., i, i + 1:], x[..., i + 1:])
-    return x
-
-
-def _solve_unit_lower(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    n = b.shape[-1]
-    x = np.array(b, dtype=float)
-    for i in range(1, n):
-        x[..., i] -= np.einsum("...k,...k->...", L[..., i, :i], x[..., :i])
-    return x
-
-
-# --------------------------------------------------------------------------- localization
-
-@dataclass
-class Localization:
-    """The decomposition of J into element terms (7.16, 7.17); arrays over elements k.
-
-    v_tilde: dU^-1 v (NaN where an element carries no information); d: dD (inf there);
-    terms: cumulative J(i/k); J: the total; gammas: gamma^2 for the cumulative effective degrees
-    of freedom ``dof`` (NaN while 0); element: index of the first k with J(i/k) > gamma_k^2, or
-    None. For stacks of steps, ``element`` is an integer array with -1 for none.
-    """
-
-    v_tilde: np.ndarray
-    d: np.ndarray
-    terms: np.ndarray
-    J: Any
-    gammas: np.ndarray
-    element: Any
-    dof: np.ndarray
-    normalized: np.ndarray = field(default_factory=lambda: np.zeros(0))  # v~_k / sqrt(d_k)
-
-
-def _first_violation(terms: np.ndarray, dof: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    gammas = seed_threshold(dof)
-    with np.errstate(invalid="ignore"):
-        viol = (dof > 0) & (terms > gammas)
-    first = np.where(viol.any(axis=-1), np.argmax(viol, axis=-1), -1)
-    return gammas, first
-
-
-def localize(v: Any = None, dP: Any = None, W: Any = None, Wv: Any = None, ref: Any = None,
-             rank_tol: float = DEFAULT_RANK_TOL, *, check: bool = True) -> Localization:
-    """Localize a violation to a state element.
-
-    Seed form: ``localize(v, dP=dP)`` -- dP = U D U^T, v~ = U^-1 v, term_k = v~_k^2 / D_k.
-    Information form: ``localize(v, W=W)`` or ``localize(Wv=Wv, W=W)`` (W v is defined even
-    where v is not) -- W = L Lam L^T, q = L^-1 (W v), term_k = q_k^2 / Lam_k, 0 where Lam_k is
-    zero (see :func:`ldl`; ``ref`` are the reference pivots, e.g. 1 / udu(P_f)[1]).
-    Works on one vector (n,) or stacks (..., n). ``check=False`` skips the input checks (for
-    arrays the core computed itself).
-    """
-    if (dP is None) == (W is None):
-        raise CoreError("localize: give exactly one of dP (seed form) and W (information form)")
-    if dP is not None:
-        if v is None:
-            raise CoreError("localize: the seed form needs v")
-        vv = np.asarray(v, dtype=float)
-        if not np.all(np.isfinite(vv)):
-            raise CoreError("localize: v contains NaN or Inf")
-        U, D = udu(dP)
-        if vv.shape != D.shape:
-            raise CoreError(f"localize: v has shape {vv.shape}, dP {np.shape(dP)}")
-        vt = _solve_unit_upper(U, vv)
-        single = vt * vt / D
-        informative = np.ones(D.shape, dtype=bool)
-        d = D
-    else:
-        Wm = np.asarray(W, dtype=float)
-        if Wv is None:
-            if v is None:
-                raise CoreError("localize: the information form needs v or Wv")
-            vv = np.asarray(v, dtype=float)
-            if not np.all(np.isfinite(vv)):
-                raise CoreError("localize: v contains NaN or Inf")
-            Wvv = np.einsum("...ij,...j->...i", Wm, vv)
-        else:
-            Wvv = np.asarray(Wv, dtype=float)
-        if check and not np.all(np.isfinite(Wvv)):
-            raise CoreError("localize: W v contains NaN or Inf")
-        L, Lam, informative = ldl(Wm, ref, rank_tol, check=check)
-        if Wvv.shape != Lam.shape:
-            raise CoreError(f"localize: W v has shape {Wvv.shape}, W {Wm.shape}")
-        q = _solve_unit_lower(L, Wvv)
-        safe = np.where(informative, Lam, 1.0)
-        single = np.where(informative, q * q / safe, 0.0)
-        vt = np.where(informative, q / safe, np.nan)
-        d = np.where(informative, 1.0 / safe, np.inf)
-    terms = np.cumsum(single, axis=-1)
-    dof = np.cumsum(informative, axis=-1)
-    gammas, first = _first_violation(terms, dof)
-    with np.errstate(invalid="ignore"):
-        normalized = np.where(informative, vt / np.sqrt(np.where(informative, d, 1.0)), np.nan)
-    if terms.ndim == 1:
-        element: Any = None if first < 0 else int(first)
-        J: Any = float(terms[-1])
-    else:
-        element, J = first, terms[..., -1]
-    return Localization(v_tilde=vt, d=d, terms=terms, J=J, gammas=gammas, element=element,
-                        dof=dof, normalized=normalized)
 
 
 # --------------------------------------------------------------------------- Fisher test

@@ -7,7 +7,7 @@ A model is continuous-time::
     z  = H x + theta,        theta ~ N(0, R)
 
 and is discretized exactly for the actual sample interval (``discretize``): Phi = expm(A dt),
-Qd by Van Loan's method, Bd = int_0^dt expm(A s) ds B. Results are cached per dt.
+Qd by Van Loan's method, Bd = int_0^dt expm(A s) ds B (:mod:`flight_fdi.core.discretize`).
 """
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from scipy.linalg import expm
 
 from .errors import CoreError
 
@@ -160,67 +159,33 @@ class LinearModel:
                             f"states are {', '.join(self.state_names)}") from None
 
     def discretize(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Phi, Qd, Bd for a step of ``dt`` seconds (exact; Van Loan for Qd). Cached per dt."""
+        """Phi, Qd, Bd for a step of ``dt`` seconds: exact (Van Loan), computed in scaled
+        coordinates by :func:`flight_fdi.core.discretize.van_loan` (the filter's own kernel)
+        and returned in physical units. Cached per dt."""
         if not np.isfinite(dt) or dt < 0:
             raise CoreError(f"discretize: dt must be finite and >= 0, got {dt!r}")
-        key = round(float(dt), 9)
+        key = float(dt)
         cache: dict = self._cache  # type: ignore[attr-defined]
         hit = cache.get(key)
         if hit is None:
-            hit = _van_loan(self.A, self.Qc, self.B, key)
+            hit = self._discretize(key)
             if len(cache) > 512:
                 cache.clear()
             cache[key] = hit
         return hit
 
-    def discretize_many(self, dts: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Phi (N,n,n), Qd (N,n,n), Bd (N,n,p) for every dt of an array, vectorised.
+    def _discretize(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        from .discretize import discretize  # (compiled: imported when first needed)
+        from .scaled import scaled_model
 
-        Jittered time stamps make nearly every dt distinct, and one Van Loan exponential per sample
-        is slow. The dts are binned by h = 1e-3 / ||A||_1; ``discretize`` gives the exact result at
-        each bin's smallest dt a, and the remainder d = dt - a < h is composed exactly:
-        Phi(a + d) = Phi(d) Phi(a), Qd(a + d) = Phi(d) Qd(a) Phi(d)^T + Qd(d), Bd(a + d) =
-        Phi(d) Bd(a) + Bd(d), with Phi(d), Qd(d), Bd(d) from six Taylor terms: ||A d|| < 1e-3 puts
-        their truncation error (< 1e-21) far below rounding. A constant dt is one bin with d = 0,
-        i.e. exactly ``discretize(dt)``.
-        """
-        dts = np.asarray(dts, dtype=float).reshape(-1)
-        if not np.all(np.isfinite(dts)) or np.any(dts < 0):
-            raise CoreError("discretize_many: every dt must be finite and >= 0")
-        n = self.n
-        norm = float(np.abs(self.A).sum(axis=0).max())
-        bins = np.floor(dts * (norm / 1e-3)) if norm > 0 else np.zeros(dts.size)
-        _, first, inverse = np.unique(bins, return_index=True, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        anchors = np.round(dts[first], 9)
-        exact = [self.discretize(float(a)) for a in anchors]
-        Phi = np.stack([e[0] for e in exact])[inverse]
-        Qd = np.stack([e[1] for e in exact])[inverse]
-        Bd = None if self.B is None else np.stack([e[2] for e in exact])[inverse]
-        d = dts - anchors[inverse]
-        rest = np.flatnonzero(d != 0.0)
-        if rest.size:
-            dr = d[rest][:, None, None]
-            # Taylor terms k = 1..6 of Phi(d) - I, Qd(d) and the integral of Phi(s) ds
-            A_k = np.eye(n)  # A^(k-1)
-            M_k = self.Qc.copy()  # M_1 = Qc, M_{k+1} = A M_k + M_k A^T
-            Phi_d = np.broadcast_to(np.eye(n), (rest.size, n, n)).copy()
-            Q_d = np.zeros((rest.size, n, n))
-            I_d = np.zeros((rest.size, n, n))  # int_0^d expm(A s) ds
-            fact = 1.0
-            for k in range(1, 7):
-                fact *= k
-                coef = dr**k / fact
-                I_d += coef * A_k
-                A_k = A_k @ self.A
-                Phi_d += coef * A_k
-                Q_d += coef * M_k
-                M_k = self.A @ M_k + M_k @ self.A.T
-            Phi[rest] = Phi_d @ Phi[rest]
-            Qd[rest] = Phi_d @ Qd[rest] @ np.swapaxes(Phi_d, 1, 2) + Q_d
-            Qd[rest] = 0.5 * (Qd[rest] + np.swapaxes(Qd[rest], 1, 2))
-            if Bd is not None:
-                Bd[rest] = Phi_d @ Bd[rest] + I_d @ self.B
+        sm = scaled_model(self)
+        s = sm.s
+        Phi_s, Qd_s, Bd_s = discretize(sm.A, sm.Qc, sm.B, dt, sm.series)
+        Phi = Phi_s * s[:, None] / s[None, :]
+        Qd = Qd_s * sm.SS
+        Bd = None if self.B is None else Bd_s * s[:, None]
+        for arr in (Phi, Qd) + (() if Bd is None else (Bd,)):
+            arr.setflags(write=False)
         return Phi, Qd, Bd
 
     def observability(self, span_s: float, dt: float | None = None) -> ObservabilityReport:
@@ -267,32 +232,6 @@ class LinearModel:
         """The same model with another measurement covariance."""
         return LinearModel(self.name, self.state_names, self.state_units, self.A, self.Qc, self.H,
                            R, self.P0, self.B, self.scale, self.measurement_names, self.params)
-
-
-def _van_loan(A: np.ndarray, Qc: np.ndarray, B: np.ndarray | None, dt: float):
-    n = A.shape[0]
-    if dt == 0.0:
-        Bd = None if B is None else np.zeros_like(B)
-        return np.eye(n), np.zeros((n, n)), Bd
-    # Van Loan (1978): expm([[-A, Qc], [0, A^T]] dt) = [[., Phi^-1 Qd], [0, Phi^T]]
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -A
-    M[:n, n:] = Qc
-    M[n:, n:] = A.T
-    E = expm(M * dt)
-    Phi = E[n:, n:].T
-    Qd = Phi @ E[:n, n:]
-    Qd = 0.5 * (Qd + Qd.T)
-    Bd = None
-    if B is not None:
-        p = B.shape[1]
-        C = np.zeros((n + p, n + p))
-        C[:n, :n] = A
-        C[:n, n:] = B
-        Bd = expm(C * dt)[:n, n:]
-    for arr in (Phi, Qd) + (() if Bd is None else (Bd,)):
-        arr.setflags(write=False)
-    return Phi, Qd, Bd
 
 
 INS_STATES = ("velocity_error", "tilt", "accel_bias", "gyro_drift")

@@ -48,7 +48,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import CoreError
-from .kalman import AlarmLogic, GateConfig, KalmanFilter, UpdateResult, _check_dt
+from .checks import check_dt
+from .kalman import AlarmLogic, GateConfig, KalmanFilter, UpdateResult
 from .models import LinearModel
 
 #: what the filter does with a failed reference
@@ -316,18 +317,14 @@ class RedundantFilter:
             Rm = np.diag(Rm.reshape(-1))
         kf = self.kf
         # validated once, before any change (the private steps below take validated input)
-        zv, Rm, Hs, HsT, update1 = kf._measurement(z, Rm, H)
-        dt = _check_dt(dt)
-        saved = (kf._x, kf._P)
-        try:
+        zv, Rm, Hs, HsT = kf._measurement(z, Rm, H)
+        dt = check_dt(dt)
+        with kf.transaction():
             kf.predict(dt, u)
             nu, S = kf._innovation(zv, Rm, Hs, HsT)
             verdict = self.monitor.assess(t, rows, nu, S)
-            res = kf._update_checked(zv, Rm, Hs, HsT, update1, np.flatnonzero(verdict.handled),
+            res = kf._update_checked(zv, Rm, Hs, HsT, np.flatnonzero(verdict.handled),
                                      self.config.mode, self.config.anomaly_variance)
-        except CoreError:
-            kf._x, kf._P = saved
-            raise
         if res.rows_used is None:
             z_used, R_used, H_used = zv, Rm, H
         else:

@@ -27,25 +27,20 @@ physical units.
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import lapack
 
+from . import information as kernel
 from .errors import CoreError
-from .kalman import ForwardResult, _gc_paused, scaled_model
+from .ldl import DEFAULT_RANK_TOL, localization, seed_threshold
 from .models import LinearModel
+from .records import ForwardResult
+from .scaled import scaled_model
 
-DEFAULT_RANK_TOL = 1e-9
-
-
-def seed_threshold(dof: Any) -> np.ndarray:
-    """gamma^2 = k + 3 sqrt(2k) for k degrees of freedom (7.14, 7.17); NaN where k = 0."""
-    k = np.asarray(dof, dtype=float)
-    with np.errstate(invalid="ignore"):
-        return np.where(k > 0, k + 3.0 * np.sqrt(2.0 * k), np.nan)
+__all__ = ["DEFAULT_RANK_TOL", "BackwardResult", "backward_information", "run_backward",
+           "seed_threshold"]
 
 
 @dataclass
@@ -121,17 +116,10 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
     n = model.n
     N = len(fwd.t)
     info = _info_contributions(sm, fwd)
-    mats, idx = sm.matrices_for(fwd.dt)
-    idx_l = idx.tolist()
-    steps = [mats[i] for i in idx_l]
-    if fwd.u is not None:
-        if model.B is None:
-            raise CoreError(f"model {model.name!r} has no input matrix B but the record has u")
-        Bd = np.stack([mt.Bd for mt in mats])[idx]
-        bus = np.einsum("kip,kp->ki", Bd, np.asarray(fwd.u, dtype=float))
-    # Z = [Y | y], the information about x_i from the measurements after i; Phi_aug =
-    # [[Phi, -Bd u], [0, 1]] so that Z Phi_aug = [Y Phi | y - Y Bd u]
-    Z = np.zeros((n, n + 1))
+    if fwd.u is not None and model.B is None:
+        raise CoreError(f"model {model.name!r} has no input matrix B but the record has u")
+    u = np.zeros((N, sm.p)) if fwd.u is None else np.ascontiguousarray(fwd.u, dtype=float)
+    Y0, y0 = np.zeros((n, n)), np.zeros(n)
     if prior is not None:
         xp, Pp = prior
         xs, Ps = sm.to_scaled(np.asarray(xp, dtype=float).reshape(n),
@@ -140,62 +128,14 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
             Yp = np.linalg.inv(np.linalg.cholesky(0.5 * (Ps + Ps.T)))
         except np.linalg.LinAlgError:
             raise CoreError("backward prior: P must be positive definite") from None
-        Yp = Yp.T @ Yp
-        Z[:, :n] = Yp
-        Z[:, n] = Yp @ xs
-    # One product gives the right-hand side and the matrix of the solve. With the information
-    # of step i added, Z = [Y | y] + [H^T R^-1 H | H^T R^-1 z] =: Z_pred + Z_meas:
-    #   G = Z [Phi_aug | Q_aug] = [Y Phi | y - Y Bd u | Y Q],   Q_aug = [[Qd], [0]],
-    #   solve (I + Y Q) C = G[:, :n+1],   Z_pred(i-1) = Phi^T C.
-    # The loop carries Z^T, so that LAPACK gets Fortran-ordered operands without copies, and the
-    # parts that do not depend on the recursion -- Z_meas [Phi_aug | Q_aug] and the I of I + Y Q
-    # -- are formed for all steps at once beforehand:
-    #   G^T + [0 | I]^T = [Phi_aug | Q_aug]^T Z_pred^T + ([Phi_aug | Q_aug]^T Z_meas^T + [0 | I]^T)
-    def product_matrix_T(mt) -> np.ndarray:
-        G = np.zeros((n + 1, 2 * n + 1))
-        G[:n, :n] = mt.Phi
-        G[n, n] = 1.0
-        G[:n, n + 1:] = mt.Qd
-        return np.ascontiguousarray(G.T)
-
-    base = [product_matrix_T(mt) for mt in mats]
-    if fwd.u is None:
-        prodT = [base[i] for i in idx_l]
-        allT = np.stack(base)[idx]
-    else:
-        allT = np.stack(base)[idx]
-        allT[:, n, :n] = -bus                       # row n of G^T holds -Bd u
-        prodT = list(allT)
-    infoT = np.swapaxes(info, 1, 2)                 # Z_meas^T, (N, n+1, n)
-    fixed = np.einsum("kab,kbc->kac", allT, infoT)
-    fixed[:, n + 1:, :] += sm.I
-    fixed_l = list(fixed)
-    # (memory: these per-step arrays are large on long flights and not used in the loop)
-    del info, infoT
-    if fwd.u is None:
-        del allT
-    Phis = [mt.Phi for mt in steps]
-    Zt = np.ascontiguousarray(Z.T)
-    dgesv = lapack.dgesv
-    out: list[np.ndarray] = [None] * N  # type: ignore[list-item]
-    with _gc_paused():
-        for i in range(N - 1, 0, -1):
-            out[i] = Zt
-            Gt = prodT[i].dot(Zt) + fixed_l[i]
-            _, _, C, info_ = dgesv(Gt[n + 1:].T, Gt[:n + 1].T, overwrite_a=1, overwrite_b=1)
-            if info_ != 0:
-                raise CoreError(f"backward filter: singular I + Y Q at index {i}")
-            Zt = C.T.dot(Phis[i])
-            if i & 31 == 0:
-                # Y is symmetric in exact arithmetic; the rounding asymmetry stays near 1e-14
-                # relative, so it is removed periodically here and in the result below
-                Zt[:n] = 0.5 * (Zt[:n] + Zt[:n].T)
-        out[0] = Zt
-    del fixed_l, fixed, prodT
-    Zs = np.swapaxes(np.array(out), 1, 2)
-    del out
-    Ys = Zs[:, :, :n]
-    return 0.5 * (Ys + np.swapaxes(Ys, 1, 2)), np.ascontiguousarray(Zs[:, :, n])
+        Y0 = Yp.T @ Yp
+        y0 = Y0 @ xs
+    Ys, ys = np.empty((N, n, n)), np.empty((N, n))
+    bad = kernel.backward_pass(sm.series.args(), np.ascontiguousarray(fwd.dt, dtype=float), u,
+                               info, Y0, y0, Ys, ys)
+    if bad >= 0:
+        raise CoreError(f"backward filter: singular I + Y Q at index {bad}")
+    return Ys, ys
 
 
 def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] | None = None,
@@ -226,63 +166,23 @@ def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] 
     return _combine(Ys, ys, xf, Pf, s, SS, fwd.t, rank_tol)
 
 
-#: steps combined per block: the combination is per step, and its temporaries (a dozen n x n
-#: arrays per step) for a 10-hour flight in one piece would be several hundred MB
-_COMBINE_BLOCK = 32768
-
-
 def _combine(Ys: np.ndarray, ys: np.ndarray, xf: np.ndarray, Pf: np.ndarray, s: np.ndarray,
              SS: np.ndarray, t: np.ndarray, rank_tol: float) -> BackwardResult:
-    """Two-filter combination (scaled inputs, physical outputs), block by block into
-    preallocated results (the same numbers as one vectorised call: every step is independent)."""
-    N = xf.shape[0]
-    if N <= _COMBINE_BLOCK:
-        return _combine_block(Ys, ys, xf, Pf, s, SS, t, rank_tol)
-    out: BackwardResult | None = None
-    for a in range(0, N, _COMBINE_BLOCK):
-        b = min(N, a + _COMBINE_BLOCK)
-        part = _combine_block(Ys[a:b], ys[a:b], xf[a:b], Pf[a:b], s, SS, t[a:b], rank_tol)
-        if out is None:  # preallocate every array field (and those of the localization)
-            def full(x: Any) -> Any:
-                return np.empty((N,) + x.shape[1:], x.dtype) if isinstance(x, np.ndarray) \
-                    and x.ndim >= 1 and x.shape[0] == b - a else x
-            loc = part.localization
-            out = BackwardResult(**{f.name: full(getattr(part, f.name))
-                                    for f in dataclasses.fields(BackwardResult)})
-            out.localization = type(loc)(**{f.name: full(getattr(loc, f.name))
-                                            for f in dataclasses.fields(type(loc))})
-        for obj, src in ((out, part), (out.localization, part.localization)):
-            for f in dataclasses.fields(obj):
-                dst = getattr(obj, f.name)
-                if isinstance(dst, np.ndarray) and dst.ndim >= 1 and dst.shape[0] == N:
-                    dst[a:b] = getattr(src, f.name)
-        del part
-    return out
-
-
-def _combine_block(Ys: np.ndarray, ys: np.ndarray, xf: np.ndarray, Pf: np.ndarray,
-                   s: np.ndarray, SS: np.ndarray, t: np.ndarray,
-                   rank_tol: float) -> BackwardResult:
-    """Two-filter combination, vectorised over the steps (scaled inputs, physical outputs)."""
-    from .diagnosis import localize, udu  # diagnosis builds on this module
-
+    """Two-filter combination (scaled inputs, physical outputs) by the compiled kernel."""
     N, n = xf.shape
-    I = np.eye(n)
-    r = ys - np.einsum("kij,kj->ki", Ys, xf)                 # y - Y x_f
-    rhs = np.concatenate([Ys, r[:, :, None]], axis=2)
-    sol = np.linalg.solve(I + Ys @ Pf, rhs)                  # (I + Y P_f)^-1 [Y | y - Y x_f]
-    W = sol[:, :, :n]
-    W = 0.5 * (W + np.swapaxes(W, 1, 2))
-    Wv = np.ascontiguousarray(sol[:, :, n])
-    x_s = xf + np.einsum("kij,kj->ki", Pf, Wv)
-    P_s = Pf - Pf @ W @ Pf
-    P_s = 0.5 * (P_s + np.swapaxes(P_s, 1, 2))
-    # J and its element terms from W = L Lam L^T; reference pivots 1/D of P_f = U D U^T
-    _, Df = udu(Pf, check=False)
-    ref = 1.0 / Df
-    loc = localize(W=W, Wv=Wv, ref=ref, rank_tol=rank_tol, check=False)
-    info_ratio = np.clip(1.0 / np.where(np.isfinite(loc.d), loc.d, np.inf) / ref, 0.0, 1.0)
-    dof = loc.dof[:, -1]
+    W, P_s = np.empty((N, n, n)), np.empty((N, n, n))
+    Wv, x_s, ref, Lam, v_tilde, d, terms, normalized = (np.empty((N, n)) for _ in range(8))
+    informative = np.empty((N, n), dtype=bool)
+    dof_k = np.empty((N, n), dtype=np.int64)
+    bad = kernel.combine_all(np.ascontiguousarray(Ys), np.ascontiguousarray(ys),
+                             np.ascontiguousarray(xf), np.ascontiguousarray(Pf), float(rank_tol),
+                             W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d, terms, dof_k,
+                             normalized)
+    if bad >= 0:
+        raise CoreError(f"two-filter combination: I + Y P_f or P_f is singular at index {bad}")
+    loc = localization(v_tilde * s, d * s * s, terms, dof_k, normalized)  # v~, dD physical
+    info_ratio = np.clip(Lam / ref, 0.0, 1.0)
+    dof = dof_k[:, -1]
     invertible = dof == n
     x_b = np.full((N, n), np.nan)
     P_b = np.full((N, n, n), np.nan)
@@ -293,8 +193,6 @@ def _combine_block(Ys: np.ndarray, ys: np.ndarray, xf: np.ndarray, Pf: np.ndarra
         x_b[invertible] = np.linalg.solve(Yi, ys[invertible][:, :, None])[:, :, 0]
     v = x_b - xf
     inv_s = 1.0 / s
-    loc.v_tilde = loc.v_tilde * s      # back to physical units
-    loc.d = loc.d * s * s
     return BackwardResult(
         t=np.asarray(t, dtype=float), Y=Ys / SS, y=ys * inv_s, x_b=x_b * s, P_b=P_b * SS,
         invertible=invertible, x_s=x_s * s, P_s=P_s * SS, v=v * s, W=W / SS, Wv=Wv * inv_s,

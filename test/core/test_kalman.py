@@ -128,25 +128,29 @@ def test_forward_equals_filterpy_two_rows_with_control():
     np.testing.assert_allclose(fwd.beta2, beta2, rtol=1e-8)
 
 
-def test_generated_one_row_update_equals_numpy_update():
-    """The written-out m = 1 update and the numpy update are the same equations."""
+def test_kernel_one_row_update_equals_numpy_update():
+    """The compiled m = 1 update (filter_kernel.update) and the numpy update (any m) are the
+    same equations."""
+    from flight_fdi.core import filter_kernel as fk
+
     model = ins_channel()
     sm = kalman.scaled_model(model)
-    update1 = sm.update1_for(sm.H)
     rng = np.random.default_rng(4)
     for _ in range(20):
         A = rng.normal(size=(4, 4))
         P = A @ A.T + 0.1 * np.eye(4)
         x = rng.normal(size=4)
         z, r = float(rng.normal()), float(rng.uniform(0.5, 2.0)) * 0.01
-        out1 = update1(tuple(x), tuple(kalman._full_to_tri(P)), sm.H[0].tolist(), r, z, 10.0,
-                       False)
+        x1, P1, K1 = np.empty(4), np.empty((4, 4)), np.empty(4)
+        status, nu, S, beta2, _, fused = fk.update(x, P, np.ascontiguousarray(sm.H[0]), r, z,
+                                                   10.0, False, x1, P1, K1)
         out2 = kalman._update(x, P, np.array([z]), np.array([[r]]), sm.H, sm.HT, sm.I, 10.0,
                               False)
-        np.testing.assert_allclose(out1[0], out2[0], rtol=1e-13, atol=1e-15)
-        np.testing.assert_allclose(kalman._tri_to_full(np.array(out1[1]), 4), out2[1],
-                                   rtol=1e-12, atol=1e-15)
-        assert out1[5] == pytest.approx(out2[5], rel=1e-13)
+        assert status == fk.OK
+        np.testing.assert_allclose(x1, out2[0], rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(P1, out2[1], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(K1, out2[4][:, 0], rtol=1e-13, atol=1e-15)
+        assert beta2 == pytest.approx(out2[5], rel=1e-13) and nu == pytest.approx(out2[2][0])
 
 
 # --------------------------------------------------------------------------- streaming == batch
@@ -191,29 +195,19 @@ def test_streaming_equals_batch(which):
     assert not fwd.fused.all()  # the reject path was exercised
 
 
-def _run_in_chunks_of(chunk, *args):
-    model, t, z, R, u, gate = args
-    saved = kalman._FORWARD_CHUNK
-    kalman._FORWARD_CHUNK = chunk
-    try:
-        return run_forward(model, t, z, R, u=u, gate=gate)
-    finally:
-        kalman._FORWARD_CHUNK = saved
-
-
 @pytest.mark.parametrize("dt_kind", ["constant", "jittered"])
 @pytest.mark.parametrize("with_u", [False, True])
-def test_generated_forward_loop_is_bit_identical_to_the_streaming_step(dt_kind, with_u):
-    """run_forward's one-row loop (one generated function over the record, state in locals; on
-    jittered dt over the union of the steps' sparsity patterns) gives exactly the bits of
-    KalmanFilter.step, including the rejected samples."""
+def test_batch_kernel_is_bit_identical_to_the_streaming_step(dt_kind, with_u):
+    """run_forward's compiled loop over the record and KalmanFilter.step (what the filter node
+    calls per message) run the same kernel step: the same bits, including the rejected samples,
+    on regular and on jittered stamps."""
     rng = np.random.default_rng(15)
     N = 400
     model = attitude_axis() if with_u else ins_channel()
     u = rng.normal(0, 1, (N, 1)) if with_u else None
     z = rng.normal(0, 1e-4 if with_u else 0.1, (N, 1))
     z[::37] *= 40.0  # gated samples, rejected
-    t = np.arange(N) * 0.1 if dt_kind == "constant" else np.cumsum(rng.uniform(0.05, 0.2, N))
+    t = np.arange(N) * 0.1 if dt_kind == "constant" else np.cumsum(0.1 + rng.normal(0, 1e-3, N))
     R = np.broadcast_to(model.R, (N, 1, 1)) * rng.uniform(0.5, 2.0, (N, 1, 1))
     gate = GateConfig(probability=0.01, action="reject")
     fwd = run_forward(model, t, z, R, u=u, gate=gate)
@@ -225,9 +219,6 @@ def test_generated_forward_loop_is_bit_identical_to_the_streaming_step(dt_kind, 
         assert res.beta2 == fwd.beta2[k] and res.fused == fwd.fused[k]
         assert np.array_equal(res.nu, fwd.nu[k]) and np.array_equal(res.S, fwd.S[k])
     assert 0 < (~fwd.fused).sum() < N
-    chunked = _run_in_chunks_of(7, model, t, z, R, u, gate)  # 57 chunks and a short last one
-    for name in ("x_prior", "P_prior", "x", "P", "nu", "S", "K", "beta2", "fused"):
-        assert np.array_equal(getattr(chunked, name), getattr(fwd, name)), name
     one = run_forward(model, t[:1], z[:1], R[:1], u=None if u is None else u[:1], gate=gate)
     assert np.array_equal(one.x[0], fwd.x[0]) and one.K.shape == (1, model.n, 1)
 

@@ -27,24 +27,6 @@ def test_discretize_matches_expm_and_quadrature(model):
     assert np.max(np.abs(Qd - ref) / scale) < 1e-6
 
 
-def test_discretize_many_equals_discretize_for_jittered_dts():
-    rng = np.random.default_rng(7)
-    for model in (ins_channel(), attitude_axis()):
-        dts = 0.1 + rng.uniform(-1e-3, 1e-3, 200)
-        dts[:5] = 0.1
-        Phi, Qd, Bd = model.discretize_many(dts)
-        for k in range(0, 200, 13):
-            dt = float(dts[k])
-            np.testing.assert_allclose(Phi[k], expm(model.A * dt), rtol=1e-12, atol=1e-18)
-            Q1 = _qd_by_quadrature(model.A, model.Qc, dt)
-            np.testing.assert_allclose(Qd[k], Q1, rtol=1e-6, atol=1e-9 * np.abs(Q1).max())
-            if Bd is not None:
-                n, p = model.B.shape
-                C = np.zeros((n + p, n + p))
-                C[:n, :n], C[:n, n:] = model.A, model.B
-                np.testing.assert_allclose(Bd[k], expm(C * dt)[:n, n:], rtol=1e-12, atol=1e-18)
-
-
 def test_default_ins_channel_is_rank_deficient_and_says_so():
     # det of the observability matrix is g^2 (1/(tau_a tau_w) - 1/tau_a^2): zero when tau_a == tau_w
     rep = ins_channel().observability(3600.0, 1.0)

@@ -1,0 +1,226 @@
+"""Exact discretization of a continuous-time linear model for any step dt, compiled (numba).
+
+For ``x' = A x + B u + w``, ``E[w w^T] = Qc`` (spectral density), a step of ``dt`` seconds is::
+
+    Phi = expm(A dt)
+    Qd  = int_0^dt expm(A s) Qc expm(A s)^T ds          (Van Loan 1978)
+    Bd  = int_0^dt expm(A s) ds B  =  Gamma B
+
+These are the blocks of Van Loan's exponential of [[-A, Qc], [0, A^T]] dt (and of
+[[A, B], [0, 0]] dt for Bd). They are computed by scaling and squaring on the blocks themselves:
+
+1. scaling: h = dt / 2^s with ||A h||_1 <= THETA (s = 0 for the usual sample intervals);
+2. the blocks at h from their Taylor series in h, whose matrix coefficients depend only on the
+   model and are computed once (:class:`VanLoanSeries`)::
+
+       Phi(h) = sum_j h^j A^j / j!
+       Bd(h)  = h sum_j h^j A^j B / (j+1)!
+       Qd(h)  = h sum_j h^j M_{j+1} / (j+1)!,   M_1 = Qc,  M_{k+1} = A M_k + M_k A^T
+
+   summed by Horner's scheme up to the term whose bound is below rounding (O(terms n^2) per dt);
+3. squaring, s times (the semigroup property, block by block)::
+
+       Qd(2h) = Phi(h) Qd(h) Phi(h)^T + Qd(h),  Gamma(2h) = Gamma(h) + Phi(h) Gamma(h),
+       Phi(2h) = Phi(h)^2                        (Bd = Gamma B, Gamma = int_0^h expm(A s) ds)
+
+A Pade approximant of Van Loan's 2n x 2n matrix would cost a dense 2n x 2n solve per step; the
+series costs a few n x n multiply-adds. Tested against ``scipy.linalg.expm`` of Van Loan's matrix
+to 1e-12 of each state's scale. The filter's kernels call :func:`van_loan` at every new dt inside
+their compiled loop: jittered stamps cost what regular ones do, and no Python runs per dt.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: ||A h||_1 at or below which the series is summed directly (then at most ~15 terms)
+THETA = 0.25
+#: coefficients kept: enough for ||A h||_1 <= THETA to rounding
+TERMS = 20
+#: a series is cut where the bound of its next term falls below this fraction of its first
+_EPS = 1e-17
+
+
+@njit(cache=True)
+def matmul(A, B, out):
+    """out = A B (small dense matrices; ``out`` must not alias A or B)."""
+    n, m = A.shape
+    p = B.shape[1]
+    for i in range(n):
+        for j in range(p):
+            acc = 0.0
+            for k in range(m):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
+@njit(cache=True)
+def matmul_t(A, B, out):
+    """out = A B^T."""
+    n, m = A.shape
+    p = B.shape[0]
+    for i in range(n):
+        for j in range(p):
+            acc = 0.0
+            for k in range(m):
+                acc += A[i, k] * B[j, k]
+            out[i, j] = acc
+
+
+@njit(cache=True)
+def _add_to(M, D):
+    """M += D, element by element."""
+    for i in range(M.shape[0]):
+        for j in range(M.shape[1]):
+            M[i, j] += D[i, j]
+
+
+class VanLoanSeries:
+    """The Taylor coefficients of the Van Loan blocks of one model, in powers of dt::
+
+        Phi(h) = sum_j h^j F[j],      F[j] = A^j / j!
+        Bd(h)  = h sum_j h^j G[j],    G[j] = A^j B / (j+1)!
+        Qd(h)  = h sum_j h^j C[j],    C[j] = M_{j+1} / (j+1)!,  M_1 = Qc,  M_{k+1} = A M_k + M_k A^T
+
+    computed once per model (``TERMS`` coefficients each); ``norm`` = ||A||_1. The compiled
+    :func:`van_loan` then costs O(terms n^2) per dt instead of O(terms n^3).
+    """
+
+    def __init__(self, A: np.ndarray, Qc: np.ndarray, B: np.ndarray | None) -> None:
+        A = np.ascontiguousarray(A, dtype=float)
+        n = A.shape[0]
+        Bm = np.zeros((n, 0)) if B is None else np.ascontiguousarray(B, dtype=float)
+        F = np.empty((TERMS, n, n))
+        G = np.empty((TERMS, n, Bm.shape[1]))
+        C = np.empty((TERMS, n, n))
+        F[0] = np.eye(n)
+        C[0] = np.asarray(Qc, dtype=float)
+        for j in range(1, TERMS):
+            F[j] = F[j - 1] @ A / j
+            C[j] = (A @ C[j - 1] + C[j - 1] @ A.T) / (j + 1)
+        for j in range(TERMS):
+            G[j] = F[j] @ Bm / (j + 1)
+        self.F, self.G, self.C = F, G, C
+        self.norm = float(np.abs(A).sum(axis=0).max())
+        self.n, self.p = n, Bm.shape[1]
+
+    def args(self) -> tuple:
+        """(F, G, C, norm): the first arguments of :func:`van_loan`."""
+        return self.F, self.G, self.C, self.norm
+
+
+@njit(cache=True)
+def _terms(a):
+    """Number of series terms for ||A h||_1 = a <= THETA: the bound (2a)^j / (j+1)! of the
+    first omitted term of the slowest series (Qd's) is below _EPS."""
+    bound = 1.0
+    j = 0
+    while j < TERMS - 1:
+        j += 1
+        bound *= 2.0 * a / (j + 1)
+        if bound <= _EPS:
+            break
+    return j
+
+
+@njit(cache=True)
+def _horner(coef, h, J, out):
+    """out = sum_{j < J} h^j coef[j] (Horner's scheme)."""
+    out[:, :] = coef[J - 1]
+    for j in range(J - 2, -1, -1):
+        for r in range(out.shape[0]):
+            for c in range(out.shape[1]):
+                out[r, c] = out[r, c] * h + coef[j, r, c]
+
+
+@njit(cache=True)
+def van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work):
+    """Phi = expm(A dt), Qd, Bd for dt >= 0 into the given arrays (``work``: (3, n, n)).
+
+    Scaling and squaring: h = dt / 2^s with ||A h||_1 <= THETA, the blocks at h from the series
+    of :class:`VanLoanSeries`, then s doublings::
+
+        Qd(2h) = Phi(h) Qd(h) Phi(h)^T + Qd(h),  Gamma(2h) = Gamma(h) + Phi(h) Gamma(h),
+        Phi(2h) = Phi(h)^2                       (Bd = Gamma B, Gamma = int_0^h expm(A s) ds)
+    """
+    n = Phi.shape[0]
+    s = 0
+    h = dt
+    while norm * h > THETA and s < 1100:
+        h *= 0.5
+        s += 1
+    J = _terms(norm * h)
+    _horner(F, h, J, Phi)
+    _horner(C, h, J, Qd)
+    for r in range(n):
+        for c in range(n):
+            Qd[r, c] *= h
+    if s == 0:
+        _horner(G, h, J, Bd)
+        for r in range(n):
+            for c in range(Bd.shape[1]):
+                Bd[r, c] *= h
+    else:
+        Gamma = work[2]
+        _gamma(F, h, J, Gamma)
+        for _ in range(s):
+            matmul(Phi, Qd, work[0])
+            matmul_t(work[0], Phi, work[1])
+            _add_to(Qd, work[1])
+            matmul(Phi, Gamma, work[0])
+            _add_to(Gamma, work[0])
+            matmul(Phi, Phi, work[0])
+            Phi[:, :] = work[0]
+        matmul(Gamma, G[0], Bd)          # Bd = Gamma B (G[0] = B)
+    for r in range(n):
+        for c in range(r + 1, n):
+            q = 0.5 * (Qd[r, c] + Qd[c, r])
+            Qd[r, c] = q
+            Qd[c, r] = q
+
+
+@njit(cache=True)
+def _gamma(F, h, J, out):
+    """out = h sum_{j < J} h^j F[j] / (j+1) = int_0^h expm(A s) ds (Horner's scheme)."""
+    out[:, :] = F[J - 1] / J
+    for j in range(J - 2, -1, -1):
+        for r in range(out.shape[0]):
+            for c in range(out.shape[1]):
+                out[r, c] = out[r, c] * h + F[j, r, c] / (j + 1)
+    for r in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            out[r, c] *= h
+
+
+def discretize(A: np.ndarray, Qc: np.ndarray, B: np.ndarray | None, dt: float,
+               series: VanLoanSeries | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Phi, Qd, Bd (None without B) for one step of ``dt`` >= 0 seconds (see the module doc).
+    ``series``: the model's :class:`VanLoanSeries`, when the caller keeps it."""
+    vl = VanLoanSeries(A, Qc, B) if series is None else series
+    n = vl.n
+    Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, vl.p))
+    van_loan(*vl.args(), float(dt), Phi, Qd, Bd, np.empty((3, n, n)))
+    return Phi, Qd, (None if B is None else Bd)
+
+
+def discretize_all(series: VanLoanSeries, dt: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Phi (N, n, n), Qd (N, n, n), Bd (N, n, p) for every dt of an array (compiled loop)."""
+    dt = np.ascontiguousarray(dt, dtype=float)
+    N, n = dt.size, series.n
+    Phi, Qd, Bd = np.empty((N, n, n)), np.empty((N, n, n)), np.empty((N, n, series.p))
+    _discretize_all(*series.args(), dt, Phi, Qd, Bd)
+    return Phi, Qd, Bd
+
+
+@njit(cache=True)
+def _discretize_all(F, G, C, norm, dt, Phi, Qd, Bd):
+    work = np.empty((3, Phi.shape[1], Phi.shape[1]))
+    for k in range(dt.shape[0]):
+        if k > 0 and dt[k] == dt[k - 1]:
+            Phi[k] = Phi[k - 1]
+            Qd[k] = Qd[k - 1]
+            Bd[k] = Bd[k - 1]
+        else:
+            van_loan(F, G, C, norm, dt[k], Phi[k], Qd[k], Bd[k], work)

@@ -1,0 +1,149 @@
+"""The forward Kalman filter with the beta^2 gate, compiled (numba): one source for the streaming
+:class:`~flight_fdi.core.kalman.KalmanFilter` (a node's per-message step) and the batch
+:func:`~flight_fdi.core.kalman.run_forward` (a whole record). Both call :func:`step`, so they
+agree to the last bit.
+
+All arrays are in scaled coordinates x' = T^-1 x (T = diag(scale), see ``kalman.ScaledModel``):
+A' = T^-1 A T, Qc' = T^-1 Qc T^-1, B' = T^-1 B, h' = h T. One measurement row per step
+(m = 1: h a row vector, r a variance); the numpy path of ``kalman`` handles m > 1.
+
+    predict:  x- = Phi x + Bd u                    Phi, Qd, Bd = van_loan(A, Qc, B, dt)
+              P- = Phi P Phi^T + Qd
+    update:   nu = z - h x-                        innovation
+              S  = h P- h^T + r                    its variance
+              beta2 = nu^2 / S                     the gate statistic, chi2(1) when healthy
+              K  = P- h^T / S                      gain
+              x+ = x- + K nu
+              P+ = (I - K h) P- (I - K h)^T + K r K^T     (Joseph form)
+
+A sample whose beta2 exceeds the threshold is still fused unless ``reject`` is set; a rejected
+sample leaves x+ = x-, P+ = P- and K = 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .discretize import matmul, matmul_t, van_loan
+
+#: status codes of :func:`step` (0: fine)
+OK = 0
+S_NOT_POSITIVE = 1
+
+
+@njit(cache=True)
+def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior):
+    """x- = Phi x + Bd u,  P- = Phi P Phi^T + Qd (exactly symmetric)."""
+    n = x.shape[0]
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += Phi[i, j] * x[j]
+        for j in range(u.shape[0]):
+            acc += Bd[i, j] * u[j]
+        x_prior[i] = acc
+    PhiP = np.empty((n, n))
+    matmul(Phi, P, PhiP)
+    matmul_t(PhiP, Phi, P_prior)
+    for i in range(n):
+        for j in range(i, n):
+            p = 0.5 * (P_prior[i, j] + P_prior[j, i]) + Qd[i, j]
+            P_prior[i, j] = p
+            P_prior[j, i] = p
+
+
+@njit(cache=True)
+def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K):
+    """The one-row update with the gate; returns (status, nu, S, beta2, exceeded, fused)."""
+    n = x_prior.shape[0]
+    PhT = np.empty(n)                       # P- h^T
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += P_prior[i, j] * h[j]
+        PhT[i] = acc
+    S = r
+    hx = 0.0
+    for i in range(n):
+        S += h[i] * PhT[i]
+        hx += h[i] * x_prior[i]
+    nu = z - hx
+    if not S > 0.0:
+        return S_NOT_POSITIVE, nu, S, np.nan, False, False
+    beta2 = nu * nu / S
+    exceeded = beta2 > threshold
+    if exceeded and reject:
+        x[:] = x_prior
+        P[:, :] = P_prior
+        K[:] = 0.0
+        return OK, nu, S, beta2, True, False
+    for i in range(n):
+        K[i] = PhT[i] / S
+        x[i] = x_prior[i] + K[i] * nu
+    # Joseph form: P+ = A P- A^T + K r K^T with A = I - K h
+    A = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = (1.0 if i == j else 0.0) - K[i] * h[j]
+    AP = np.empty((n, n))
+    matmul(A, P_prior, AP)
+    matmul_t(AP, A, P)
+    for i in range(n):
+        for j in range(i, n):
+            p = 0.5 * (P[i, j] + P[j, i]) + K[i] * r * K[j]
+            P[i, j] = p
+            P[j, i] = p
+    return OK, nu, S, beta2, exceeded, True
+
+
+@njit(cache=True)
+def predict_over(vl, dt, u, x, P, held, x_prior, P_prior):
+    """x-, P- after ``dt`` seconds (none when dt == 0). ``vl`` = (F, G, C, norm), the model's
+    Van Loan series; ``held`` = (dt_held, Phi, Qd, Bd, work): the discretization last computed,
+    recomputed only for a new dt (dt_held[0] is the dt it holds, NaN: none yet)."""
+    dt_held, Phi, Qd, Bd, work = held
+    if dt > 0.0:
+        if not dt == dt_held[0]:
+            F, G, C, norm = vl
+            van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work)
+            dt_held[0] = dt
+        predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior)
+    else:
+        x_prior[:] = x
+        P_prior[:, :] = P
+
+
+@njit(cache=True)
+def step(vl, h, dt, u, z, r, threshold, reject, x, P, held, x_prior, P_prior, x_post, P_post,
+         K):
+    """One step: predict over ``dt`` (:func:`predict_over`; the first sample of a record, dt = 0,
+    is an update on the prior), then update with z. The prior goes to x_prior, P_prior, the
+    posterior to x_post, P_post (x, P are not changed). Returns (status, nu, S, beta2, exceeded,
+    fused)."""
+    predict_over(vl, dt, u, x, P, held, x_prior, P_prior)
+    return update(x_prior, P_prior, h, r, z, threshold, reject, x_post, P_post, K)
+
+
+def new_held(n: int, p: int) -> tuple:
+    """Fresh ``held`` buffers for :func:`predict_over` (no discretization yet)."""
+    return (np.full(1, np.nan), np.empty((n, n)), np.empty((n, n)), np.empty((n, p)),
+            np.empty((3, n, n)))
+
+
+@njit(cache=True)
+def forward_pass(vl, h, x0, P0, dt, u, z, r, threshold, reject, held,
+                 x_prior, P_prior, x, P, K, nu, S, beta2, fused):
+    """:func:`step` over a record (N steps; u is (N, p), p may be 0), every intermediate
+    quantity into the (N, ...) output arrays. Returns the index of a step whose S was not
+    positive, or -1."""
+    x_k = x0
+    P_k = P0
+    for k in range(dt.shape[0]):
+        status, nu[k], S[k], beta2[k], _, fused[k] = step(
+            vl, h, dt[k], u[k], z[k], r[k], threshold, reject, x_k, P_k, held,
+            x_prior[k], P_prior[k], x[k], P[k], K[k])
+        if status != OK:
+            return k
+        x_k = x[k]
+        P_k = P[k]
+    return -1
