@@ -26,14 +26,15 @@ from numba import njit
 
 from .discretize import matmul, matmul_t, van_loan
 
-#: status codes of :func:`step` (0: fine)
+#: status codes of :func:`update` and :func:`step` (0: fine)
 OK = 0
 S_NOT_POSITIVE = 1
+NOT_FINITE = 2      # the update overflowed float64: the measurement is not a plausible value
 
 
 @njit(cache=True)
-def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior):
-    """x- = Phi x + Bd u,  P- = Phi P Phi^T + Qd (exactly symmetric)."""
+def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior, work):
+    """x- = Phi x + Bd u,  P- = Phi P Phi^T + Qd (exactly symmetric). ``work``: (>= 1, n, n)."""
     n = x.shape[0]
     for i in range(n):
         acc = 0.0
@@ -42,7 +43,7 @@ def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior):
         for j in range(u.shape[0]):
             acc += Bd[i, j] * u[j]
         x_prior[i] = acc
-    PhiP = np.empty((n, n))
+    PhiP = work[0]
     matmul(Phi, P, PhiP)
     matmul_t(PhiP, Phi, P_prior)
     for i in range(n):
@@ -53,39 +54,43 @@ def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior):
 
 
 @njit(cache=True)
-def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K):
-    """The one-row update with the gate; returns (status, nu, S, beta2, exceeded, fused)."""
+def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K, work):
+    """The one-row update with the gate into x, P, K; returns (status, nu, S, beta2, exceeded,
+    fused). ``work``: (>= 2, n, n)."""
     n = x_prior.shape[0]
-    PhT = np.empty(n)                       # P- h^T
-    for i in range(n):
+    for i in range(n):                      # K <- P- h^T (divided by S below)
         acc = 0.0
         for j in range(n):
             acc += P_prior[i, j] * h[j]
-        PhT[i] = acc
+        K[i] = acc
     S = r
     hx = 0.0
     for i in range(n):
-        S += h[i] * PhT[i]
+        S += h[i] * K[i]
         hx += h[i] * x_prior[i]
     nu = z - hx
     if not S > 0.0:
         return S_NOT_POSITIVE, nu, S, np.nan, False, False
     beta2 = nu * nu / S
+    if not np.isfinite(beta2):
+        return NOT_FINITE, nu, S, beta2, False, False
     exceeded = beta2 > threshold
     if exceeded and reject:
         x[:] = x_prior
         P[:, :] = P_prior
         K[:] = 0.0
         return OK, nu, S, beta2, True, False
+    finite = True
     for i in range(n):
-        K[i] = PhT[i] / S
+        K[i] = K[i] / S
         x[i] = x_prior[i] + K[i] * nu
+        finite = finite and np.isfinite(x[i])
     # Joseph form: P+ = A P- A^T + K r K^T with A = I - K h
-    A = np.empty((n, n))
+    A = work[0]
     for i in range(n):
         for j in range(n):
             A[i, j] = (1.0 if i == j else 0.0) - K[i] * h[j]
-    AP = np.empty((n, n))
+    AP = work[1]
     matmul(A, P_prior, AP)
     matmul_t(AP, A, P)
     for i in range(n):
@@ -93,57 +98,73 @@ def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K):
             p = 0.5 * (P[i, j] + P[j, i]) + K[i] * r * K[j]
             P[i, j] = p
             P[j, i] = p
+            finite = finite and np.isfinite(p)
+    if not finite:
+        return NOT_FINITE, nu, S, beta2, exceeded, True
     return OK, nu, S, beta2, exceeded, True
 
 
 @njit(cache=True)
-def predict_over(vl, dt, u, x, P, held, x_prior, P_prior):
-    """x-, P- after ``dt`` seconds (none when dt == 0). ``vl`` = (F, G, C, norm), the model's
-    Van Loan series; ``held`` = (dt_held, Phi, Qd, Bd, work): the discretization last computed,
-    recomputed only for a new dt (dt_held[0] is the dt it holds, NaN: none yet)."""
-    dt_held, Phi, Qd, Bd, work = held
+def predict_over(F, G, C, norm, dt, u, x, P, dt_held, Phi, Qd, Bd, work, x_prior, P_prior):
+    """x-, P- after ``dt`` seconds (none when dt == 0). F, G, C, norm: the model's Van Loan
+    series; Phi, Qd, Bd: the discretization last computed, for the dt in dt_held[0] (NaN: none
+    yet), recomputed only for a new dt."""
     if dt > 0.0:
         if not dt == dt_held[0]:
-            F, G, C, norm = vl
             van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work)
             dt_held[0] = dt
-        predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior)
+        predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior, work)
     else:
         x_prior[:] = x
         P_prior[:, :] = P
 
 
 @njit(cache=True)
-def step(vl, h, dt, u, z, r, threshold, reject, x, P, held, x_prior, P_prior, x_post, P_post,
-         K):
+def step(F, G, C, norm, h, dt, u, z, r, threshold, reject, x, P, dt_held, Phi, Qd, Bd, work,
+         x_prior, P_prior, x_post, P_post, K):
     """One step: predict over ``dt`` (:func:`predict_over`; the first sample of a record, dt = 0,
     is an update on the prior), then update with z. The prior goes to x_prior, P_prior, the
     posterior to x_post, P_post (x, P are not changed). Returns (status, nu, S, beta2, exceeded,
     fused)."""
-    predict_over(vl, dt, u, x, P, held, x_prior, P_prior)
-    return update(x_prior, P_prior, h, r, z, threshold, reject, x_post, P_post, K)
+    predict_over(F, G, C, norm, dt, u, x, P, dt_held, Phi, Qd, Bd, work, x_prior, P_prior)
+    return update(x_prior, P_prior, h, r, z, threshold, reject, x_post, P_post, K, work)
 
 
-def new_held(n: int, p: int) -> tuple:
-    """Fresh ``held`` buffers for :func:`predict_over` (no discretization yet)."""
-    return (np.full(1, np.nan), np.empty((n, n)), np.empty((n, n)), np.empty((n, p)),
-            np.empty((3, n, n)))
+class Workspace:
+    """The buffers of :func:`step` for an n-state, p-input model: the discretization held
+    (``dt_held``, ``Phi``, ``Qd``, ``Bd``), scratch (``work``), and the prior, posterior and
+    gain of the step."""
+
+    def __init__(self, n: int, p: int) -> None:
+        self.dt_held = np.full(1, np.nan)
+        self.Phi, self.Qd, self.Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, p))
+        self.work = np.empty((3, n, n))
+        self.x_prior, self.P_prior = np.empty(n), np.empty((n, n))
+        self.x_post, self.P_post, self.K = np.empty(n), np.empty((n, n)), np.empty(n)
+
+    def held(self) -> tuple:
+        """(dt_held, Phi, Qd, Bd, work): the arguments of :func:`predict_over` after P."""
+        return self.dt_held, self.Phi, self.Qd, self.Bd, self.work
 
 
 @njit(cache=True)
-def forward_pass(vl, h, x0, P0, dt, u, z, r, threshold, reject, held,
+def forward_pass(F, G, C, norm, h, x0, P0, dt, u, z, r, threshold, reject,
                  x_prior, P_prior, x, P, K, nu, S, beta2, fused):
     """:func:`step` over a record (N steps; u is (N, p), p may be 0), every intermediate
-    quantity into the (N, ...) output arrays. Returns the index of a step whose S was not
-    positive, or -1."""
+    quantity into the (N, ...) output arrays. Returns (index, status) of the first step that
+    failed, or (-1, OK)."""
+    n = x0.shape[0]
+    dt_held = np.full(1, np.nan)
+    Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, G.shape[2]))
+    work = np.empty((3, n, n))
     x_k = x0
     P_k = P0
     for k in range(dt.shape[0]):
         status, nu[k], S[k], beta2[k], _, fused[k] = step(
-            vl, h, dt[k], u[k], z[k], r[k], threshold, reject, x_k, P_k, held,
-            x_prior[k], P_prior[k], x[k], P[k], K[k])
+            F, G, C, norm, h, dt[k], u[k], z[k], r[k], threshold, reject, x_k, P_k, dt_held,
+            Phi, Qd, Bd, work, x_prior[k], P_prior[k], x[k], P[k], K[k])
         if status != OK:
-            return k
+            return k, status
         x_k = x[k]
         P_k = P[k]
-    return -1
+    return -1, OK

@@ -60,11 +60,10 @@ def solve(M, B, X):
 
 
 @njit(cache=True)
-def backward_pass(vl, dt, u, info, Y0, y0, Ys, ys):
+def backward_pass(F, G, C, norm, dt, u, info, Y0, y0, Ys, ys):
     """The backward information recursion over a record (see the module doc) into Ys (N, n, n),
-    ys (N, n). ``vl`` = (F, G, C, norm), the model's Van Loan series; ``info`` (N, n, n+1) holds
+    ys (N, n). F, G, C, norm: the model's Van Loan series; ``info`` (N, n, n+1) holds
     [H^T R^-1 H | H^T R^-1 z] per step. Returns the index where I + Y Qd was singular, or -1."""
-    F, G, C, norm = vl
     N, n = ys.shape
     p = G.shape[2]
     Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, p))
@@ -75,9 +74,12 @@ def backward_pass(vl, dt, u, info, Y0, y0, Ys, ys):
     M = np.empty((n, n))          # I + Y Qd
     rhs = np.empty((n, n + 1))    # [Y Phi | y - Y Bd u]
     X = np.empty((n, n + 1))      # (I + Y Qd)^-1 rhs
+    Bdu = np.empty(n)
     for i in range(N - 1, -1, -1):
-        Ys[i] = Y
-        ys[i] = y
+        for r in range(n):
+            ys[i, r] = y[r]
+            for c in range(n):
+                Ys[i, r, c] = Y[r, c]
         if i == 0:
             break
         for r in range(n):
@@ -90,14 +92,20 @@ def backward_pass(vl, dt, u, info, Y0, y0, Ys, ys):
         matmul(Y, Qd, M)
         for r in range(n):
             M[r, r] += 1.0
-        matmul(Y, Phi, rhs[:, :n])
-        for r in range(n):
+        for c in range(n):                  # Bd u
+            acc = 0.0
+            for j in range(p):
+                acc += Bd[c, j] * u[i, j]
+            Bdu[c] = acc
+        for r in range(n):                  # rhs = [Y Phi | y - Y Bd u]
+            for c in range(n):
+                acc = 0.0
+                for j in range(n):
+                    acc += Y[r, j] * Phi[j, c]
+                rhs[r, c] = acc
             acc = y[r]
             for c in range(n):
-                Bdu_c = 0.0
-                for j in range(p):
-                    Bdu_c += Bd[c, j] * u[i, j]
-                acc -= Y[r, c] * Bdu_c
+                acc -= Y[r, c] * Bdu[c]
             rhs[r, n] = acc
         if not solve(M, rhs, X):
             return i
@@ -121,13 +129,12 @@ def backward_pass(vl, dt, u, info, Y0, y0, Ys, ys):
 
 @njit(cache=True)
 def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d,
-                 terms, dof, normalized):
-    """The two-filter combination of one step (see the module doc). Returns False when
-    I + Y P_f or P_f is singular."""
+                 terms, dof, normalized, work, work1):
+    """The two-filter combination of one step (see the module doc). ``work``: (3, n, n),
+    ``work1``: (2, n, n+1) scratch. Returns False when I + Y P_f or P_f is singular."""
     n = x_f.shape[0]
-    M = np.empty((n, n))
-    rhs = np.empty((n, n + 1))
-    X = np.empty((n, n + 1))
+    M, PW, U = work[0], work[1], work[2]
+    rhs, X = work1[0], work1[1]
     matmul(Y, P_f, M)
     for r in range(n):
         M[r, r] += 1.0
@@ -143,7 +150,6 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
         for c in range(n):
             W[r, c] = 0.5 * (X[r, c] + X[c, r])
     # x_s = x_f + P_f W v;  P_s = P_f - P_f W P_f
-    PW = np.empty((n, n))
     matmul(P_f, W, PW)
     matmul(PW, P_f, P_s)
     for r in range(n):
@@ -157,14 +163,13 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
             P_s[r, c] = s
             P_s[c, r] = s
     # reference pivots: the forward information P_f^-1 = U^-T D^-1 U^-1 has LDL^T pivots 1 / D
-    U = np.empty((n, n))
     if udu_factor(P_f, U, ref) >= 0:
         return False
     for k in range(n):
         ref[k] = 1.0 / ref[k]
-    L = np.empty((n, n))
+    L = U                                   # (U is not needed any more)
     ldl_factor(W, ref, rank_tol, L, Lam, informative)
-    information_terms(L, Lam, informative, Wv, v_tilde, d, terms, dof, normalized)
+    information_terms(L, Lam, informative, Wv, rhs[:, 0], v_tilde, d, terms, dof, normalized)
     return True
 
 
@@ -172,9 +177,12 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
 def combine_all(Ys, ys, xf, Pf, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d,
                 terms, dof, normalized):
     """:func:`combine_step` at every step. Returns the first step that failed, or -1."""
+    n = xf.shape[1]
+    work = np.empty((3, n, n))
+    work1 = np.empty((2, n, n + 1))
     for i in range(xf.shape[0]):
         if not combine_step(Ys[i], ys[i], xf[i], Pf[i], rank_tol, W[i], Wv[i], x_s[i], P_s[i],
                             ref[i], Lam[i], informative[i], v_tilde[i], d[i], terms[i], dof[i],
-                            normalized[i]):
+                            normalized[i], work, work1):
             return i
     return -1

@@ -122,23 +122,22 @@ def _update_failed(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, H
     return x, P, nu, S, beta2, thr, exceeded, True, used, R_used
 
 
-def _check_finite_update(x: np.ndarray, P: np.ndarray, beta2: float, nu: Any = None,
-                         S: Any = None) -> None:
+def _check_finite_update(x: np.ndarray, P: np.ndarray, beta2: float, nu: Any,
+                         S: Any) -> None:
     """CoreError when an update overflowed float64: a finite measurement so far from the
     prediction (e.g. 1e200 m/s) that beta2 = nu^T S^-1 nu, a row's nu_k^2 / S_kk or the
     corrected state is Inf or NaN. The caller then leaves the filter unchanged."""
     ok = math.isfinite(beta2) and bool(np.isfinite(x).all()) and bool(np.isfinite(P).all())
-    if ok and nu is not None and np.size(nu) > 1:
+    if ok and np.size(nu) > 1:
         with np.errstate(over="ignore", invalid="ignore"):
             ok = bool(np.all(np.isfinite(np.square(nu) / np.diag(S))))
     if not ok:
-        raise CoreError(f"the update overflows float64 (innovation "
-                        f"{np.ravel(nu).tolist() if nu is not None else '?'}, beta2 {beta2!r}): "
-                        "the measurement is not a plausible value")
+        raise _overflow(nu, beta2)
 
 
-def _s_not_positive(S: float) -> CoreError:
-    return CoreError(f"innovation covariance S = {S:.3g} is not positive")
+def _overflow(nu: Any, beta2: float) -> CoreError:
+    return CoreError(f"the update overflows float64 (innovation {np.ravel(nu).tolist()}, "
+                     f"beta2 {beta2!r}): the measurement is not a plausible value")
 
 
 # --------------------------------------------------------------------------- streaming filter
@@ -194,10 +193,9 @@ class KalmanFilter:
         self._h = np.ascontiguousarray(sm.H[0])
         self._threshold1 = gate.threshold(1)
         self._no_u = np.zeros(sm.p)
-        self._held = fk.new_held(n, sm.p)  # the kernel's discretization of the last dt
-        # the kernel writes the prior and the posterior here; a step is committed by swapping
-        self._x_prior, self._P_prior = np.empty(n), np.empty((n, n))
-        self._x_post, self._P_post, self._K = np.empty(n), np.empty((n, n)), np.empty(n)
+        # the kernel's buffers: the discretization of the last dt, and the prior and posterior
+        # it writes (a step is committed by swapping the posterior in)
+        self._ws = fk.Workspace(n, sm.p)
         self._alarm = AlarmLogic(gate.alarm_m, gate.alarm_n)
         self._reject = gate.action == "reject"
         self.reset(x0, P0)
@@ -265,17 +263,21 @@ class KalmanFilter:
         """Propagate over ``dt`` seconds (>= 0) with optional control input ``u``."""
         dt = check_dt(dt)
         uv = check_u(self.model, u)
-        fk.predict_over(self._vl, dt, self._no_u if uv is None else uv, self._x, self._P,
-                        self._held, self._x_prior, self._P_prior)
-        self._commit_prior()
+        ws = self._ws
+        fk.predict_over(*self._vl, dt, self._no_u if uv is None else uv, self._x, self._P,
+                        *ws.held(), ws.x_prior, ws.P_prior)
+        self._x, ws.x_prior = ws.x_prior, self._x
+        self._P, ws.P_prior = ws.P_prior, self._P
 
-    def _commit_prior(self) -> None:
-        self._x, self._x_prior = self._x_prior, self._x
-        self._P, self._P_prior = self._P_prior, self._P
-
-    def _commit_post(self) -> None:
-        self._x, self._x_post = self._x_post, self._x
-        self._P, self._P_post = self._P_post, self._P
+    def _commit_post(self, status: int, nu: float, s: float, beta2: float) -> None:
+        """Take the kernel's posterior as the state, or raise (the state unchanged)."""
+        if status == fk.S_NOT_POSITIVE:
+            raise CoreError(f"innovation covariance S = {s:.3g} is not positive")
+        if status == fk.NOT_FINITE:
+            raise _overflow(nu, beta2)
+        ws = self._ws
+        self._x, ws.x_post = ws.x_post, self._x
+        self._P, ws.P_post = ws.P_post, self._P
 
     def _measurement(self, z: Any, R: Any, H: Any):
         """Validated (z, R, scaled H, its transpose)."""
@@ -338,13 +340,11 @@ class KalmanFilter:
             return self._update_failed(zv, Rm, Hs, failed, mode, Gamma)
         thr = self.gate.threshold(m)
         if m == 1:
+            ws = self._ws
             status, nu, s, beta2, exceeded, fused = fk.update(
                 self._x, self._P, np.ascontiguousarray(Hs[0]), float(Rm[0, 0]), float(zv[0]),
-                thr, self._reject, self._x_post, self._P_post, self._K)
-            if status != fk.OK:
-                raise _s_not_positive(s)
-            _check_finite_update(self._x_post, self._P_post, beta2, (nu,))
-            self._commit_post()
+                thr, self._reject, ws.x_post, ws.P_post, ws.K, ws.work)
+            self._commit_post(status, nu, s, beta2)
             return self._result(nu, s, beta2, thr, exceeded, fused)
         x, P, nu, S, _, beta2, exceeded, fused = _update(
             self._x, self._P, zv, Rm, Hs, HsT, self._sm.I, thr, self._reject)
@@ -429,14 +429,11 @@ class KalmanFilter:
     def _step1(self, dt: float, z: float, r: float, uv: np.ndarray | None) -> UpdateResult:
         """The kernel's one-row prediction + update on validated inputs."""
         thr = self._threshold1
+        ws = self._ws
         status, nu, s, beta2, exceeded, fused = fk.step(
-            self._vl, self._h, dt, self._no_u if uv is None else uv, z, r, thr, self._reject,
-            self._x, self._P, self._held, self._x_prior, self._P_prior, self._x_post,
-            self._P_post, self._K)
-        if status != fk.OK:
-            raise _s_not_positive(s)
-        _check_finite_update(self._x_post, self._P_post, beta2, (nu,))
-        self._commit_post()
+            *self._vl, self._h, dt, self._no_u if uv is None else uv, z, r, thr, self._reject,
+            self._x, self._P, *ws.held(), ws.x_prior, ws.P_prior, ws.x_post, ws.P_post, ws.K)
+        self._commit_post(status, nu, s, beta2)
         return self._result(nu, s, beta2, thr, exceeded, fused)
 
 
@@ -487,24 +484,27 @@ def _forward1(sm: ScaledModel, x0: np.ndarray, P0: np.ndarray, dt: np.ndarray, u
               z: np.ndarray, R: np.ndarray, thr: float, reject: bool, out: dict) -> None:
     """The one-row record through the kernel's ``forward_pass`` (scaled outputs into ``out``)."""
     N = dt.size
-    S = np.empty(N)
-    bad = fk.forward_pass(sm.series.args(), np.ascontiguousarray(sm.H[0]), x0, P0, dt, u,
-                          np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(R[:, 0, 0]), thr,
-                          reject, fk.new_held(sm.n, sm.p), out["x_prior"], out["P_prior"],
-                          out["x"], out["P"], out["K"][:, :, 0], out["nu"][:, 0], S,
-                          out["beta2"], out["fused"])
-    if bad >= 0:
-        raise CoreError(f"step {bad}: {_s_not_positive(S[bad])}")
+    S, K = np.empty(N), np.empty((N, sm.n))
+    bad, status = fk.forward_pass(
+        *sm.series.args(), np.ascontiguousarray(sm.H[0]), x0, P0, dt, u,
+        np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(R[:, 0, 0]), thr, reject,
+        out["x_prior"], out["P_prior"], out["x"], out["P"], K, out["nu"][:, 0], S, out["beta2"],
+        out["fused"])
+    if status == fk.S_NOT_POSITIVE:
+        raise CoreError(f"step {bad}: innovation covariance S = {S[bad]:.3g} is not positive")
+    if status == fk.NOT_FINITE:
+        raise CoreError(f"step {bad}: {_overflow(out['nu'][bad], out['beta2'][bad])}")
     out["S"][:, 0, 0] = S
+    out["K"][:, :, 0] = K
 
 
 def _forward_rows(sm: ScaledModel, x: np.ndarray, P: np.ndarray, dt: np.ndarray, u: np.ndarray,
                   z: np.ndarray, R: np.ndarray, thr: float, reject: bool, out: dict) -> None:
     """A record with m > 1 rows: the kernel's prediction and the numpy update, step by step."""
-    held = fk.new_held(sm.n, sm.p)
+    held = fk.Workspace(sm.n, sm.p).held()
     vl = sm.series.args()
     for k in range(dt.size):
-        fk.predict_over(vl, float(dt[k]), u[k], x, P, held, out["x_prior"][k],
+        fk.predict_over(*vl, float(dt[k]), u[k], x, P, *held, out["x_prior"][k],
                         out["P_prior"][k])
         x, P, out["nu"][k], out["S"][k], out["K"][k], out["beta2"][k], _, out["fused"][k] = \
             _update(out["x_prior"][k], out["P_prior"][k], z[k], R[k], sm.H, sm.HT, sm.I, thr,

@@ -87,12 +87,11 @@ def ldl_factor(W, ref, rank_tol, L, Lam, informative):
 
 
 @njit(cache=True)
-def information_terms(L, Lam, informative, Wv, v_tilde, d, terms, dof, normalized):
+def information_terms(L, Lam, informative, Wv, q, v_tilde, d, terms, dof, normalized):
     """The element terms of J in information form: q = L^-1 (W v) (forward substitution),
     term_k = q_k^2 / Lam_k, v~_k = q_k / Lam_k, dD_k = 1 / Lam_k, normalized v~_k / sqrt(dD_k) =
     q_k / sqrt(Lam_k); cumulative terms J(i/k) and effective degrees of freedom."""
     n = Lam.shape[0]
-    q = np.empty(n)
     total = 0.0
     count = 0
     for k in range(n):
@@ -131,9 +130,10 @@ def _ldl_stack(W, ref, rank_tol, L, Lam, informative):
 
 @njit(cache=True)
 def _terms_stack(W, Wv, ref, rank_tol, L, Lam, informative, v_tilde, d, terms, dof, normalized):
+    q = np.empty(W.shape[1])
     for i in range(W.shape[0]):
         ldl_factor(W[i], ref[i], rank_tol, L[i], Lam[i], informative[i])
-        information_terms(L[i], Lam[i], informative[i], Wv[i], v_tilde[i], d[i], terms[i],
+        information_terms(L[i], Lam[i], informative[i], Wv[i], q, v_tilde[i], d[i], terms[i],
                           dof[i], normalized[i])
 
 

@@ -131,7 +131,7 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
         Y0 = Yp.T @ Yp
         y0 = Y0 @ xs
     Ys, ys = np.empty((N, n, n)), np.empty((N, n))
-    bad = kernel.backward_pass(sm.series.args(), np.ascontiguousarray(fwd.dt, dtype=float), u,
+    bad = kernel.backward_pass(*sm.series.args(), np.ascontiguousarray(fwd.dt, dtype=float), u,
                                info, Y0, y0, Ys, ys)
     if bad >= 0:
         raise CoreError(f"backward filter: singular I + Y Q at index {bad}")

@@ -143,7 +143,8 @@ def test_kernel_one_row_update_equals_numpy_update():
         z, r = float(rng.normal()), float(rng.uniform(0.5, 2.0)) * 0.01
         x1, P1, K1 = np.empty(4), np.empty((4, 4)), np.empty(4)
         status, nu, S, beta2, _, fused = fk.update(x, P, np.ascontiguousarray(sm.H[0]), r, z,
-                                                   10.0, False, x1, P1, K1)
+                                                   10.0, False, x1, P1, K1,
+                                                   np.empty((3, 4, 4)))
         out2 = kalman._update(x, P, np.array([z]), np.array([[r]]), sm.H, sm.HT, sm.I, 10.0,
                               False)
         assert status == fk.OK

@@ -3,8 +3,6 @@ same numbers as the one-piece paths that short flights take.
 
 * ``cdr.decode`` gathers in blocks of messages (the index arrays of one piece are ~100 bytes per
   message); an error still names the message's index in the whole series;
-* the two-filter combination of the backward pass runs in blocks of steps into preallocated
-  results;
 * ``mcapscan`` decompresses every chunk into one buffer (the records are never held twice);
 * a record longer than ``GLR_CONCURRENT_MAX_STEPS`` runs GLR before the backward pass instead of
   beside it.
@@ -12,8 +10,6 @@ same numbers as the one-piece paths that short flights take.
 Each is checked bit for bit (the block size or the limit made small) against the other path.
 """
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 import pytest
@@ -55,25 +51,6 @@ def _flight(N: int = 3000, **model_params):
     z[2000:, 0] += 0.002 * (t[2000:] - t[2000])  # a ramp: GLR and the seed method have work
     model = ins_channel(**model_params)
     return model, run_forward(model, t, z)
-
-
-def test_blocked_two_filter_combination_equals_one_piece(monkeypatch):
-    from flight_fdi.core import smoother
-
-    # tau_a != tau_w: fully observable, so the backward information becomes invertible
-    model, fwd = _flight(tau_w=600.0)
-    one = smoother.run_backward(model, fwd)
-    monkeypatch.setattr(smoother, "_COMBINE_BLOCK", 701)
-    blocked = smoother.run_backward(model, fwd)
-    for obj_a, obj_b in ((one, blocked), (one.localization, blocked.localization)):
-        for f in dataclasses.fields(obj_a):
-            a, b = getattr(obj_a, f.name), getattr(obj_b, f.name)
-            if f.name == "localization":
-                continue
-            if isinstance(a, np.ndarray):
-                assert a.dtype == b.dtype, f.name
-            np.testing.assert_array_equal(a, b, err_msg=f.name)
-    assert one.invertible.any() and np.isnan(one.x_b).any()  # both branches of the combination
 
 
 def test_glr_before_the_backward_pass_gives_the_same_analysis(monkeypatch):
