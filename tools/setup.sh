@@ -5,7 +5,8 @@
 #      scipy, colcon, pytest, ...,
 #   3. the message package msg_defs/ (flight_fdi_msgs) and this package built with colcon into install/,
 #   4. the venv wired so that .venv/bin/python imports rclpy, flight_fdi and flight_fdi_msgs and
-#      .venv/bin/flight-fdi runs without sourcing anything.
+#      .venv/bin/flight-fdi runs without sourcing anything,
+#   5. the numba estimation kernels compiled into their on-disk cache.
 # Each step is skipped when its inputs have not changed (a few seconds when all is up to date).
 set -euo pipefail
 
@@ -96,5 +97,15 @@ EOF
     chmod +x "$VENV/bin/flight-fdi"
     echo "$BUILD_HASH" > "$VENV/.flight_fdi-build"
     say "built: install/flight_fdi_msgs, install/flight_fdi"
+fi
+# --- 4. the compiled estimation kernels -------------------------------------------------------
+# numba compiles each kernel on first use (~20-40 s for all of them) and keeps the machine code in
+# flight_fdi/core/__pycache__ (cache=True); compiling here means a user's first analyze only loads
+# it. numba itself recompiles a kernel whose source file changed.
+KERNEL_HASH=$( (echo "$REQ_HASH"; cat flight_fdi/core/*.py) | sha256sum | cut -c1-16)
+if [ "$(cat "$VENV/.flight_fdi-kernels" 2>/dev/null)" != "$KERNEL_HASH" ]; then
+    say "compiling the estimation kernels (numba cache)"
+    "$VPY" -m flight_fdi.core.warmup || die "compiling the estimation kernels failed (see above)"
+    echo "$KERNEL_HASH" > "$VENV/.flight_fdi-kernels"
 fi
 say "ready: .venv/bin/flight-fdi, .venv/bin/python (rclpy, flight_fdi, flight_fdi_msgs)"

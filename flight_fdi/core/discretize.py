@@ -214,7 +214,7 @@ def discretize_all(series: VanLoanSeries, dt: np.ndarray
     return Phi, Qd, Bd
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _discretize_all(F, G, C, norm, dt, Phi, Qd, Bd):
     work = np.empty((3, Phi.shape[1], Phi.shape[1]))
     for k in range(dt.shape[0]):

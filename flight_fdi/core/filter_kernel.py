@@ -147,7 +147,7 @@ class Workspace:
         return self.dt_held, self.Phi, self.Qd, self.Bd, self.work
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def forward_pass(F, G, C, norm, h, x0, P0, dt, u, z, r, threshold, reject,
                  x_prior, P_prior, x, P, K, nu, S, beta2, fused):
     """:func:`step` over a record (N steps; u is (N, p), p may be 0), every intermediate

@@ -59,7 +59,7 @@ def solve(M, B, X):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def backward_pass(F, G, C, norm, dt, u, info, Y0, y0, Ys, ys):
     """The backward information recursion over a record (see the module doc) into Ys (N, n, n),
     ys (N, n). F, G, C, norm: the model's Van Loan series; ``info`` (N, n, n+1) holds
@@ -173,7 +173,7 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def combine_all(Ys, ys, xf, Pf, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d,
                 terms, dof, normalized):
     """:func:`combine_step` at every step. Returns the first step that failed, or -1."""

@@ -113,7 +113,7 @@ def information_terms(L, Lam, informative, Wv, q, v_tilde, d, terms, dof, normal
         dof[k] = count
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _udu_stack(P, U, D):
     for i in range(P.shape[0]):
         bad = udu_factor(P[i], U[i], D[i])
@@ -122,13 +122,13 @@ def _udu_stack(P, U, D):
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ldl_stack(W, ref, rank_tol, L, Lam, informative):
     for i in range(W.shape[0]):
         ldl_factor(W[i], ref[i], rank_tol, L[i], Lam[i], informative[i])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _terms_stack(W, Wv, ref, rank_tol, L, Lam, informative, v_tilde, d, terms, dof, normalized):
     q = np.empty(W.shape[1])
     for i in range(W.shape[0]):

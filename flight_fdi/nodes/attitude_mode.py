@@ -110,7 +110,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -217,6 +217,32 @@ def actuator_config(values: dict[str, Any]) -> ActuatorConfig:
 
 # --------------------------------------------------------------------------- state
 
+class FilterHost(Protocol):
+    """What the attitude mode needs of the filter node beyond rclpy's Node (publishers,
+    subscriptions, timers, logger, ``p``, ``counters``, ``diagnostics``, ``channels``,
+    ``inputs``): the node's shared input checks and outputs. The mode never touches a filter's
+    state except through KalmanFilter's public calls (``step``/``predict``/``update`` in one
+    ``transaction``)."""
+
+    def _now(self) -> float:
+        """The node's clock in seconds."""
+
+    def _resolve(self, key: str, topic: str) -> str:
+        """The fully qualified name of ``topic`` (ParameterError naming ``key``)."""
+
+    def _create_outputs(self, n_channels: int) -> None:
+        """fdi/innovation, fdi/state and fdi/model publishers (``pub_*``)."""
+
+    def _bad_stamp(self, what: str, t: float, sec: int, nanosec: int) -> bool:
+        """True (and counted) when a stamp cannot be carried by an output stamp."""
+
+    def _drop(self, reason: str, detail: str, channel: Any = None, n: int = 1) -> None:
+        """Count a dropped sample (``dropped_<reason>``) and warn (throttled)."""
+
+    def _dt(self, ch: Any, t: float) -> tuple[float, bool]:
+        """(dt, reset) of the next step of channel ``ch`` at ``t``."""
+
+
 class _AxisChannel:
     """One axis: its filter, its actuator monitor, the latched event, counts."""
 
@@ -284,7 +310,7 @@ class AttitudeMode:
     diagnostics timer on the node, and sets the node's ``counters``, ``channels``, ``inputs``
     and ``diagnostics``."""
 
-    def __init__(self, node: Any, model: LinearModel, gate: GateConfig, qos: Any) -> None:
+    def __init__(self, node: FilterHost, model: LinearModel, gate: GateConfig, qos: Any) -> None:
         from geometry_msgs.msg import Vector3Stamped
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from std_msgs.msg import String
@@ -597,16 +623,16 @@ class AttitudeMode:
             else:
                 u = float(u_vec[ch.axis])
             H, R = self._H, self._R
-            saved = ch.kf._x, ch.kf._P  # (an update refused after the prediction: undo it)
             try:
-                if len(rows) == self.model.m:
-                    res = ch.kf.step(dt, z, R, [u])
-                else:
-                    H, R = H[rows], R[np.ix_(rows, rows)]
-                    ch.kf.predict(dt, [u])
-                    res = ch.kf.update(z, R, H)
+                # one transaction: an update refused after the prediction undoes the prediction
+                with ch.kf.transaction():
+                    if len(rows) == self.model.m:
+                        res = ch.kf.step(dt, z, R, [u])
+                    else:
+                        H, R = H[rows], R[np.ix_(rows, rows)]
+                        ch.kf.predict(dt, [u])
+                        res = ch.kf.update(z, R, H)
             except CoreError as exc:
-                ch.kf._x, ch.kf._P = saved
                 node._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
                            channel=ch)
                 continue
