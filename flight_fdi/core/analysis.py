@@ -20,11 +20,10 @@ from .align import align_to_reference
 from .diagnosis import DiagnosisConfig, SeedDiagnosis, diagnose
 from .errors import CoreError
 from .glr import GlrConfig, GlrResult, isolate
-from .forked import ForkedCall, can_fork, fork_call
 from .kalman import ForwardResult, GateConfig, measurement_record, run_forward
 from .models import LinearModel
 from .result import SCHEMA_ID, post_flight
-from .smoother import DEFAULT_RANK_TOL, BackwardResult, backward_information, run_backward
+from .smoother import DEFAULT_RANK_TOL, BackwardResult, run_backward
 
 _GLR_DEFAULTS = GlrConfig()
 
@@ -39,10 +38,10 @@ class AnalysisConfig:
         diagnosis (:class:`~flight_fdi.core.diagnosis.DiagnosisConfig`).
     glr_p_false_alarm, glr_hypotheses, glr_ambiguity_margin: the GLR isolator
         (:class:`~flight_fdi.core.glr.GlrConfig`).
-    jobs: processes :func:`run_analysis` may use. With 2, the backward information filter runs
-        in a forked child beside the forward pass when that gives the same numbers and is safe
-        (gate action "flag", so every sample is fused; a single-threaded caller; a record of
-        ``PARALLEL_MIN_STEPS`` to ``GLR_CONCURRENT_MAX_STEPS`` steps); otherwise one process.
+    jobs: processes ``flight-fdi analyze`` may use: with 2 it reads the bag in a forked child
+        while it imports the estimation core. The analysis itself runs in one process (its
+        compiled kernels release the GIL, so GLR's thread overlaps the backward pass; a forked
+        backward pass or GLR no longer pays, docs/performance.md).
     """
 
     gate: GateConfig = field(default_factory=GateConfig)
@@ -110,7 +109,6 @@ class AnalysisResult:
                                # from analyze_forward, which gets no raw messages)
     end_s: float | None        # end of the seed method's J episode, seconds from t0 (None:
                                # no episode, or it lasts to the end of the record)
-    backward_forked: bool = False  # the backward recursion ran in a second process
 
 
 def glr_element(model: LinearModel, hypothesis: str) -> str | None:
@@ -215,17 +213,8 @@ def run_analysis(model: LinearModel, t_ins: Any, v_ins: Any, t_ref: Any, v_ref: 
         raise CoreError(f"run_analysis: t0 must be finite, got {t0!r}")
 
     record = measurement_record(model, t, z, R)
-    if (config.jobs == 2 and config.gate.action == "flag"
-            and PARALLEL_MIN_STEPS <= len(record) <= GLR_CONCURRENT_MAX_STEPS and can_fork()):
-        # every sample will be fused: the backward recursion does not need the forward pass
-        with fork_call(backward_information, model, record) as job:
-            fwd = run_forward(model, None, None, gate=config.gate, record=record)
-            result = analyze_forward(model, fwd, config, bag=bag, channel=channel, t0=origin,
-                                     _information=job)
-        result.backward_forked = True
-    else:
-        fwd = run_forward(model, None, None, gate=config.gate, record=record)
-        result = analyze_forward(model, fwd, config, bag=bag, channel=channel, t0=origin)
+    fwd = run_forward(model, None, None, gate=config.gate, record=record)
+    result = analyze_forward(model, fwd, config, bag=bag, channel=channel, t0=origin)
     result.aligned = aligned
     result.summary["input"] = input_counts(ti, tr, aligned, invalid_cov)
     return result
@@ -251,17 +240,13 @@ def input_counts(t_ins: np.ndarray, t_ref: np.ndarray, aligned: np.ndarray,
 
 
 #: records longer than this (steps; 5.5 hours at 10 Hz) run GLR before the backward pass
-#: instead of beside it, and never fork, to bound the peak memory (see analyze_forward)
+#: instead of beside it, to bound the peak memory (see analyze_forward)
 GLR_CONCURRENT_MAX_STEPS = 200_000
-#: records shorter than this do not fork (the fork and the transfer would cost more than the
-#: backward recursion: ~10 us per step, ~20 ms for a fork and its result)
-PARALLEL_MIN_STEPS = 20_000
 
 
 def analyze_forward(model: LinearModel, fwd: ForwardResult,
                     config: AnalysisConfig = AnalysisConfig(), bag: str = "", channel: str = "x",
-                    t0: float | None = None, _information: ForkedCall | None = None
-                    ) -> AnalysisResult:
+                    t0: float | None = None) -> AnalysisResult:
     """The post-flight part of the analysis on a forward pass -- what :func:`run_analysis` does
     after its own forward pass, and what the ROS smoother calls on a forward pass rebuilt from a
     recording (``ForwardResult.from_record``): the backward pass, the seed diagnosis, GLR and
@@ -279,35 +264,18 @@ def analyze_forward(model: LinearModel, fwd: ForwardResult,
     if not math.isfinite(origin):
         raise CoreError(f"analyze_forward: t0 must be finite, got {t0!r}")
     # GLR needs only the forward pass: it runs in a second thread while this one does the
-    # backward pass (GLR is block-vectorised numpy that releases the GIL; the backward recursion
-    # is a Python loop), so the two use both cores of a small machine. On very long records the
+    # backward pass (GLR is block-vectorised numpy and the backward kernels are compiled, both
+    # release the GIL), so the two use both cores of a small machine. On very long records the
     # working memory of the two together is too much (GLR ~1 kB per step, the backward pass as
     # much again): GLR then runs first, alone (10-hour flight at 10 Hz: peak under 1 GB).
-    # (_information: run_analysis's backward recursion from a forked child, started before the
-    # forward pass; it assumed every sample fused -- checked here, as the forward pass decides)
-    if _information is not None and not np.all(fwd.fused):
-        _information.cancel()
-        _information = None
-
-    def backward() -> BackwardResult:
-        info = None if _information is None else _information.result()
-        return run_backward(model, fwd, rank_tol=config.rank_tol, information=info)
-
     if len(fwd.t) > GLR_CONCURRENT_MAX_STEPS:
         glr = isolate(model, fwd, config.glr_config())
-        bwd = backward()
+        bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
         seed = diagnose(model, fwd, bwd, config.diagnosis_config())
-    elif _information is not None:
-        # two processes: GLR in a forked child (it inherits fwd without a copy), the combination
-        # here -- no contention for the GIL as with a thread
-        with fork_call(isolate, model, fwd, config.glr_config()) as glr_job:
-            bwd = backward()
-            seed = diagnose(model, fwd, bwd, config.diagnosis_config())
-            glr = glr_job.result()
     else:
         with ThreadPoolExecutor(max_workers=1) as pool:
             glr_future = pool.submit(isolate, model, fwd, config.glr_config())
-            bwd = backward()
+            bwd = run_backward(model, fwd, rank_tol=config.rank_tol)
             seed = diagnose(model, fwd, bwd, config.diagnosis_config())
             glr = glr_future.result()
     summary = _summary(model, fwd, seed, glr, origin, bag, channel)

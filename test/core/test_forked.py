@@ -1,5 +1,5 @@
-"""The forked worker (``core.forked``) and the two-process analysis it enables: same numbers as
-one process, errors and interruptions handled, no child left behind."""
+"""The forked worker (``core.forked``, what ``flight-fdi analyze --jobs 2`` reads the bag with):
+errors and interruptions handled, no child left behind."""
 from __future__ import annotations
 
 import os
@@ -103,46 +103,6 @@ def test_forked_result_error_death_and_cancel():
         "except ProcessLookupError:\n"
         "    print('reaped')\n")
     assert out.split() == ["reaped"]
-
-
-ANALYSIS = """
-import sys
-sys.path.insert(0, {test_dir!r})
-import numpy as np
-from flight_fdi.core.analysis import AnalysisConfig, run_analysis
-from flight_fdi.core.kalman import GateConfig
-from flight_fdi.core.models import ins_channel
-rng = np.random.default_rng(11)
-t_ins = np.arange(0.0, 3000.0, 0.02)
-v_ins = 0.002 * np.clip(t_ins - 1800.0, 0.0, None) + rng.normal(0.0, 0.01, t_ins.size)
-t_ref = np.arange(0.05, 3000.0, 0.1)
-v_ref = rng.normal(0.0, 0.1, t_ref.size)
-model = ins_channel()
-for action in ("flag", "reject"):
-    gate = GateConfig(action=action)
-    one = run_analysis(model, t_ins, v_ins, t_ref, v_ref, config=AnalysisConfig(gate=gate))
-    two = run_analysis(model, t_ins, v_ins, t_ref, v_ref,
-                       config=AnalysisConfig(gate=gate, jobs=2))
-    assert not one.backward_forked
-    assert two.backward_forked == (action == "flag"), action
-    assert one.summary == two.summary, action
-    for part in ("fwd", "bwd"):
-        a, b = getattr(one, part), getattr(two, part)
-        for name, x in vars(a).items():
-            if isinstance(x, np.ndarray):
-                np.testing.assert_array_equal(x, getattr(b, name), err_msg=f"{{part}}.{{name}}")
-    assert one.glr.per_hypothesis == two.glr.per_hypothesis
-    print(action, one.summary["post_flight"]["glr"]["hypothesis"], int(np.sum(~one.fwd.fused)))
-"""
-
-
-@needs_fork
-def test_two_process_analysis_equals_one_process_bit_for_bit():
-    out = _in_clean_process(ANALYSIS.format(test_dir=os.path.dirname(__file__)))
-    lines = [ln.split() for ln in out.splitlines()]
-    assert [ln[0] for ln in lines] == ["flag", "reject"]
-    assert lines[0][1] == "accel_bias_step" and lines[0][2] == "0"
-    assert int(lines[1][2]) > 0  # the reject case really rejected samples (and did not fork)
 
 
 def test_jobs_is_validated():
