@@ -7,7 +7,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -171,6 +171,56 @@ def _min_steps(t: np.ndarray, seconds: float) -> int:
     return max(1, int(np.ceil(seconds / dt - 1e-9))) if dt > 0 else 1
 
 
+def _element_reports(model: LinearModel, valid: np.ndarray, terms: np.ndarray,
+                     gammas: np.ndarray, edof: np.ndarray, F: np.ndarray, viol_k: np.ndarray,
+                     eta2: float) -> list[ElementReport]:
+    """Per element: its J peak over the valid steps, the Fisher peak, the exceed fraction."""
+    n_valid = int(valid.sum())
+    reports = []
+    for k in range(model.n):
+        jk = np.where(valid, terms[:, k], -np.inf)
+        ip = int(np.argmax(jk))
+        Fk = F[valid, k]
+        Fk = Fk[np.isfinite(Fk)]
+        reports.append(ElementReport(
+            name=model.state_names[k],
+            J_peak=float(terms[ip, k]) if n_valid else float("nan"),
+            gamma2=float(gammas[ip, k]) if n_valid else float("nan"),
+            F_peak=float(Fk.max()) if Fk.size else float("nan"),
+            eta2=eta2,
+            exceed_fraction=float(viol_k[:, k].sum() / n_valid) if n_valid else 0.0,
+            dof=int(edof[ip, k]) if n_valid else 0))
+    return reports
+
+
+def _localization(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
+                  rank_tol: float) -> tuple:
+    """(Localization, v~, dD in physical units): the backward pass's own, or recomputed in
+    information form for another ``rank_tol``."""
+    if rank_tol == bwd.rank_tol:
+        loc = bwd.localization  # computed by the backward pass (v~, dD in physical units)
+        return loc, loc.v_tilde, loc.d
+    # information form in scaled coordinates; reference pivots of the forward information
+    sm = scaled_model(model)
+    _, Df = udu(fwd.P / sm.SS)
+    loc = localize(W=bwd.W * sm.SS, Wv=bwd.Wv * sm.s, ref=1.0 / Df, rank_tol=rank_tol)
+    return loc, loc.v_tilde * sm.s, loc.d * sm.SS.diagonal()
+
+
+def _strongest_episode(t: np.ndarray, J: np.ndarray, viol_k: np.ndarray, full: int,
+                       config: DiagnosisConfig) -> tuple[int, int, int] | None:
+    """(start, end, peak) of the J episode with the largest peak among those lasting
+    ``persistence_s`` whose peak exceeds the chi2(full) quantile; None when there is none."""
+    strong = float(chdtri(full, config.episode_probability))
+    min_run = _min_steps(t, config.persistence_s)
+    episodes = []
+    for s0, e0 in _runs(viol_k.any(axis=1)):
+        peak = s0 + int(np.argmax(J[s0:e0 + 1]))
+        if e0 - s0 + 1 >= min_run and J[peak] > strong:
+            episodes.append((s0, e0, peak))
+    return max(episodes, key=lambda ep: float(J[ep[2]])) if episodes else None
+
+
 def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
              config: DiagnosisConfig | None = None, **settings: Any) -> SeedDiagnosis:
     """The seed method over a record: J, its element terms, the Fisher statistics, a verdict.
@@ -213,20 +263,12 @@ def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
         raise CoreError("diagnose: give either config or keyword settings, not both")
     if not isinstance(config, DiagnosisConfig):
         raise CoreError(f"diagnose: config must be a DiagnosisConfig, got {type(config).__name__}")
-    sm = scaled_model(model)
     n = model.n
     N = len(fwd.t)
     if len(bwd.t) != N:
         raise CoreError(f"diagnose: forward has {N} steps, backward {len(bwd.t)}")
     t = np.asarray(fwd.t, dtype=float)
-    if config.rank_tol == bwd.rank_tol:
-        loc = bwd.localization  # computed by the backward pass (v~, dD in physical units)
-        v_tilde, delta_d = loc.v_tilde, loc.d
-    else:  # information form in scaled coordinates; reference pivots of the forward information
-        _, Df = udu(fwd.P / sm.SS)
-        loc = localize(W=bwd.W * sm.SS, Wv=bwd.Wv * sm.s, ref=1.0 / Df,
-                       rank_tol=config.rank_tol)
-        v_tilde, delta_d = loc.v_tilde * sm.s, loc.d * sm.SS.diagonal()
+    loc, v_tilde, delta_d = _localization(model, fwd, bwd, config.rank_tol)
     terms, gammas, edof, first = loc.terms, loc.gammas, loc.dof, loc.element
     J = terms[:, -1]
     dof = edof[:, -1]
@@ -241,20 +283,7 @@ def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
         F_viol = (F > eta2) & valid[:, None]
     n_valid = int(valid.sum())
 
-    reports: list[ElementReport] = []
-    for k in range(n):
-        jk = np.where(valid, terms[:, k], -np.inf)
-        ip = int(np.argmax(jk))
-        Fk = F[valid, k]
-        Fk = Fk[np.isfinite(Fk)]
-        reports.append(ElementReport(
-            name=model.state_names[k],
-            J_peak=float(terms[ip, k]) if n_valid else float("nan"),
-            gamma2=float(gammas[ip, k]) if n_valid else float("nan"),
-            F_peak=float(Fk.max()) if Fk.size else float("nan"),
-            eta2=float(eta2),
-            exceed_fraction=float(viol_k[:, k].sum() / n_valid) if n_valid else 0.0,
-            dof=int(edof[ip, k]) if n_valid else 0))
+    reports = _element_reports(model, valid, terms, gammas, edof, F, viol_k, float(eta2))
 
     def result(verdict: str, element: str | None = None, onset: float | None = None,
                end: float | None = None, episode: tuple | None = None) -> SeedDiagnosis:
@@ -267,16 +296,10 @@ def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
 
     if n_valid < config.min_valid_steps:
         return result("insufficient_data")
-    strong = float(chdtri(full, config.episode_probability))
-    min_run = _min_steps(t, config.persistence_s)
-    episodes = []
-    for s0, e0 in _runs(viol_k.any(axis=1)):
-        peak = s0 + int(np.argmax(J[s0:e0 + 1]))
-        if e0 - s0 + 1 >= min_run and J[peak] > strong:
-            episodes.append((s0, e0, peak))
-    if not episodes:
+    episode_idx = _strongest_episode(t, J, viol_k, full, config)
+    if episode_idx is None:
         return result("no_fault")
-    s0, e0, peak = max(episodes, key=lambda ep: float(J[ep[2]]))
+    s0, e0, peak = episode_idx
     k0 = int(first[peak])
     lo = max(0, s0 - config.fisher_window)
     for k in range(n):

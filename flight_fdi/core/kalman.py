@@ -8,7 +8,8 @@ Two entry points share one algorithm, the compiled kernel :mod:`flight_fdi.core.
   quantity as arrays (:class:`~flight_fdi.core.records.ForwardResult`).
 
 For a one-row measurement (the INS channel) both call the kernel's ``step``, so they agree to the
-last bit; updates with m > 1 rows use the numpy form of the same equations (:func:`_update`).
+last bit; updates with m > 1 rows use the numpy form of the same equations
+(:mod:`flight_fdi.core.multirow`).
 The arithmetic is done in scaled coordinates (:mod:`flight_fdi.core.scaled`), the update is in
 Joseph form, and the covariance is kept exactly symmetric. Everything a caller sees is in
 physical units. The gate and its alarm are :mod:`flight_fdi.core.gate`.
@@ -35,8 +36,9 @@ from .errors import CoreError
 from .gate import (ALARM_ACTIVE, ALARM_CLEAR, ALARM_CLEARED, ALARM_RAISED, GATE_ACTIONS,
                    GATE_RULES, AlarmLogic, GateConfig, alarm_states)
 from .models import LinearModel
+from .multirow import check_finite, overflow_error, update_failed_rows, update_rows
 from .records import ForwardResult, MeasurementRecord, measurement_record
-from .redundancy import accuracy, af_gain, anomaly_matrix, kf2_gain
+from .redundancy import accuracy
 from .scaled import ScaledModel, scaled_model
 
 __all__ = ["ALARM_ACTIVE", "ALARM_CLEAR", "ALARM_CLEARED", "ALARM_RAISED", "GATE_ACTIONS",
@@ -46,98 +48,6 @@ __all__ = ["ALARM_ACTIVE", "ALARM_CLEAR", "ALARM_CLEARED", "ALARM_RAISED", "GATE
 
 #: how ``KalmanFilter.update`` treats ``failed_rows``
 UPDATE_MODES = ("nominal", "known_anomaly", "exclude")
-
-
-# --------------------------------------------------------------------------- m > 1 rows (numpy)
-
-def _update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, Hs: np.ndarray,
-            HsT: np.ndarray, I: np.ndarray, threshold: float, reject: bool):
-    """The update with numpy, for any m (used for m > 1 rows): the same equations as the
-    kernel's one-row update. x (n,), P (n, n), Hs = H T (m, n) scaled; z (m,), R (m, m), nu, S
-    in measurement units. Returns (x+, P+, nu, S, K, beta2, exceeded, fused); K (n, m) is the
-    gain applied (zeros when the sample was not fused)."""
-    PHt = P.dot(HsT)
-    S = Hs.dot(PHt) + R
-    S = 0.5 * (S + S.T)
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        raise CoreError("innovation covariance S is not positive definite") from None
-    Linv = np.linalg.inv(L)
-    Sinv = Linv.T.dot(Linv)
-    nu = z - Hs.dot(x)
-    w = Linv.dot(nu)
-    with np.errstate(over="ignore"):  # an overflow is refused by the caller's finiteness check
-        beta2 = float(w.dot(w))
-    exceeded = beta2 > threshold
-    K = PHt.dot(Sinv)
-    if exceeded and reject:
-        return x, P, nu, S, K * 0.0, beta2, True, False
-    x = x + K.dot(nu)
-    A = I - K.dot(Hs)
-    P = A.dot(P).dot(A.T) + K.dot(R).dot(K.T)
-    P = (P + P.T) * 0.5
-    return x, P, nu, S, K, beta2, exceeded, True
-
-
-def _update_failed(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, Hs: np.ndarray,
-                   I: np.ndarray, failed: tuple[int, ...], mode: str, G: np.ndarray | None,
-                   gate: GateConfig, reject: bool):
-    """The update with failed rows (numpy, scaled coordinates): KF2 (``known_anomaly``) or AF
-    (``exclude``) with the gains of :mod:`.redundancy`. Returns x+, P+, nu, S (nominal, all
-    rows), beta2, threshold, exceeded, fused (over the rows used), the rows used and the R used."""
-    m = Hs.shape[0]
-    nu = z - Hs.dot(x)
-    if mode == "known_anomaly":
-        C = anomaly_matrix(m, failed)
-        R_used = R + C.dot(G).dot(C.T)
-        K, S_used = kf2_gain(P, Hs, R, failed, G)
-        S = Hs.dot(P).dot(Hs.T) + R  # the nominal S, reported (row_beta2) for every row
-        S = 0.5 * (S + S.T)
-        used = tuple(range(m))
-        nu_used = nu
-    else:
-        R_used = R
-        K, S = af_gain(P, Hs, R, failed)
-        used = tuple(i for i in range(m) if i not in failed)
-        S_used = S[np.ix_(used, used)]
-        nu_used = nu[list(used)]
-    if not used:
-        return x, P, nu, S, 0.0, math.nan, False, False, used, R_used
-    try:
-        L = np.linalg.cholesky(S_used)
-    except np.linalg.LinAlgError:
-        raise CoreError("innovation covariance S of the rows used is not positive definite") \
-            from None
-    w = np.linalg.solve(L, nu_used)
-    beta2 = float(w.dot(w))
-    thr = gate.threshold(len(used))
-    exceeded = beta2 > thr
-    if exceeded and reject:
-        return x, P, nu, S, beta2, thr, True, False, used, R_used
-    x = x + K.dot(nu)
-    A = I - K.dot(Hs)
-    P = A.dot(P).dot(A.T) + K.dot(R_used).dot(K.T)
-    P = (P + P.T) * 0.5
-    return x, P, nu, S, beta2, thr, exceeded, True, used, R_used
-
-
-def _check_finite_update(x: np.ndarray, P: np.ndarray, beta2: float, nu: Any,
-                         S: Any) -> None:
-    """CoreError when an update overflowed float64: a finite measurement so far from the
-    prediction (e.g. 1e200 m/s) that beta2 = nu^T S^-1 nu, a row's nu_k^2 / S_kk or the
-    corrected state is Inf or NaN. The caller then leaves the filter unchanged."""
-    ok = math.isfinite(beta2) and bool(np.isfinite(x).all()) and bool(np.isfinite(P).all())
-    if ok and np.size(nu) > 1:
-        with np.errstate(over="ignore", invalid="ignore"):
-            ok = bool(np.all(np.isfinite(np.square(nu) / np.diag(S))))
-    if not ok:
-        raise _overflow(nu, beta2)
-
-
-def _overflow(nu: Any, beta2: float) -> CoreError:
-    return CoreError(f"the update overflows float64 (innovation {np.ravel(nu).tolist()}, "
-                     f"beta2 {beta2!r}): the measurement is not a plausible value")
 
 
 # --------------------------------------------------------------------------- streaming filter
@@ -274,7 +184,7 @@ class KalmanFilter:
         if status == fk.S_NOT_POSITIVE:
             raise CoreError(f"innovation covariance S = {s:.3g} is not positive")
         if status == fk.NOT_FINITE:
-            raise _overflow(nu, beta2)
+            raise overflow_error(nu, beta2)
         ws = self._ws
         self._x, ws.x_post = ws.x_post, self._x
         self._P, ws.P_post = ws.P_post, self._P
@@ -346,9 +256,9 @@ class KalmanFilter:
                 thr, self._reject, ws.x_post, ws.P_post, ws.K, ws.work)
             self._commit_post(status, nu, s, beta2)
             return self._result(nu, s, beta2, thr, exceeded, fused)
-        x, P, nu, S, _, beta2, exceeded, fused = _update(
+        x, P, nu, S, _, beta2, exceeded, fused = update_rows(
             self._x, self._P, zv, Rm, Hs, HsT, self._sm.I, thr, self._reject)
-        _check_finite_update(x, P, beta2, nu, S)
+        check_finite(x, P, beta2, nu, S)
         self._x, self._P = x, P
         self.steps += 1
         state = self._alarm.push(exceeded)
@@ -359,9 +269,9 @@ class KalmanFilter:
     def _update_failed(self, zv: np.ndarray, Rm: np.ndarray, Hs: np.ndarray,
                        failed: tuple[int, ...], mode: str, Gamma: Any) -> UpdateResult:
         G = anomaly_covariance(Gamma, len(failed)) if mode == "known_anomaly" else None
-        x, P, nu, S, beta2, thr, exceeded, fused, used, R_used = _update_failed(
+        x, P, nu, S, beta2, thr, exceeded, fused, used, R_used = update_failed_rows(
             self._x, self._P, zv, Rm, Hs, self._sm.I, failed, mode, G, self.gate, self._reject)
-        _check_finite_update(x, P, beta2, nu, S)
+        check_finite(x, P, beta2, nu, S)
         self._x, self._P = x, P
         self.steps += 1
         if used:
@@ -493,7 +403,7 @@ def _forward1(sm: ScaledModel, x0: np.ndarray, P0: np.ndarray, dt: np.ndarray, u
     if status == fk.S_NOT_POSITIVE:
         raise CoreError(f"step {bad}: innovation covariance S = {S[bad]:.3g} is not positive")
     if status == fk.NOT_FINITE:
-        raise CoreError(f"step {bad}: {_overflow(out['nu'][bad], out['beta2'][bad])}")
+        raise CoreError(f"step {bad}: {overflow_error(out['nu'][bad], out['beta2'][bad])}")
     out["S"][:, 0, 0] = S
     out["K"][:, :, 0] = K
 
@@ -507,6 +417,6 @@ def _forward_rows(sm: ScaledModel, x: np.ndarray, P: np.ndarray, dt: np.ndarray,
         fk.predict_over(*vl, float(dt[k]), u[k], x, P, *held, out["x_prior"][k],
                         out["P_prior"][k])
         x, P, out["nu"][k], out["S"][k], out["K"][k], out["beta2"][k], _, out["fused"][k] = \
-            _update(out["x_prior"][k], out["P_prior"][k], z[k], R[k], sm.H, sm.HT, sm.I, thr,
+            update_rows(out["x_prior"][k], out["P_prior"][k], z[k], R[k], sm.H, sm.HT, sm.I, thr,
                     reject)
         out["x"][k], out["P"][k] = x, P

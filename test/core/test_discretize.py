@@ -57,7 +57,8 @@ def test_compiled_van_loan_equals_scipy_expm(model):
         big = max(1.0, np.abs(Phi_r).max())
         assert np.abs(Phi - Phi_r).max() <= 1e-12 * big, dt
         assert np.abs(Qd - Qd_r).max() <= 1e-12 * max(np.abs(Qd_r).max(), 1e-300), dt
-        assert np.abs(Bd - Bd_r).max(initial=0.0) <= 1e-12 * max(1.0, np.abs(Bd_r).max(initial=0)), dt
+        assert np.abs(Bd - Bd_r).max(initial=0.0) <= 1e-12 * max(1.0, np.abs(Bd_r).max(
+            initial=0.0)), dt
         assert np.array_equal(Qd, Qd.T)
         # the vectorised form runs the same kernel: the same bits
         assert np.array_equal(Phi_all[k], Phi) and np.array_equal(Qd_all[k], Qd)

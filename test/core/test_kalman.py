@@ -9,7 +9,7 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterPyKF
 from scipy.stats import chi2
 
-from flight_fdi.core import kalman
+from flight_fdi.core import kalman, multirow
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.kalman import (ALARM_ACTIVE, ALARM_CLEAR, ALARM_CLEARED, ALARM_RAISED,
                                     AlarmLogic, ForwardResult, GateConfig, KalmanFilter,
@@ -145,7 +145,7 @@ def test_kernel_one_row_update_equals_numpy_update():
         status, nu, S, beta2, _, fused = fk.update(x, P, np.ascontiguousarray(sm.H[0]), r, z,
                                                    10.0, False, x1, P1, K1,
                                                    np.empty((3, 4, 4)))
-        out2 = kalman._update(x, P, np.array([z]), np.array([[r]]), sm.H, sm.HT, sm.I, 10.0,
+        out2 = multirow.update_rows(x, P, np.array([z]), np.array([[r]]), sm.H, sm.HT, sm.I, 10.0,
                               False)
         assert status == fk.OK
         np.testing.assert_allclose(x1, out2[0], rtol=1e-13, atol=1e-15)
