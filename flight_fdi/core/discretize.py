@@ -43,7 +43,8 @@ _EPS = 1e-17
 
 @njit(cache=True)
 def matmul(A, B, out):
-    """out = A B (small dense matrices; ``out`` must not alias A or B)."""
+    """out = A B (small dense matrices; ``out`` must not alias A or B; ``matmul(A, B.T, out)``
+    for A B^T)."""
     n, m = A.shape
     p = B.shape[1]
     for i in range(n):
@@ -51,19 +52,6 @@ def matmul(A, B, out):
             acc = 0.0
             for k in range(m):
                 acc += A[i, k] * B[k, j]
-            out[i, j] = acc
-
-
-@njit(cache=True)
-def matmul_t(A, B, out):
-    """out = A B^T."""
-    n, m = A.shape
-    p = B.shape[0]
-    for i in range(n):
-        for j in range(p):
-            acc = 0.0
-            for k in range(m):
-                acc += A[i, k] * B[j, k]
             out[i, j] = acc
 
 
@@ -165,7 +153,7 @@ def van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work):
         _gamma(F, h, J, Gamma)
         for _ in range(s):
             matmul(Phi, Qd, work[0])
-            matmul_t(work[0], Phi, work[1])
+            matmul(work[0], Phi.T, work[1])
             _add_to(Qd, work[1])
             matmul(Phi, Gamma, work[0])
             _add_to(Gamma, work[0])

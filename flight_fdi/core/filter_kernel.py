@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .discretize import matmul, matmul_t, van_loan
+from .discretize import matmul, van_loan
 
 #: status codes of :func:`update` and :func:`step` (0: fine)
 OK = 0
@@ -45,7 +45,7 @@ def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior, work):
         x_prior[i] = acc
     PhiP = work[0]
     matmul(Phi, P, PhiP)
-    matmul_t(PhiP, Phi, P_prior)
+    matmul(PhiP, Phi.T, P_prior)
     for i in range(n):
         for j in range(i, n):
             p = 0.5 * (P_prior[i, j] + P_prior[j, i]) + Qd[i, j]
@@ -92,7 +92,7 @@ def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K, work):
             A[i, j] = (1.0 if i == j else 0.0) - K[i] * h[j]
     AP = work[1]
     matmul(A, P_prior, AP)
-    matmul_t(AP, A, P)
+    matmul(AP, A.T, P)
     for i in range(n):
         for j in range(i, n):
             p = 0.5 * (P[i, j] + P[j, i]) + K[i] * r * K[j]
