@@ -59,71 +59,71 @@ def solve(M, B, X):
     return True
 
 
+@njit(cache=True)
+def backward_step(Y, y, info_i, Phi, Qd, Bd, u_i, M, rhs, X):
+    """The backward information filter from step i to i-1, in place: the update with the
+    measurement of step i (``info_i`` = [H^T R^-1 H | H^T R^-1 z], zero if not fused), then
+
+        Y <- Phi^T (I + Y Qd)^-1 Y Phi,   y <- Phi^T (I + Y Qd)^-1 (y - Y Bd u)
+
+    (Phi, Qd, Bd of step i). M (n, n), rhs and X (n, n+1) are scratch. False when I + Y Qd is
+    singular."""
+    n = y.shape[0]
+    for r in range(n):
+        for c in range(n):
+            Y[r, c] += info_i[r, c]
+        y[r] += info_i[r, n]
+    matmul(Y, Qd, M)                        # M = I + Y Qd
+    for r in range(n):
+        M[r, r] += 1.0
+    for c in range(n):                      # X[:, 0] = Bd u (scratch)
+        acc = 0.0
+        for j in range(u_i.shape[0]):
+            acc += Bd[c, j] * u_i[j]
+        X[c, 0] = acc
+    matmul(Y, Phi, rhs[:, :n])              # rhs = [Y Phi | y - Y Bd u]
+    for r in range(n):
+        acc = y[r]
+        for c in range(n):
+            acc -= Y[r, c] * X[c, 0]
+        rhs[r, n] = acc
+    if not solve(M, rhs, X):
+        return False
+    matmul(Phi.T, X[:, :n], Y)              # Y = Phi^T X[:, :n], y = Phi^T X[:, n]
+    for r in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += Phi[j, r] * X[j, n]
+        y[r] = acc
+        for c in range(r + 1, n):
+            sym = 0.5 * (Y[r, c] + Y[c, r])
+            Y[r, c] = sym
+            Y[c, r] = sym
+    return True
+
+
 @njit(cache=True, nogil=True)
 def backward_pass(F, G, C, norm, dt, u, info, Y0, y0, Ys, ys):
     """The backward information recursion over a record (see the module doc) into Ys (N, n, n),
     ys (N, n). F, G, C, norm: the model's Van Loan series; ``info`` (N, n, n+1) holds
     [H^T R^-1 H | H^T R^-1 z] per step. Returns the index where I + Y Qd was singular, or -1."""
     N, n = ys.shape
-    p = G.shape[2]
-    Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, p))
+    Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, G.shape[2]))
     work = np.empty((3, n, n))
+    M, rhs, X = np.empty((n, n)), np.empty((n, n + 1)), np.empty((n, n + 1))
     dt_held = np.nan
     Y = Y0.copy()
     y = y0.copy()
-    M = np.empty((n, n))          # I + Y Qd
-    rhs = np.empty((n, n + 1))    # [Y Phi | y - Y Bd u]
-    X = np.empty((n, n + 1))      # (I + Y Qd)^-1 rhs
-    Bdu = np.empty(n)
     for i in range(N - 1, -1, -1):
-        for r in range(n):
-            ys[i, r] = y[r]
-            for c in range(n):
-                Ys[i, r, c] = Y[r, c]
+        Ys[i] = Y
+        ys[i] = y
         if i == 0:
             break
-        for r in range(n):
-            for c in range(n):
-                Y[r, c] += info[i, r, c]
-            y[r] += info[i, r, n]
         if not dt[i] == dt_held:
             van_loan(F, G, C, norm, dt[i], Phi, Qd, Bd, work)
             dt_held = dt[i]
-        matmul(Y, Qd, M)
-        for r in range(n):
-            M[r, r] += 1.0
-        for c in range(n):                  # Bd u
-            acc = 0.0
-            for j in range(p):
-                acc += Bd[c, j] * u[i, j]
-            Bdu[c] = acc
-        for r in range(n):                  # rhs = [Y Phi | y - Y Bd u]
-            for c in range(n):
-                acc = 0.0
-                for j in range(n):
-                    acc += Y[r, j] * Phi[j, c]
-                rhs[r, c] = acc
-            acc = y[r]
-            for c in range(n):
-                acc -= Y[r, c] * Bdu[c]
-            rhs[r, n] = acc
-        if not solve(M, rhs, X):
+        if not backward_step(Y, y, info[i], Phi, Qd, Bd, u[i], M, rhs, X):
             return i
-        # Y <- Phi^T X[:, :n],  y <- Phi^T X[:, n]
-        for r in range(n):
-            for c in range(n + 1):
-                acc = 0.0
-                for j in range(n):
-                    acc += Phi[j, r] * X[j, c]
-                if c < n:
-                    Y[r, c] = acc
-                else:
-                    y[r] = acc
-        for r in range(n):
-            for c in range(r + 1, n):
-                s = 0.5 * (Y[r, c] + Y[c, r])
-                Y[r, c] = s
-                Y[c, r] = s
     return -1
 
 
@@ -174,15 +174,51 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
 
 
 @njit(cache=True, nogil=True)
-def combine_all(Ys, ys, xf, Pf, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d,
-                terms, dof, normalized):
-    """:func:`combine_step` at every step. Returns the first step that failed, or -1."""
-    n = xf.shape[1]
+def smooth_pass(F, G, C, norm, dt, u, info, Y0, y0, x_f, P_f, s, rank_tol, Y_out, y_out, W, Wv,
+                x_s, P_s, info_ratio, informative, v_tilde, d, terms, dof, normalized):
+    """The backward information filter and the two-filter combination in one backward sweep:
+    at every step i (N-1 ... 0) :func:`combine_step` with the backward prediction (Y, y) and the
+    forward posterior x_f[i], P_f[i] (physical units, scaled here by s), then
+    :func:`backward_step` to i-1. Every output in physical units (Y = Y' / s s^T, x_s = s x_s',
+    ...); ``info_ratio`` = Lam_k over its reference pivot, in [0, 1]. Returns (index, code) of a
+    failure -- code 1: I + Y Qd singular, 2: I + Y P_f or P_f singular -- or (-1, 0)."""
+    N, n = x_f.shape
+    Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, G.shape[2]))
     work = np.empty((3, n, n))
     work1 = np.empty((2, n, n + 1))
-    for i in range(xf.shape[0]):
-        if not combine_step(Ys[i], ys[i], xf[i], Pf[i], rank_tol, W[i], Wv[i], x_s[i], P_s[i],
-                            ref[i], Lam[i], informative[i], v_tilde[i], d[i], terms[i], dof[i],
-                            normalized[i], work, work1):
-            return i
-    return -1
+    M, rhs, X = np.empty((n, n)), np.empty((n, n + 1)), np.empty((n, n + 1))
+    xf, Pf = np.empty(n), np.empty((n, n))          # the forward posterior, scaled
+    Wi, Pi = np.empty((n, n)), np.empty((n, n))     # W and P_s of the step, scaled
+    Wvi, xi, ref, Lam, vt, dd = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
+                                 np.empty(n), np.empty(n))
+    dt_held = np.nan
+    Y = Y0.copy()
+    y = y0.copy()
+    for i in range(N - 1, -1, -1):
+        for r in range(n):
+            xf[r] = x_f[i, r] / s[r]
+            for c in range(n):
+                Pf[r, c] = P_f[i, r, c] / (s[r] * s[c])
+        if not combine_step(Y, y, xf, Pf, rank_tol, Wi, Wvi, xi, Pi, ref, Lam, informative[i],
+                            vt, dd, terms[i], dof[i], normalized[i], work, work1):
+            return i, 2
+        for r in range(n):
+            y_out[i, r] = y[r] / s[r]
+            Wv[i, r] = Wvi[r] / s[r]
+            x_s[i, r] = xi[r] * s[r]
+            v_tilde[i, r] = vt[r] * s[r]
+            d[i, r] = dd[r] * s[r] * s[r]
+            info_ratio[i, r] = min(max(Lam[r] / ref[r], 0.0), 1.0)
+            for c in range(n):
+                ss = s[r] * s[c]
+                Y_out[i, r, c] = Y[r, c] / ss
+                W[i, r, c] = Wi[r, c] / ss
+                P_s[i, r, c] = Pi[r, c] * ss
+        if i == 0:
+            break
+        if not dt[i] == dt_held:
+            van_loan(F, G, C, norm, dt[i], Phi, Qd, Bd, work)
+            dt_held = dt[i]
+        if not backward_step(Y, y, info[i], Phi, Qd, Bd, u[i], M, rhs, X):
+            return i, 1
+    return -1, 0

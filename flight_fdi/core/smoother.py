@@ -104,17 +104,10 @@ def _info_contributions(sm, fwd: ForwardResult) -> np.ndarray:
     return out
 
 
-def backward_information(model: LinearModel, fwd: ForwardResult,
-                         prior: tuple[Any, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The backward recursion alone: (Y', y') per step in *scaled* coordinates (see module doc).
-
-    Uses only dt, z, R, H, fused and u of the record: ``fwd`` may be a ForwardResult or a
-    :class:`~flight_fdi.core.kalman.MeasurementRecord`. ``prior = (x, P)``: information about the
-    last state before the last measurement (default: none).
-    """
+def _inputs(model: LinearModel, fwd: Any, prior: tuple[Any, Any] | None) -> tuple:
+    """(scaled model, info, u, Y0, y0) of the backward recursion of a record."""
     sm = scaled_model(model)
-    n = model.n
-    N = len(fwd.t)
+    n, N = model.n, len(fwd.t)
     info = _info_contributions(sm, fwd)
     if fwd.u is not None and model.B is None:
         raise CoreError(f"model {model.name!r} has no input matrix B but the record has u")
@@ -130,6 +123,19 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
             raise CoreError("backward prior: P must be positive definite") from None
         Y0 = Yp.T @ Yp
         y0 = Y0 @ xs
+    return sm, info, u, Y0, y0
+
+
+def backward_information(model: LinearModel, fwd: Any,
+                         prior: tuple[Any, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The backward recursion alone: (Y', y') per step in *scaled* coordinates (see module doc).
+
+    Uses only dt, z, R, H, fused and u of the record: ``fwd`` may be a ForwardResult or a
+    :class:`~flight_fdi.core.kalman.MeasurementRecord`. ``prior = (x, P)``: information about the
+    last state before the last measurement (default: none).
+    """
+    sm, info, u, Y0, y0 = _inputs(model, fwd, prior)
+    N, n = len(fwd.t), model.n
     Ys, ys = np.empty((N, n, n)), np.empty((N, n))
     bad = kernel.backward_pass(*sm.series.args(), np.ascontiguousarray(fwd.dt, dtype=float), u,
                                info, Y0, y0, Ys, ys)
@@ -139,63 +145,44 @@ def backward_information(model: LinearModel, fwd: ForwardResult,
 
 
 def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] | None = None,
-                 rank_tol: float = DEFAULT_RANK_TOL,
-                 information: tuple[np.ndarray, np.ndarray] | None = None) -> BackwardResult:
+                 rank_tol: float = DEFAULT_RANK_TOL) -> BackwardResult:
     """Backward information filter over ``fwd``'s record and the two-filter combination with
-    its posterior x(i/i), P(i/i). See the module docstring for the formulas.
-
-    ``information``: the result of :func:`backward_information` for this record, computed
-    beforehand (e.g. in another process while the forward pass ran); ``prior`` is then unused."""
+    its posterior x(i/i), P(i/i), in one compiled backward sweep
+    (:func:`flight_fdi.core.information.smooth_pass`). See the module docstring for the
+    formulas."""
     if not isinstance(fwd, ForwardResult):
         raise CoreError(f"run_backward: expected a ForwardResult, got {type(fwd).__name__}")
     if not (np.isfinite(rank_tol) and 0 < rank_tol < 1):
         raise CoreError(f"run_backward: rank_tol must be in (0, 1), got {rank_tol!r}")
-    sm = scaled_model(model)
     n = model.n
     if fwd.x.shape[1] != n:
         raise CoreError(f"run_backward: the record has {fwd.x.shape[1]} states, the model {n}")
-    if information is None:
-        Ys, ys = backward_information(model, fwd, prior)
-    else:
-        Ys, ys = information
-        if Ys.shape != (len(fwd.t), n, n) or ys.shape != (len(fwd.t), n):
-            raise CoreError(f"run_backward: information for {Ys.shape[0]} steps and "
-                            f"{Ys.shape[1]} states does not fit the record ({len(fwd.t)}, {n})")
-    s, SS = sm.s, sm.SS
-    xf, Pf = sm.to_scaled(fwd.x, fwd.P)
-    return _combine(Ys, ys, xf, Pf, s, SS, fwd.t, rank_tol)
-
-
-def _combine(Ys: np.ndarray, ys: np.ndarray, xf: np.ndarray, Pf: np.ndarray, s: np.ndarray,
-             SS: np.ndarray, t: np.ndarray, rank_tol: float) -> BackwardResult:
-    """Two-filter combination (scaled inputs, physical outputs) by the compiled kernel."""
-    N, n = xf.shape
-    W, P_s = np.empty((N, n, n)), np.empty((N, n, n))
-    Wv, x_s, ref, Lam, v_tilde, d, terms, normalized = (np.empty((N, n)) for _ in range(8))
+    sm, info, u, Y0, y0 = _inputs(model, fwd, prior)
+    N = len(fwd.t)
+    Y, W, P_s = (np.empty((N, n, n)) for _ in range(3))
+    y, Wv, x_s, info_ratio, v_tilde, d, terms, normalized = (np.empty((N, n)) for _ in range(8))
     informative = np.empty((N, n), dtype=bool)
     dof_k = np.empty((N, n), dtype=np.int64)
-    bad = kernel.combine_all(np.ascontiguousarray(Ys), np.ascontiguousarray(ys),
-                             np.ascontiguousarray(xf), np.ascontiguousarray(Pf), float(rank_tol),
-                             W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d, terms, dof_k,
-                             normalized)
-    if bad >= 0:
+    bad, code = kernel.smooth_pass(
+        *sm.series.args(), np.ascontiguousarray(fwd.dt, dtype=float), u, info, Y0, y0,
+        np.ascontiguousarray(fwd.x), np.ascontiguousarray(fwd.P), sm.s, float(rank_tol), Y, y,
+        W, Wv, x_s, P_s, info_ratio, informative, v_tilde, d, terms, dof_k, normalized)
+    if code == 1:
+        raise CoreError(f"backward filter: singular I + Y Q at index {bad}")
+    if code == 2:
         raise CoreError(f"two-filter combination: I + Y P_f or P_f is singular at index {bad}")
-    loc = localization(v_tilde * s, d * s * s, terms, dof_k, normalized)  # v~, dD physical
-    info_ratio = np.clip(Lam / ref, 0.0, 1.0)
+    loc = localization(v_tilde, d, terms, dof_k, normalized)
     dof = dof_k[:, -1]
     invertible = dof == n
     x_b = np.full((N, n), np.nan)
     P_b = np.full((N, n, n), np.nan)
-    if np.any(invertible):
-        Yi = Ys[invertible]
+    if np.any(invertible):  # the backward estimate itself, where it exists (scaled solve)
+        Yi = Y[invertible] * sm.SS
         Pb = np.linalg.inv(Yi)
-        P_b[invertible] = 0.5 * (Pb + np.swapaxes(Pb, 1, 2))
-        x_b[invertible] = np.linalg.solve(Yi, ys[invertible][:, :, None])[:, :, 0]
-    v = x_b - xf
-    inv_s = 1.0 / s
+        P_b[invertible] = 0.5 * (Pb + np.swapaxes(Pb, 1, 2)) * sm.SS
+        x_b[invertible] = np.linalg.solve(Yi, (y[invertible] * sm.s)[:, :, None])[:, :, 0] * sm.s
     return BackwardResult(
-        t=np.asarray(t, dtype=float), Y=Ys / SS, y=ys * inv_s, x_b=x_b * s, P_b=P_b * SS,
-        invertible=invertible, x_s=x_s * s, P_s=P_s * SS, v=v * s, W=W / SS, Wv=Wv * inv_s,
-        J=np.asarray(loc.J, dtype=float), dof=dof.astype(np.int64),
-        threshold=seed_threshold(dof), info_ratio=info_ratio, localization=loc,
-        rank_tol=float(rank_tol))
+        t=np.asarray(fwd.t, dtype=float), Y=Y, y=y, x_b=x_b, P_b=P_b, invertible=invertible,
+        x_s=x_s, P_s=P_s, v=x_b - fwd.x, W=W, Wv=Wv, J=np.asarray(loc.J, dtype=float),
+        dof=dof.astype(np.int64), threshold=seed_threshold(dof), info_ratio=info_ratio,
+        localization=loc, rank_tol=float(rank_tol))
