@@ -148,23 +148,32 @@ class Workspace:
 
 
 @njit(cache=True, nogil=True)
-def forward_pass(F, G, C, norm, h, x0, P0, dt, u, z, r, threshold, reject,
+def forward_pass(F, G, C, norm, h, x0, P0, dt, u, z, r, threshold, reject, s, SS,
                  x_prior, P_prior, x, P, K, nu, S, beta2, fused):
-    """:func:`step` over a record (N steps; u is (N, p), p may be 0), every intermediate
-    quantity into the (N, ...) output arrays. Returns (index, status) of the first step that
-    failed, or (-1, OK)."""
+    """:func:`step` over a record (N steps; u is (N, p), p may be 0) on the scaled state,
+    every intermediate quantity into the (N, ...) output arrays in physical units (x = x' s,
+    P = P' * SS, K = K' s: the products the streaming filter's ``x`` and ``P`` compute).
+    Returns (index, status) of the first step that failed, or (-1, OK)."""
     n = x0.shape[0]
     dt_held = np.full(1, np.nan)
     Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, G.shape[2]))
     work = np.empty((3, n, n))
-    x_k = x0
-    P_k = P0
+    x_k, P_k = x0.copy(), P0.copy()                     # the state, scaled
+    x_pri, P_pri = np.empty(n), np.empty((n, n))
+    x_post, P_post, K_k = np.empty(n), np.empty((n, n)), np.empty(n)
     for k in range(dt.shape[0]):
         status, nu[k], S[k], beta2[k], _, fused[k] = step(
             F, G, C, norm, h, dt[k], u[k], z[k], r[k], threshold, reject, x_k, P_k, dt_held,
-            Phi, Qd, Bd, work, x_prior[k], P_prior[k], x[k], P[k], K[k])
+            Phi, Qd, Bd, work, x_pri, P_pri, x_post, P_post, K_k)
         if status != OK:
             return k, status
-        x_k = x[k]
-        P_k = P[k]
+        for i in range(n):
+            x_prior[k, i] = x_pri[i] * s[i]
+            x[k, i] = x_post[i] * s[i]
+            K[k, i] = K_k[i] * s[i]
+            for j in range(n):
+                P_prior[k, i, j] = P_pri[i, j] * SS[i, j]
+                P[k, i, j] = P_post[i, j] * SS[i, j]
+        x_k, x_post = x_post, x_k
+        P_k, P_post = P_post, P_k
     return -1, OK

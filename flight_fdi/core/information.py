@@ -26,75 +26,77 @@ from .ldl import information_terms, ldl_factor, udu_factor
 
 
 @njit(cache=True)
-def solve(M, B, X):
-    """X = M^-1 B by Gaussian elimination with partial pivoting (M n x n, B n x k; M and B
-    are overwritten). Returns False when M is singular."""
-    n = M.shape[0]
-    k = B.shape[1]
+def solve(A, n):
+    """Gauss-Jordan elimination with partial pivoting on the augmented matrix A = [M | B]
+    (M n x n): afterwards A[:, n:] = M^-1 B. False when M is singular."""
+    w = A.shape[1]
     for c in range(n):
         p = c
+        best = abs(A[c, c])
         for r in range(c + 1, n):
-            if abs(M[r, c]) > abs(M[p, c]):
+            if abs(A[r, c]) > best:
+                best = abs(A[r, c])
                 p = r
-        if M[p, c] == 0.0:
+        if best == 0.0:
             return False
         if p != c:
-            for j in range(n):
-                M[c, j], M[p, j] = M[p, j], M[c, j]
-            for j in range(k):
-                B[c, j], B[p, j] = B[p, j], B[c, j]
-        for r in range(c + 1, n):
-            f = M[r, c] / M[c, c]
-            if f != 0.0:
-                for j in range(c, n):
-                    M[r, j] -= f * M[c, j]
-                for j in range(k):
-                    B[r, j] -= f * B[c, j]
-    for c in range(n - 1, -1, -1):
-        for j in range(k):
-            acc = B[c, j]
-            for q in range(c + 1, n):
-                acc -= M[c, q] * X[q, j]
-            X[c, j] = acc / M[c, c]
+            for j in range(c, w):
+                A[c, j], A[p, j] = A[p, j], A[c, j]
+        inv = 1.0 / A[c, c]
+        for j in range(c, w):
+            A[c, j] *= inv
+        for r in range(n):
+            f = A[r, c]
+            if r != c and f != 0.0:
+                for j in range(c, w):
+                    A[r, j] -= f * A[c, j]
     return True
 
 
 @njit(cache=True)
-def backward_step(Y, y, info_i, Phi, Qd, Bd, u_i, M, rhs, X):
+def backward_step(Y, y, info_i, Phi, Qd, Bd, u_i, A, Bdu):
     """The backward information filter from step i to i-1, in place: the update with the
     measurement of step i (``info_i`` = [H^T R^-1 H | H^T R^-1 z], zero if not fused), then
 
         Y <- Phi^T (I + Y Qd)^-1 Y Phi,   y <- Phi^T (I + Y Qd)^-1 (y - Y Bd u)
 
-    (Phi, Qd, Bd of step i). M (n, n), rhs and X (n, n+1) are scratch. False when I + Y Qd is
+    (Phi, Qd, Bd of step i). A (n, 2n+1) and Bdu (n) are scratch. False when I + Y Qd is
     singular."""
     n = y.shape[0]
     for r in range(n):
         for c in range(n):
             Y[r, c] += info_i[r, c]
         y[r] += info_i[r, n]
-    matmul(Y, Qd, M)                        # M = I + Y Qd
-    for r in range(n):
-        M[r, r] += 1.0
-    for c in range(n):                      # X[:, 0] = Bd u (scratch)
+    for c in range(n):                      # Bd u
         acc = 0.0
         for j in range(u_i.shape[0]):
             acc += Bd[c, j] * u_i[j]
-        X[c, 0] = acc
-    matmul(Y, Phi, rhs[:, :n])              # rhs = [Y Phi | y - Y Bd u]
-    for r in range(n):
+        Bdu[c] = acc
+    for r in range(n):                      # A = [I + Y Qd | Y Phi | y - Y Bd u]
+        for c in range(n):
+            m = 1.0 if r == c else 0.0
+            yp = 0.0
+            for j in range(n):
+                m += Y[r, j] * Qd[j, c]
+                yp += Y[r, j] * Phi[j, c]
+            A[r, c] = m
+            A[r, n + c] = yp
         acc = y[r]
         for c in range(n):
-            acc -= Y[r, c] * X[c, 0]
-        rhs[r, n] = acc
-    if not solve(M, rhs, X):
+            acc -= Y[r, c] * Bdu[c]
+        A[r, 2 * n] = acc
+    if not solve(A, n):
         return False
-    matmul(Phi.T, X[:, :n], Y)              # Y = Phi^T X[:, :n], y = Phi^T X[:, n]
+    for r in range(n):                      # [Y | y] = Phi^T A[:, n:]
+        for c in range(n + 1):
+            acc = 0.0
+            for j in range(n):
+                acc += Phi[j, r] * A[j, n + c]
+            if c < n:
+                Y[r, c] = acc
+            else:
+                y[r] = acc
     for r in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += Phi[j, r] * X[j, n]
-        y[r] = acc
         for c in range(r + 1, n):
             sym = 0.5 * (Y[r, c] + Y[c, r])
             Y[r, c] = sym
@@ -110,7 +112,7 @@ def backward_pass(F, G, C, norm, dt, u, info, Y0, y0, Ys, ys):
     N, n = ys.shape
     Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, G.shape[2]))
     work = np.empty((3, n, n))
-    M, rhs, X = np.empty((n, n)), np.empty((n, n + 1)), np.empty((n, n + 1))
+    A, Bdu = np.empty((n, 2 * n + 1)), np.empty(n)
     dt_held = np.nan
     Y = Y0.copy()
     y = y0.copy()
@@ -122,34 +124,36 @@ def backward_pass(F, G, C, norm, dt, u, info, Y0, y0, Ys, ys):
         if not dt[i] == dt_held:
             van_loan(F, G, C, norm, dt[i], Phi, Qd, Bd, work)
             dt_held = dt[i]
-        if not backward_step(Y, y, info[i], Phi, Qd, Bd, u[i], M, rhs, X):
+        if not backward_step(Y, y, info[i], Phi, Qd, Bd, u[i], A, Bdu):
             return i
     return -1
 
 
 @njit(cache=True)
 def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d,
-                 terms, dof, normalized, work, work1):
-    """The two-filter combination of one step (see the module doc). ``work``: (3, n, n),
-    ``work1``: (2, n, n+1) scratch. Returns False when I + Y P_f or P_f is singular."""
+                 terms, dof, normalized, A, work):
+    """The two-filter combination of one step (see the module doc). ``A``: (n, 2n+1),
+    ``work``: (2, n, n) scratch. Returns False when I + Y P_f or
+    P_f is singular."""
     n = x_f.shape[0]
-    M, PW, U = work[0], work[1], work[2]
-    rhs, X = work1[0], work1[1]
-    matmul(Y, P_f, M)
-    for r in range(n):
-        M[r, r] += 1.0
+    for r in range(n):                      # A = [I + Y P_f | Y | y - Y x_f]
         acc = y[r]
         for c in range(n):
-            rhs[r, c] = Y[r, c]
+            m = 1.0 if r == c else 0.0
+            for j in range(n):
+                m += Y[r, j] * P_f[j, c]
+            A[r, c] = m
+            A[r, n + c] = Y[r, c]
             acc -= Y[r, c] * x_f[c]
-        rhs[r, n] = acc
-    if not solve(M, rhs, X):
+        A[r, 2 * n] = acc
+    if not solve(A, n):
         return False
-    for r in range(n):
-        Wv[r] = X[r, n]
+    for r in range(n):                      # [W | W v] = A[:, n:]
+        Wv[r] = A[r, 2 * n]
         for c in range(n):
-            W[r, c] = 0.5 * (X[r, c] + X[c, r])
+            W[r, c] = 0.5 * (A[r, n + c] + A[c, n + r])
     # x_s = x_f + P_f W v;  P_s = P_f - P_f W P_f
+    PW = work[0]
     matmul(P_f, W, PW)
     matmul(PW, P_f, P_s)
     for r in range(n):
@@ -159,17 +163,18 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
         x_s[r] = acc
     for r in range(n):
         for c in range(r, n):
-            s = 0.5 * ((P_f[r, c] - P_s[r, c]) + (P_f[c, r] - P_s[c, r]))
-            P_s[r, c] = s
-            P_s[c, r] = s
+            sym = 0.5 * ((P_f[r, c] - P_s[r, c]) + (P_f[c, r] - P_s[c, r]))
+            P_s[r, c] = sym
+            P_s[c, r] = sym
     # reference pivots: the forward information P_f^-1 = U^-T D^-1 U^-1 has LDL^T pivots 1 / D
+    U = work[1]
     if udu_factor(P_f, U, ref) >= 0:
         return False
     for k in range(n):
         ref[k] = 1.0 / ref[k]
     L = U                                   # (U is not needed any more)
     ldl_factor(W, ref, rank_tol, L, Lam, informative)
-    information_terms(L, Lam, informative, Wv, rhs[:, 0], v_tilde, d, terms, dof, normalized)
+    information_terms(L, Lam, informative, Wv, A[:, 0], v_tilde, d, terms, dof, normalized)
     return True
 
 
@@ -185,8 +190,8 @@ def smooth_pass(F, G, C, norm, dt, u, info, Y0, y0, x_f, P_f, s, rank_tol, Y_out
     N, n = x_f.shape
     Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, G.shape[2]))
     work = np.empty((3, n, n))
-    work1 = np.empty((2, n, n + 1))
-    M, rhs, X = np.empty((n, n)), np.empty((n, n + 1)), np.empty((n, n + 1))
+    A, Bdu = np.empty((n, 2 * n + 1)), np.empty(n)
+    inv_s = 1.0 / s
     xf, Pf = np.empty(n), np.empty((n, n))          # the forward posterior, scaled
     Wi, Pi = np.empty((n, n)), np.empty((n, n))     # W and P_s of the step, scaled
     Wvi, xi, ref, Lam, vt, dd = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
@@ -196,29 +201,28 @@ def smooth_pass(F, G, C, norm, dt, u, info, Y0, y0, x_f, P_f, s, rank_tol, Y_out
     y = y0.copy()
     for i in range(N - 1, -1, -1):
         for r in range(n):
-            xf[r] = x_f[i, r] / s[r]
+            xf[r] = x_f[i, r] * inv_s[r]
             for c in range(n):
-                Pf[r, c] = P_f[i, r, c] / (s[r] * s[c])
+                Pf[r, c] = P_f[i, r, c] * inv_s[r] * inv_s[c]
         if not combine_step(Y, y, xf, Pf, rank_tol, Wi, Wvi, xi, Pi, ref, Lam, informative[i],
-                            vt, dd, terms[i], dof[i], normalized[i], work, work1):
+                            vt, dd, terms[i], dof[i], normalized[i], A, work):
             return i, 2
         for r in range(n):
-            y_out[i, r] = y[r] / s[r]
-            Wv[i, r] = Wvi[r] / s[r]
+            y_out[i, r] = y[r] * inv_s[r]
+            Wv[i, r] = Wvi[r] * inv_s[r]
             x_s[i, r] = xi[r] * s[r]
             v_tilde[i, r] = vt[r] * s[r]
             d[i, r] = dd[r] * s[r] * s[r]
             info_ratio[i, r] = min(max(Lam[r] / ref[r], 0.0), 1.0)
             for c in range(n):
-                ss = s[r] * s[c]
-                Y_out[i, r, c] = Y[r, c] / ss
-                W[i, r, c] = Wi[r, c] / ss
-                P_s[i, r, c] = Pi[r, c] * ss
+                Y_out[i, r, c] = Y[r, c] * inv_s[r] * inv_s[c]
+                W[i, r, c] = Wi[r, c] * inv_s[r] * inv_s[c]
+                P_s[i, r, c] = Pi[r, c] * s[r] * s[c]
         if i == 0:
             break
         if not dt[i] == dt_held:
             van_loan(F, G, C, norm, dt[i], Phi, Qd, Bd, work)
             dt_held = dt[i]
-        if not backward_step(Y, y, info[i], Phi, Qd, Bd, u[i], M, rhs, X):
+        if not backward_step(Y, y, info[i], Phi, Qd, Bd, u[i], A, Bdu):
             return i, 1
     return -1, 0

@@ -380,26 +380,24 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
         _forward1(sm, *args, out)
     else:
         _forward_rows(sm, *args, out)
-    s, SS = sm.s, sm.SS
     exceeded = out["beta2"] > thr
     return ForwardResult(
-        t=record.t, dt=record.dt, z=record.z, R=record.R, H=record.H,
-        x_prior=out["x_prior"] * s, P_prior=out["P_prior"] * SS, x=out["x"] * s,
-        P=out["P"] * SS, nu=out["nu"], S=out["S"], K=out["K"] * s[None, :, None],
-        beta2=out["beta2"], threshold=np.full(N, thr), exceeded=exceeded, fused=out["fused"],
-        alarm_state=alarm_states(exceeded, gate), u=record.u, gate=gate)
+        t=record.t, dt=record.dt, z=record.z, R=record.R, H=record.H, u=record.u, gate=gate,
+        threshold=np.full(N, thr), exceeded=exceeded, alarm_state=alarm_states(exceeded, gate),
+        **out)
 
 
 def _forward1(sm: ScaledModel, x0: np.ndarray, P0: np.ndarray, dt: np.ndarray, u: np.ndarray,
               z: np.ndarray, R: np.ndarray, thr: float, reject: bool, out: dict) -> None:
-    """The one-row record through the kernel's ``forward_pass`` (scaled outputs into ``out``)."""
+    """The one-row record through the kernel's ``forward_pass`` (physical outputs into
+    ``out``)."""
     N = dt.size
     S, K = np.empty(N), np.empty((N, sm.n))
     bad, status = fk.forward_pass(
         *sm.series.args(), np.ascontiguousarray(sm.H[0]), x0, P0, dt, u,
-        np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(R[:, 0, 0]), thr, reject,
-        out["x_prior"], out["P_prior"], out["x"], out["P"], K, out["nu"][:, 0], S, out["beta2"],
-        out["fused"])
+        np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(R[:, 0, 0]), thr, reject, sm.s,
+        sm.SS, out["x_prior"], out["P_prior"], out["x"], out["P"], K, out["nu"][:, 0], S,
+        out["beta2"], out["fused"])
     if status == fk.S_NOT_POSITIVE:
         raise CoreError(f"step {bad}: innovation covariance S = {S[bad]:.3g} is not positive")
     if status == fk.NOT_FINITE:
@@ -420,3 +418,7 @@ def _forward_rows(sm: ScaledModel, x: np.ndarray, P: np.ndarray, dt: np.ndarray,
             update_rows(out["x_prior"][k], out["P_prior"][k], z[k], R[k], sm.H, sm.HT, sm.I, thr,
                     reject)
         out["x"][k], out["P"][k] = x, P
+    s, SS = sm.s, sm.SS
+    for name, scale in (("x_prior", s), ("x", s), ("P_prior", SS), ("P", SS)):
+        out[name] *= scale
+    out["K"] *= s[None, :, None]
