@@ -6,8 +6,8 @@ INS at 50 Hz and reference at 10 Hz for 3 h: 540 000 + 108 000 messages (plus tr
 is simulated once into ``--bag`` (default /tmp/flight_fdi_bench_3h) and reused; a copy whose
 header stamps carry 1 ms of Gaussian jitter (every dt distinct) is written beside it. For both,
 in the same run: the time of each stage, of just reading the bag (``read_flight``, a fresh
-process), and of the whole command (a fresh process). Targets: analyze <= 1.5x the read alone;
-jittered within 1.1x of regular. ``--jobs 2`` (the forked two-process analysis) is measured
+process), and of the whole command (a fresh process), as CPU time (the ratios) and wall time.
+Targets: analyze <= 1.5x the read alone; jittered within 1.1x of regular. ``--jobs 2`` (the forked two-process analysis) is measured
 against ``--jobs 1`` when the installed CLI still has the option.
 """
 from __future__ import annotations
@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import pathlib
+import resource
 import subprocess
 import sys
 import time
@@ -66,10 +67,14 @@ def jittered_copy(src: pathlib.Path, dst: pathlib.Path, sigma_s: float, seed: in
             writer.write_raw(conn.topic, conn.msgtype, bytes(data), t_ns)
 
 
-def fresh(cmd: list[str]) -> float:
+def fresh(cmd: list[str]) -> tuple[float, float]:
+    """(wall, CPU) seconds of a fresh process (CPU: user + system of it and its children)."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
 def stages(bag: pathlib.Path) -> None:
@@ -109,7 +114,7 @@ def main() -> int:
                                           text=True).stdout
     read_cmd = [str(PY), "-c", "import sys; from flight_fdi.bagio import read_flight; "
                 "read_flight(sys.argv[1], 'x', with_truth=False)"]
-    best: dict[tuple, float] = {}
+    best: dict[tuple, tuple[float, float]] = {}
     for b in (bag, jbag):
         print(f"stages on {b.name}:")
         stages(b)
@@ -123,14 +128,20 @@ def main() -> int:
                 runs["analyze"] = runs["analyze"] + ["--jobs", "1"]
             for what, cmd in runs.items():
                 key = (b.name, what)
-                best[key] = min(best.get(key, np.inf), fresh(cmd))
+                wall, cpu = fresh(cmd)
+                old = best.get(key, (np.inf, np.inf))
+                best[key] = (min(old[0], wall), min(old[1], cpu))
+    # ratios on CPU time (the machine is shared: wall time measures the other processes too);
+    # --jobs 2 is judged on wall time, which is what a second process could save
     for b in (bag, jbag):
-        read, ana = best[(b.name, "read")], best[(b.name, "analyze")]
-        print(f"  {b.name}: read {read:.2f} s, analyze {ana:.2f} s: {ana / read:.2f}x the read "
-              f"(target <= 1.5: {'met' if ana / read <= 1.5 else 'NOT met'})"
-              + (f"; --jobs 2 {best[(b.name, 'analyze --jobs 2')]:.2f} s" if has_jobs else ""))
-    ratio = best[(jbag.name, "analyze")] / best[(bag.name, "analyze")]
-    print(f"  jittered / regular analyze: {ratio:.2f} (target <= 1.1: "
+        (rw, rc), (aw, ac) = best[(b.name, "read")], best[(b.name, "analyze")]
+        print(f"  {b.name}: read {rc:.2f} s CPU ({rw:.2f} s wall), analyze {ac:.2f} s CPU "
+              f"({aw:.2f} s wall): {ac / rc:.2f}x the read (target <= 1.5: "
+              f"{'met' if ac / rc <= 1.5 else 'NOT met'})"
+              + (f"; --jobs 2 {best[(b.name, 'analyze --jobs 2')][0]:.2f} s wall, "
+                 f"{best[(b.name, 'analyze --jobs 2')][1]:.2f} s CPU" if has_jobs else ""))
+    ratio = best[(jbag.name, "analyze")][1] / best[(bag.name, "analyze")][1]
+    print(f"  jittered / regular analyze (CPU): {ratio:.2f} (target <= 1.1: "
           f"{'met' if ratio <= 1.1 else 'NOT met'}); load average {os.getloadavg()[0]:.1f}")
     return 0
 

@@ -11,7 +11,7 @@ regular stamps and on stamps with 1 ms Gaussian jitter (every dt distinct):
   >= 30x -- and vs pykalman ``KalmanFilter.smooth``.
 
 The baselines get their Phi and Qd per step precomputed (outside their timing); the kernels
-discretize inside theirs. Each timing is the best of ``--repeat`` interleaved runs.
+discretize inside theirs. Each timing is the best CPU time of ``--repeat`` interleaved runs.
 Usage: ``python bench/bench_core.py [--steps N] [--repeat R]``.
 """
 from __future__ import annotations
@@ -35,9 +35,11 @@ TARGET = 30.0
 
 
 def seconds(fn):
-    t0 = time.perf_counter()
+    """CPU time of fn() (process time: on the shared machine, less sensitive than wall time to
+    the other processes; one thread throughout, so the two agree on a quiet machine)."""
+    t0 = time.process_time()
     out = fn()
-    return time.perf_counter() - t0, out
+    return time.process_time() - t0, out
 
 
 def simulate(model, t, rng):

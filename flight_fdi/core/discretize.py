@@ -38,7 +38,7 @@ THETA = 0.25
 #: coefficients kept: enough for ||A h||_1 <= THETA to rounding
 TERMS = 20
 #: a series is cut where the bound of its next term falls below this fraction of its first
-_EPS = 1e-17
+_EPS = 1e-16
 
 
 @njit(cache=True)
