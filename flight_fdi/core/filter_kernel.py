@@ -3,9 +3,9 @@
 :func:`~flight_fdi.core.kalman.run_forward` (a whole record). Both call :func:`step`, so they
 agree to the last bit.
 
-All arrays are in scaled coordinates x' = T^-1 x (T = diag(scale), see ``kalman.ScaledModel``):
+All arrays are in scaled coordinates x' = T^-1 x (T = diag(scale), see ``core.scaled``):
 A' = T^-1 A T, Qc' = T^-1 Qc T^-1, B' = T^-1 B, h' = h T. One measurement row per step
-(m = 1: h a row vector, r a variance); the numpy path of ``kalman`` handles m > 1.
+(m = 1: h a row vector, r a variance); ``core.multirow`` handles m > 1 with numpy.
 
     predict:  x- = Phi x + Bd u                    Phi, Qd, Bd = van_loan(A, Qc, B, dt)
               P- = Phi P Phi^T + Qd
