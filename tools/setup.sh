@@ -99,7 +99,7 @@ EOF
     say "built: install/flight_fdi_msgs, install/flight_fdi"
 fi
 # --- 4. the compiled estimation kernels -------------------------------------------------------
-# numba compiles each kernel on first use (~20-40 s for all of them) and keeps the machine code in
+# numba compiles each kernel on first use (about 2 minutes for all of them on a loaded 2-core machine) and keeps the machine code in
 # flight_fdi/core/__pycache__ (cache=True); compiling here means a user's first analyze only loads
 # it. numba itself recompiles a kernel whose source file changed.
 KERNEL_HASH=$( (echo "$REQ_HASH"; cat flight_fdi/core/*.py) | sha256sum | cut -c1-16)
