@@ -152,7 +152,13 @@ def test_sample_flights_are_detectable(repo_root):
         else:
             assert starts and 500 < starts[0] < 560, (name, starts)
             if glr is not None:
-                element = {"accel": "accel_bias_step", "gyro": "gyro_drift_step"}
-                assert glr.hypothesis == element[SAMPLES[name][0]]
-                assert abs(glr.onset_t - 500) < 2
-                assert abs(glr.magnitude / SAMPLES[name][3] - 1) < 0.05
+                want = {"accel": "accel_bias_step", "gyro": "gyro_drift_step"}[SAMPLES[name][0]]
+                # a gyro drift step and an accelerometer bias ramp have the same signature on
+                # the velocity channel (their statistics agree to ~1e-14): GLR reports the pair
+                # as ambiguous, and which one ranks first is decided by rounding
+                named = [glr.hypothesis] + ([glr.runner_up] if glr.isolation == "ambiguous"
+                                            else [])
+                assert want in named, (name, glr.hypothesis, glr.isolation, glr.runner_up)
+                found = glr.per_hypothesis[want]
+                assert abs(found["onset_t"] - 500) < 2
+                assert abs(found["magnitude"] / SAMPLES[name][3] - 1) < 0.05
