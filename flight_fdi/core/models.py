@@ -7,7 +7,8 @@ A model is continuous-time::
     z  = H x + theta,        theta ~ N(0, R)
 
 and is discretized exactly for the actual sample interval (``discretize``): Phi = expm(A dt),
-Qd by Van Loan's method, Bd = int_0^dt expm(A s) ds B (:mod:`flight_fdi.core.discretize`).
+Qd by Van Loan's method, Bd = int_0^dt expm(A s) ds B. Results are cached per dt. The estimation
+kernels discretize with the compiled :mod:`flight_fdi.core.discretize` instead.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from scipy.linalg import expm
 
 from .errors import CoreError
 
@@ -159,34 +161,22 @@ class LinearModel:
                             f"states are {', '.join(self.state_names)}") from None
 
     def discretize(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Phi, Qd, Bd for a step of ``dt`` seconds: exact (Van Loan), computed in scaled
-        coordinates by :func:`flight_fdi.core.discretize.van_loan` (the filter's own kernel)
-        and returned in physical units. Cached per dt."""
+        """Phi, Qd, Bd for a step of ``dt`` seconds, physical units: exact, by scipy's expm of
+        Van Loan's matrices, cached per dt rounded to 1 ns. (The filter's kernels run the
+        compiled :func:`flight_fdi.core.discretize.van_loan` at every dt instead; the two agree to
+        1e-12 of each state's scale, ``test/core/test_discretize.py``. This one stays for the
+        simulator, whose sample bags are kept byte for byte, and for GLR's anchors.)"""
         if not np.isfinite(dt) or dt < 0:
             raise CoreError(f"discretize: dt must be finite and >= 0, got {dt!r}")
-        key = float(dt)
+        key = round(float(dt), 9)
         cache: dict = self._cache  # type: ignore[attr-defined]
         hit = cache.get(key)
         if hit is None:
-            hit = self._discretize(key)
+            hit = _van_loan(self.A, self.Qc, self.B, key)
             if len(cache) > 512:
                 cache.clear()
             cache[key] = hit
         return hit
-
-    def _discretize(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        from .discretize import discretize  # (compiled: imported when first needed)
-        from .scaled import scaled_model
-
-        sm = scaled_model(self)
-        s = sm.s
-        Phi_s, Qd_s, Bd_s = discretize(sm.A, sm.Qc, sm.B, dt, sm.series)
-        Phi = Phi_s * s[:, None] / s[None, :]
-        Qd = Qd_s * sm.SS
-        Bd = None if self.B is None else Bd_s * s[:, None]
-        for arr in (Phi, Qd) + (() if Bd is None else (Bd,)):
-            arr.setflags(write=False)
-        return Phi, Qd, Bd
 
     def observability(self, span_s: float, dt: float | None = None) -> ObservabilityReport:
         """Kalman rank test, and the std ratio of each state after fusing measurements
@@ -232,6 +222,32 @@ class LinearModel:
         """The same model with another measurement covariance."""
         return LinearModel(self.name, self.state_names, self.state_units, self.A, self.Qc, self.H,
                            R, self.P0, self.B, self.scale, self.measurement_names, self.params)
+
+
+def _van_loan(A: np.ndarray, Qc: np.ndarray, B: np.ndarray | None, dt: float):
+    n = A.shape[0]
+    if dt == 0.0:
+        Bd = None if B is None else np.zeros_like(B)
+        return np.eye(n), np.zeros((n, n)), Bd
+    # Van Loan (1978): expm([[-A, Qc], [0, A^T]] dt) = [[., Phi^-1 Qd], [0, Phi^T]]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -A
+    M[:n, n:] = Qc
+    M[n:, n:] = A.T
+    E = expm(M * dt)
+    Phi = E[n:, n:].T
+    Qd = Phi @ E[:n, n:]
+    Qd = 0.5 * (Qd + Qd.T)
+    Bd = None
+    if B is not None:
+        p = B.shape[1]
+        C = np.zeros((n + p, n + p))
+        C[:n, :n] = A
+        C[:n, n:] = B
+        Bd = expm(C * dt)[:n, n:]
+    for arr in (Phi, Qd) + (() if Bd is None else (Bd,)):
+        arr.setflags(write=False)
+    return Phi, Qd, Bd
 
 
 INS_STATES = ("velocity_error", "tilt", "accel_bias", "gyro_drift")
