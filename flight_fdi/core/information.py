@@ -104,31 +104,6 @@ def backward_step(Y, y, info_i, Phi, Qd, Bd, u_i, A, Bdu):
     return True
 
 
-@njit(cache=True, nogil=True)
-def backward_pass(F, G, C, norm, dt, u, info, Y0, y0, Ys, ys):
-    """The backward information recursion over a record (see the module doc) into Ys (N, n, n),
-    ys (N, n). F, G, C, norm: the model's Van Loan series; ``info`` (N, n, n+1) holds
-    [H^T R^-1 H | H^T R^-1 z] per step. Returns the index where I + Y Qd was singular, or -1."""
-    N, n = ys.shape
-    Phi, Qd, Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, G.shape[2]))
-    work = np.empty((3, n, n))
-    A, Bdu = np.empty((n, 2 * n + 1)), np.empty(n)
-    dt_held = np.nan
-    Y = Y0.copy()
-    y = y0.copy()
-    for i in range(N - 1, -1, -1):
-        Ys[i] = Y
-        ys[i] = y
-        if i == 0:
-            break
-        if not dt[i] == dt_held:
-            van_loan(F, G, C, norm, dt[i], Phi, Qd, Bd, work)
-            dt_held = dt[i]
-        if not backward_step(Y, y, info[i], Phi, Qd, Bd, u[i], A, Bdu):
-            return i
-    return -1
-
-
 @njit(cache=True)
 def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d,
                  terms, dof, normalized, A, work):

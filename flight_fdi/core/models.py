@@ -162,13 +162,13 @@ class LinearModel:
 
     def discretize(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Phi, Qd, Bd for a step of ``dt`` seconds, physical units: exact, by scipy's expm of
-        Van Loan's matrices, cached per dt rounded to 1 ns. (The filter's kernels run the
+        Van Loan's matrices, cached per dt. (The filter's kernels run the
         compiled :func:`flight_fdi.core.discretize.van_loan` at every dt instead; the two agree to
         1e-12 of each state's scale, ``test/core/test_discretize.py``. This one stays for the
         simulator, whose sample bags are kept byte for byte, and for GLR's anchors.)"""
         if not np.isfinite(dt) or dt < 0:
             raise CoreError(f"discretize: dt must be finite and >= 0, got {dt!r}")
-        key = round(float(dt), 9)
+        key = float(dt)
         cache: dict = self._cache  # type: ignore[attr-defined]
         hit = cache.get(key)
         if hit is None:

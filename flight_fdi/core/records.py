@@ -133,10 +133,8 @@ class ForwardResult:
 
 @dataclass
 class MeasurementRecord:
-    """What the forward filter is given, checked: everything the backward information filter
-    needs (:func:`flight_fdi.core.smoother.backward_information` reads only these fields of a
-    ForwardResult), so that it can start before the forward pass when every sample is fused
-    (gate action ``"flag"``)."""
+    """What the forward filter is given, checked (:func:`measurement_record`): the inputs of
+    :func:`~flight_fdi.core.kalman.run_forward` (``record=``)."""
 
     t: np.ndarray            # (N,) strictly increasing seconds
     dt: np.ndarray           # (N,), dt[0] = 0

@@ -39,8 +39,7 @@ from .models import LinearModel
 from .records import ForwardResult
 from .scaled import scaled_model
 
-__all__ = ["DEFAULT_RANK_TOL", "BackwardResult", "backward_information", "run_backward",
-           "seed_threshold"]
+__all__ = ["DEFAULT_RANK_TOL", "BackwardResult", "run_backward", "seed_threshold"]
 
 
 @dataclass
@@ -124,24 +123,6 @@ def _inputs(model: LinearModel, fwd: Any, prior: tuple[Any, Any] | None) -> tupl
         Y0 = Yp.T @ Yp
         y0 = Y0 @ xs
     return sm, info, u, Y0, y0
-
-
-def backward_information(model: LinearModel, fwd: Any,
-                         prior: tuple[Any, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The backward recursion alone: (Y', y') per step in *scaled* coordinates (see module doc).
-
-    Uses only dt, z, R, H, fused and u of the record: ``fwd`` may be a ForwardResult or a
-    :class:`~flight_fdi.core.kalman.MeasurementRecord`. ``prior = (x, P)``: information about the
-    last state before the last measurement (default: none).
-    """
-    sm, info, u, Y0, y0 = _inputs(model, fwd, prior)
-    N, n = len(fwd.t), model.n
-    Ys, ys = np.empty((N, n, n)), np.empty((N, n))
-    bad = kernel.backward_pass(*sm.series.args(), np.ascontiguousarray(fwd.dt, dtype=float), u,
-                               info, Y0, y0, Ys, ys)
-    if bad >= 0:
-        raise CoreError(f"backward filter: singular I + Y Q at index {bad}")
-    return Ys, ys
 
 
 def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] | None = None,
