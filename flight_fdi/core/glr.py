@@ -677,7 +677,7 @@ def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> Gl
             h["count"] = int(over.size)
             h["times"] = [float(flt.t[k]) for k in over[:MAX_OUTLIER_TIMES]]
             h["onset_interval"] = None
-    ranked = sorted(per, key=lambda h: per[h]["statistic"], reverse=True)
+    ranked = rank_hypotheses(per)
     best = ranked[0]
     runner = ranked[1] if len(ranked) > 1 else None
     stat = per[best]["statistic"]
@@ -701,6 +701,23 @@ def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> Gl
             isolation = "unexplained"
     return GlrResult(best, b["onset_index"], b["onset_t"], b["magnitude"], stat, threshold,
                      per, curves, isolation=isolation, residual=residual, **extra)
+
+
+def rank_hypotheses(per: dict, rel_tie: float = 1e-9) -> list:
+    """Hypothesis names by statistic, largest first. Statistics equal to ``rel_tie`` (relative)
+    are a tie -- hypotheses with the same signature, e.g. a gyro drift step and an accelerometer
+    bias ramp of -g w on one velocity channel, agree to ~1e-14 and rounding would decide -- and
+    a tie keeps the declared order (steps before ramps), so every path (``analyze``, the ROS
+    pipeline) names the same hypothesis first."""
+    order = {h: i for i, h in enumerate(per)}
+    ranked = sorted(per, key=lambda h: per[h]["statistic"], reverse=True)
+    out: list = []
+    while ranked:
+        top = per[ranked[0]]["statistic"]
+        tie = [h for h in ranked if top - per[h]["statistic"] <= rel_tie * abs(top)]
+        out += sorted(tie, key=order.__getitem__)
+        ranked = [h for h in ranked if h not in tie]
+    return out
 
 
 def sensor_of(hypothesis: str) -> str | None:

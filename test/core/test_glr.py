@@ -398,3 +398,19 @@ def test_bad_hypotheses_and_inputs_are_rejected():
     assert res.curves["reference_outlier"][1][4] == 0.0
     with pytest.raises(CoreError, match="config must be a GlrConfig"):
         isolate(model, fwd, {"p_false_alarm": 0.1})
+
+
+def test_tied_hypotheses_keep_the_declared_order_whatever_the_rounding():
+    from flight_fdi.core.glr import rank_hypotheses
+
+    base = 3707.0
+    for eps in (+3e-12, -3e-12, 0.0):  # rounding in either direction
+        per = {"accel_bias_step": {"statistic": 900.0},
+               "gyro_drift_step": {"statistic": base},
+               "accel_bias_ramp": {"statistic": base * (1 + eps)},
+               "reference_jump": {"statistic": 905.0}}
+        assert rank_hypotheses(per) == ["gyro_drift_step", "accel_bias_ramp", "reference_jump",
+                                        "accel_bias_step"]
+    # a real difference is not a tie
+    per = {"gyro_drift_step": {"statistic": 100.0}, "accel_bias_ramp": {"statistic": 100.1}}
+    assert rank_hypotheses(per) == ["accel_bias_ramp", "gyro_drift_step"]
