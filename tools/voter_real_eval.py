@@ -82,7 +82,7 @@ def judge(events, onset, imu, qname):
     return ok, first[0] - onset
 
 
-def evaluate(data, alpha, margin, onset, confirm_s, **calib):
+def evaluate(data, alpha, margin, onset, confirm_s, cases=(), **calib):
     confirm = max(1, int(math.ceil(confirm_s * RATE)))
     res = {"nominal": [], "faults": {}}
     for day in DAYS:
@@ -98,16 +98,18 @@ def evaluate(data, alpha, margin, onset, confirm_s, **calib):
                                    "isolations": len(events)})
             if t[-1] < onset + 5.0:
                 continue
-            cases = [("gyro z stuck at zero", "stuck", 0, 0, "gyro_z"),
+            todo = [("gyro z stuck at zero", "stuck", 0, 0, "gyro_z"),
                      ("gyro z bias step 50 deg/h", "gyro_step", 50, 0, "gyro_z"),
                      ("accel x bias step 0.05 m/s^2", "accel_step", 0.05, 0, "accel_x"),
                      ("gyro z bias step 500 deg/h", "gyro_step", 500, 0, "gyro_z"),
                      ("gyro z bias step 2000 deg/h", "gyro_step", 2000, 0, "gyro_z"),
                      ("accel x bias step 0.2 m/s^2", "accel_step", 0.2, 0, "accel_x"),
                      ("accel x bias step 0.5 m/s^2", "accel_step", 0.5, 0, "accel_x")]
-            cases += [(f"gyro z square {a:g} deg/h {f:g} Hz", "square", a, f, "gyro_z")
+            todo += [(f"gyro z square {a:g} deg/h {f:g} Hz", "square", a, f, "gyro_z")
                       for a in (5, 10, 20, 50, 100) for f in (1, 5, 20)]
-            for label, kind, amp, f, q in cases:
+            for label, kind, amp, f, q in todo:
+                if cases and not any(c in label for c in cases):
+                    continue
                 for imu in (2, 3):
                     _, ev = run_voter(table, ns, inject(P, t, kind, imu, onset, amp, f), confirm)
                     ok, dly = judge(ev, onset, imu, q)
@@ -145,13 +147,17 @@ def main() -> int:
     ap.add_argument("--margin", type=float, default=3.0)
     ap.add_argument("--onset", type=float, default=10.0)
     ap.add_argument("--confirm-s", type=float, default=DEFAULT_CONFIRM_S)
+    ap.add_argument("--baseline", choices=("learn", "grow"), default="learn")
+    ap.add_argument("--cases", default="", help="comma-separated substrings of the fault "
+                    "labels to run (default all)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     root = Path(a.data)
     if not root.is_dir():
         print(f"voter_real_eval: {root} is not a directory", file=sys.stderr)
         return 1
-    res = evaluate(load(root), a.alpha, a.margin, a.onset, a.confirm_s)
+    res = evaluate(load(root), a.alpha, a.margin, a.onset, a.confirm_s,
+                   cases=[c for c in a.cases.split(",") if c], baseline=a.baseline)
     print(json.dumps(res, indent=1) if a.json else markdown(res))
     return 0
 

@@ -38,11 +38,14 @@ import numpy as np
 
 from .errors import CoreError
 from .voter_align import check_mounting, correct_mounting, delay, estimate_time_offsets
+from .voter_kernel import step_deviation, tail_means
 from .voting import QUANTITIES, SINGLE_FAULT, HEALTHY, MARGINAL, ThresholdTable, vote_array
 
 #: defaults chosen on the real recordings (docs/voter_real.md)
 DEFAULT_CONFIRM_S = 1.0
 DEFAULT_RELEASE_WINDOWS = 3
+#: offset models: the first learn_s seconds (fixed) or the growing baseline of the step detector
+BASELINES = ("learn", "grow")
 
 
 @dataclass(frozen=True)
@@ -55,6 +58,7 @@ class VoterModel:
     time_offsets_s: tuple[float, float, float] | None = (0.0, 0.0, 0.0)  # None: estimate
     max_lag_s: float = 0.2              # search range of the time offset estimate
     mounting: Mapping[str, Any] | None = None
+    baseline: str = "learn"             # offset: "learn" (first learn_s) or "grow" (step detector)
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -71,6 +75,7 @@ class VoterModel:
             max_lag = float(d.pop("max_lag_s", 0.2))
             tau = d.pop("time_offsets_s", [0.0, 0.0, 0.0])
             tau = None if tau is None else tuple(float(v) for v in tau)
+            baseline = d.pop("baseline", "learn")
         except (TypeError, ValueError):
             raise CoreError(f"{source}: prefilter, learn_s, track_tau_s, max_lag_s and "
                             "time_offsets_s must be numbers") from None
@@ -87,15 +92,22 @@ class VoterModel:
         if tau is None and learn <= 0:
             raise CoreError(f"{source}: estimating the time offsets needs a learning phase "
                             "(learn_s > 0)")
+        if baseline not in BASELINES:
+            raise CoreError(f"{source}: baseline must be one of {', '.join(BASELINES)}, "
+                            f"got {baseline!r}")
+        if baseline == "grow" and (learn <= 0 or track > 0):
+            raise CoreError(f"{source}: the grow baseline needs a learning phase (learn_s > 0) "
+                            "and replaces the offset tracking (track_tau_s 0)")
         mounting = check_mounting(d.pop("mounting", None), source)
-        return cls(int(prefilter), learn, track, tau, max_lag, mounting, d)
+        return cls(int(prefilter), learn, track, tau, max_lag, mounting, baseline, d)
 
     def to_dict(self) -> dict[str, Any]:
         return {"prefilter": self.prefilter, "learn_s": self.learn_s,
                 "track_tau_s": self.track_tau_s,
                 "time_offsets_s": None if self.time_offsets_s is None
                 else list(self.time_offsets_s),
-                "max_lag_s": self.max_lag_s, "mounting": self.mounting, **dict(self.extra)}
+                "max_lag_s": self.max_lag_s, "mounting": self.mounting,
+                "baseline": self.baseline, **dict(self.extra)}
 
 
 class Persistence:
@@ -181,14 +193,12 @@ def select(isolated: Sequence[int], current: int, avoid: set[int] = frozenset())
 
 
 def _tail_means(tail: np.ndarray, new: np.ndarray, width: int) -> np.ndarray:
-    """Means of the last ``width`` values (fewer at the flight start) at every row of ``new``,
-    where ``tail`` holds the rows just before it (all of them when fewer than width - 1)."""
-    x = np.concatenate([tail, new], axis=0)
-    c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)], axis=0)
-    j = np.arange(tail.shape[0], x.shape[0])
-    start = np.maximum(0, j - width + 1)
-    count = (j - start + 1).reshape((-1,) + (1,) * (x.ndim - 1))
-    return (c[j + 1] - c[start]) / count
+    """Means of the last ``width`` values (fewer at the flight start) at every row of ``new``
+    (m, ...), ``tail`` holding the rows just before it (:func:`voter_kernel.tail_means`)."""
+    m, C = new.shape[0], int(np.prod(new.shape[1:]))
+    out = tail_means(np.ascontiguousarray(tail.reshape(tail.shape[0], C)),
+                     np.ascontiguousarray(new.reshape(m, C)), int(width))
+    return out.reshape(new.shape)
 
 
 @dataclass
@@ -243,6 +253,10 @@ class VoterCore:
         self._d_tail = np.zeros((0, Q, 3))
         self._s_tail = np.zeros((0, Q, 3))
         self.offset: np.ndarray | None = None
+        self._b_sum: np.ndarray | None = None      # step detector baseline (sum, count)
+        self._b_count = np.zeros(0)
+        self._healthy = np.ones(0, dtype=bool)
+        self._n_learn = 0
         self.decisions = 0
 
     # ------------------------------------------------------------------ input
@@ -305,11 +319,13 @@ class VoterCore:
                      axis=-1)
         M, N = self.model.prefilter, self.window
         pf = _tail_means(self._d_tail, d, M) if M > 1 else d
-        stat = _tail_means(self._s_tail, pf, N)
-        self._d_tail = np.concatenate([self._d_tail, d])[-(M - 1):] if M > 1 else self._d_tail
-        self._s_tail = np.concatenate([self._s_tail, pf])[-(N - 1):] if N > 1 else self._s_tail
         idx = np.arange(self._next, end)
         t = self._raw_t[idx - self._raw_base]
+        self._d_tail = np.concatenate([self._d_tail, d])[-(M - 1):] if M > 1 else self._d_tail
+        if self.model.baseline == "grow":
+            return self._decide_step(idx, t, pf, end)
+        stat = _tail_means(self._s_tail, pf, N)
+        self._s_tail = np.concatenate([self._s_tail, pf])[-(N - 1):] if N > 1 else self._s_tail
         self._next = end
         self._trim()
         keep = t >= self.model.learn_s - 1e-9 if self.model.learn_s > 0 else np.ones(t.size, bool)
@@ -340,6 +356,37 @@ class VoterCore:
         status, faulty, _ = vote_array(eps)
         isolated, events = self._persist(t, status, faulty)
         self.decisions += idx.size
+        return Decisions(idx, t, dev, eps, status, faulty, isolated, lo, up, events)
+
+    def _decide_step(self, idx: np.ndarray, t: np.ndarray, pf: np.ndarray, end: int
+                     ) -> Decisions:
+        """The step detector (baseline "grow", :func:`voter_kernel.step_deviation`)."""
+        m, Q = pf.shape[0], pf.shape[1]
+        if self._b_sum is None:
+            n_learn = int(np.searchsorted(self._raw_t, self.model.learn_s - 1e-9))
+            self._n_learn = n_learn
+            self._b_sum, self._b_count = np.zeros(Q * 3), np.zeros(Q * 3)
+            self._healthy = np.ones(Q, dtype=bool)
+        lo, up = self.table.bounds_at(t)
+        flat = np.ascontiguousarray(pf.reshape(m, -1))
+        dev, inside = step_deviation(
+            np.ascontiguousarray(self._s_tail.reshape(self._s_tail.shape[0], Q * 3)), flat,
+            int(idx[0]), self.window, self._n_learn,
+            np.ascontiguousarray(lo.reshape(m, -1), dtype=float),
+            np.ascontiguousarray(up.reshape(m, -1), dtype=float),
+            np.repeat(np.arange(Q), 3), self._b_sum, self._b_count, self._healthy)
+        self._s_tail = np.concatenate([self._s_tail, pf])[-self.window:]
+        self._next = end
+        self._trim()
+        keep = idx >= self._n_learn
+        if not np.any(keep):
+            return self._empty()
+        dev, eps = dev.reshape(m, Q, 3)[keep], inside.reshape(m, Q, 3)[keep]
+        idx, t, lo, up = idx[keep], t[keep], lo[keep], up[keep]
+        status, faulty, _ = vote_array(eps)
+        isolated, events = self._persist(t, status, faulty)
+        self.decisions += idx.size
+        self.offset = (self._b_sum / np.maximum(self._b_count, 1)).reshape(Q, 3)
         return Decisions(idx, t, dev, eps, status, faulty, isolated, lo, up, events)
 
     def _decide_tracking(self, idx, t, stat, lo, up) -> Decisions:

@@ -67,7 +67,8 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
                          ks_alpha: float = 0.05, method: str = "auto", n_segments: int = 8,
                          min_segment_s: float = 2.0, min_recordings: int = 5,
                          quantities: Sequence[str] = QUANTITIES, names: Sequence[str] = (),
-                         symmetric: bool = True) -> tuple[ThresholdTable, dict[str, Any]]:
+                         symmetric: bool = True, baseline: str = "learn"
+                         ) -> tuple[ThresholdTable, dict[str, Any]]:
     """Threshold table from nominal recordings ``[(stamp_ns (T,), P (T, 6, 3)), ...]``."""
     if len(recordings) < 2:
         raise CoreError(f"calibration needs at least 2 recordings, got {len(recordings)}")
@@ -88,7 +89,10 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
         taus.append(tau)
         aligned.append(align_times(P, tau, rate_hz))
     mounting = estimate_mounting(aligned, rate_hz) if estimate_mount else None
-    model = VoterModel(prefilter, learn_s, track_tau_s, None, max_lag_s, mounting)
+    model = VoterModel.from_dict({"prefilter": prefilter, "learn_s": learn_s,
+                                  "track_tau_s": track_tau_s, "time_offsets_s": None,
+                                  "max_lag_s": max_lag_s, "mounting": mounting,
+                                  "baseline": baseline}, "calibration")
     series, offsets = [], []
     for ns, P in recordings:
         t, dev, core = deviations(ns, P, model, window, rate_hz, quantities)
