@@ -148,6 +148,8 @@ def main() -> int:
     ap.add_argument("--onset", type=float, default=10.0)
     ap.add_argument("--confirm-s", type=float, default=DEFAULT_CONFIRM_S)
     ap.add_argument("--baseline", choices=("learn", "grow"), default="learn")
+    ap.add_argument("--linear", action="store_true",
+                    help="fit the per-pair linear model (core/voter_linear.py) in calibration")
     ap.add_argument("--cases", default="", help="comma-separated substrings of the fault "
                     "labels to run (default all)")
     ap.add_argument("--json", action="store_true")
@@ -157,7 +159,8 @@ def main() -> int:
         print(f"voter_real_eval: {root} is not a directory", file=sys.stderr)
         return 1
     res = evaluate(load(root), a.alpha, a.margin, a.onset, a.confirm_s,
-                   cases=[c for c in a.cases.split(",") if c], baseline=a.baseline)
+                   cases=[c for c in a.cases.split(",") if c], baseline=a.baseline,
+                   linear=a.linear)
     print(json.dumps(res, indent=1) if a.json else markdown(res))
     return 0
 

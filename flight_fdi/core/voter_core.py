@@ -38,6 +38,7 @@ import numpy as np
 
 from .errors import CoreError
 from .voter_align import check_mounting, correct_mounting, delay, estimate_time_offsets
+from . import voter_linear
 from .voter_kernel import step_deviation, tail_means
 from .voting import QUANTITIES, SINGLE_FAULT, HEALTHY, MARGINAL, ThresholdTable, vote_array
 
@@ -59,6 +60,7 @@ class VoterModel:
     max_lag_s: float = 0.2              # search range of the time offset estimate
     mounting: Mapping[str, Any] | None = None
     baseline: str = "learn"             # offset: "learn" (first learn_s) or "grow" (step detector)
+    linear: Mapping[str, Any] | None = None   # per-pair linear model (core/voter_linear.py)
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -99,7 +101,8 @@ class VoterModel:
             raise CoreError(f"{source}: the grow baseline needs a learning phase (learn_s > 0) "
                             "and replaces the offset tracking (track_tau_s 0)")
         mounting = check_mounting(d.pop("mounting", None), source)
-        return cls(int(prefilter), learn, track, tau, max_lag, mounting, baseline, d)
+        linear = voter_linear.check(d.pop("linear", None), source)
+        return cls(int(prefilter), learn, track, tau, max_lag, mounting, baseline, linear, d)
 
     def to_dict(self) -> dict[str, Any]:
         return {"prefilter": self.prefilter, "learn_s": self.learn_s,
@@ -107,7 +110,7 @@ class VoterModel:
                 "time_offsets_s": None if self.time_offsets_s is None
                 else list(self.time_offsets_s),
                 "max_lag_s": self.max_lag_s, "mounting": self.mounting,
-                "baseline": self.baseline, **dict(self.extra)}
+                "baseline": self.baseline, "linear": self.linear, **dict(self.extra)}
 
 
 class Persistence:
@@ -257,6 +260,7 @@ class VoterCore:
         self._b_count = np.zeros(0)
         self._healthy = np.ones(0, dtype=bool)
         self._n_learn = 0
+        self._w_prev: np.ndarray | None = None      # mean rate before the batch (linear model)
         self.decisions = 0
 
     # ------------------------------------------------------------------ input
@@ -314,9 +318,12 @@ class VoterCore:
         end = self._count - int(math.ceil(max(0.0, lag) - 1e-9))
         if end <= self._next:
             return self._empty()
-        A = self._aligned(end)[:, self.qi, :]
-        d = np.stack([A[..., 0] - A[..., 1], A[..., 1] - A[..., 2], A[..., 0] - A[..., 2]],
-                     axis=-1)
+        A = self._aligned(end)
+        d = voter_linear.pair_diffs(A[:, self.qi, :])
+        if self.model.linear:
+            Phi = voter_linear.features(A, self.rate_hz, self._w_prev)
+            self._w_prev = A[-1, 0:3, :].mean(axis=-1)
+            d = voter_linear.apply(d, Phi, self.model.linear["coef"], self.table.quantities)
         M, N = self.model.prefilter, self.window
         pf = _tail_means(self._d_tail, d, M) if M > 1 else d
         idx = np.arange(self._next, end)

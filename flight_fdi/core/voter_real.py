@@ -30,8 +30,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import CoreError
-from .voter_align import align_times, estimate_mounting, estimate_time_offsets, \
-    mounting_summary
+from . import voter_linear
+from .voter_align import align_times, correct_mounting, estimate_mounting, \
+    estimate_time_offsets, mounting_summary
 from .voter_core import VoterCore, VoterModel
 from .voting import PAIRS, QUANTITIES, ThresholdTable
 from .voting_calib import bounds_from_samples, segment_curve
@@ -67,8 +68,8 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
                          ks_alpha: float = 0.05, method: str = "auto", n_segments: int = 8,
                          min_segment_s: float = 2.0, min_recordings: int = 5,
                          quantities: Sequence[str] = QUANTITIES, names: Sequence[str] = (),
-                         symmetric: bool = True, baseline: str = "learn"
-                         ) -> tuple[ThresholdTable, dict[str, Any]]:
+                         symmetric: bool = True, baseline: str = "learn",
+                         linear: bool = False) -> tuple[ThresholdTable, dict[str, Any]]:
     """Threshold table from nominal recordings ``[(stamp_ns (T,), P (T, 6, 3)), ...]``."""
     if len(recordings) < 2:
         raise CoreError(f"calibration needs at least 2 recordings, got {len(recordings)}")
@@ -89,10 +90,14 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
         taus.append(tau)
         aligned.append(align_times(P, tau, rate_hz))
     mounting = estimate_mounting(aligned, rate_hz) if estimate_mount else None
+    lin, lin_report = None, {}
+    if linear:
+        lin, lin_report = voter_linear.fit([correct_mounting(A, mounting) for A in aligned],
+                                           rate_hz, quantities)
     model = VoterModel.from_dict({"prefilter": prefilter, "learn_s": learn_s,
                                   "track_tau_s": track_tau_s, "time_offsets_s": None,
                                   "max_lag_s": max_lag_s, "mounting": mounting,
-                                  "baseline": baseline}, "calibration")
+                                  "baseline": baseline, "linear": lin}, "calibration")
     series, offsets = [], []
     for ns, P in recordings:
         t, dev, core = deviations(ns, P, model, window, rate_hz, quantities)
@@ -118,7 +123,7 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
             "ks_alpha": ks_alpha, "method": method, "n_segments": n_segments,
             "min_recordings": min_recordings,
             "time_offsets_s": {n: np.round(tau, 5).tolist() for n, tau in zip(names, taus)},
-            "mounting": mounting_summary(mounting),
+            "mounting": mounting_summary(mounting), "linear": lin_report,
             "offsets": {"mean": off.mean(axis=0), "min": off.min(axis=0),
                         "max": off.max(axis=0)}}
     table = ThresholdTable(tuple(quantities), int(window), float(rate_hz), float(alpha),
