@@ -172,6 +172,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="recordings: offset model -- learn: the first --learn seconds; grow: "
                         "the step detector's baseline, every earlier healthy sample "
                         "(docs/voter_real.md; default learn)")
+    p.add_argument("--no-linear", action="store_true",
+                   help="recordings: no per-pair linear model (lever arm, scale; fitted and "
+                        "kept per quantity where it lowers the held-out residual)")
     p.add_argument("--flights", type=int, default=1000, metavar="N",
                    help="Monte Carlo flights (default 1000, as the seed)")
     p.add_argument("--alpha", type=float, default=0.05,
@@ -308,7 +311,8 @@ def run_bags(args: argparse.Namespace, out: Path, quantities) -> int:
         recs, args.alpha, rate, window=window, prefilter=args.prefilter, learn_s=args.learn,
         track_tau_s=args.track, margin=max(1.0, args.margin), ks_alpha=args.ks_alpha,
         method=args.method, n_segments=args.segments, quantities=quantities,
-        names=[str(b) for b in args.from_bags], baseline=args.baseline)
+        names=[str(b) for b in args.from_bags], baseline=args.baseline,
+        linear=not args.no_linear)
     save_table(table, out)
     info = summary(table, time.perf_counter() - start, str(out))
     info.update({"recordings": len(recs), "time_offsets_s": meta["time_offsets_s"],

@@ -6,6 +6,9 @@ lengths and trajectories, and their units disagree by offsets that change from d
 1. per recording, the time offsets of IMU2 and IMU3 are estimated over the learning phase
    (:func:`flight_fdi.core.voter_align.estimate_time_offsets`), and with them the mounting maps
    are estimated over all recordings together (:func:`~flight_fdi.core.voter_align.estimate_mounting`);
+   With ``linear`` (>= 3 recordings) the per-pair linear model (lever arm, scale factor:
+   :mod:`flight_fdi.core.voter_linear`) is fitted on the aligned, mounting-corrected recordings
+   and kept for the quantities where it lowers the held-out residual;
 2. every recording is run through the voter's own statistic (:class:`VoterCore`: alignment,
    prefilter, window mean, the per-unit offset learnt in the first ``learn_s`` seconds), which
    gives the deviation of each pair from its learnt offset at every sample after the learning;
@@ -69,7 +72,7 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
                          min_segment_s: float = 2.0, min_recordings: int = 5,
                          quantities: Sequence[str] = QUANTITIES, names: Sequence[str] = (),
                          symmetric: bool = True, baseline: str = "learn",
-                         linear: bool = False) -> tuple[ThresholdTable, dict[str, Any]]:
+                         linear: bool = True) -> tuple[ThresholdTable, dict[str, Any]]:
     """Threshold table from nominal recordings ``[(stamp_ns (T,), P (T, 6, 3)), ...]``."""
     if len(recordings) < 2:
         raise CoreError(f"calibration needs at least 2 recordings, got {len(recordings)}")
@@ -91,7 +94,9 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
         aligned.append(align_times(P, tau, rate_hz))
     mounting = estimate_mounting(aligned, rate_hz) if estimate_mount else None
     lin, lin_report = None, {}
-    if linear:
+    if linear and len(recordings) < 3:
+        lin_report = {"skipped": "fewer than 3 recordings"}
+    elif linear:
         lin, lin_report = voter_linear.fit([correct_mounting(A, mounting) for A in aligned],
                                            rate_hz, quantities)
     model = VoterModel.from_dict({"prefilter": prefilter, "learn_s": learn_s,
