@@ -2,6 +2,7 @@
 """Judge the triple-IMU voter on the real recordings (docs/voter_real.md), leave-one-day-out.
 
     .venv/bin/python tools/voter_real_eval.py [DATA_DIR] [--alpha 0.002] [--margin 3] [--json]
+        [--baseline learn|grow] [--no-linear] [--cases LABEL,...]
 
 DATA_DIR (default ../shared/data/mimu_quadrotor) holds <group>/path_N/IMU_1..3.csv.gz. The
 recordings are split into three flight days, told apart by the units' time offsets (straight
@@ -148,8 +149,8 @@ def main() -> int:
     ap.add_argument("--onset", type=float, default=10.0)
     ap.add_argument("--confirm-s", type=float, default=DEFAULT_CONFIRM_S)
     ap.add_argument("--baseline", choices=("learn", "grow"), default="learn")
-    ap.add_argument("--linear", action="store_true",
-                    help="fit the per-pair linear model (core/voter_linear.py) in calibration")
+    ap.add_argument("--no-linear", action="store_true",
+                    help="calibrate without the per-pair linear model (core/voter_linear.py)")
     ap.add_argument("--cases", default="", help="comma-separated substrings of the fault "
                     "labels to run (default all)")
     ap.add_argument("--json", action="store_true")
@@ -160,7 +161,7 @@ def main() -> int:
         return 1
     res = evaluate(load(root), a.alpha, a.margin, a.onset, a.confirm_s,
                    cases=[c for c in a.cases.split(",") if c], baseline=a.baseline,
-                   linear=a.linear)
+                   linear=not a.no_linear)
     print(json.dumps(res, indent=1) if a.json else markdown(res))
     return 0
 
