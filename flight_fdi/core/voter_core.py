@@ -10,13 +10,18 @@ Per matched triple (IMU1..IMU3 samples of one instant; ``P`` rows (6 quantities,
    moving average (removes the vibration near the Nyquist frequency that real units do not share:
    its window sum does not cancel at the window's ends), then the mean of the last N (growing
    until N exist) -- the seed's window mean. With ``prefilter`` 1 it is exactly the seed's.
+   With a ``linear`` section the per-pair linear model (lever arm, scale:
+   :mod:`flight_fdi.core.voter_linear`) is subtracted from the differences first. The moving
+   means are compiled kernels (:mod:`flight_fdi.core.voter_kernel`).
 3. **Per-unit offset model**: real units disagree by constant offsets far larger than a fault.
    Each pair's nominal offset b is the statistic at the end of the **learning phase** (the first
    ``learn_s`` seconds of the flight, no decisions during it); with ``track_tau_s`` > 0 it then
    follows the statistic with a first-order filter of that time constant, frozen whenever a
    quantity is not healthy (a fault is not learnt). The thresholds bound the deviation
    statistic - b, so a constant offset is not a fault and a sudden change is. ``learn_s`` 0:
-   b = 0 (the seed's simulated IMUs, tables without a model).
+   b = 0 (the seed's simulated IMUs, tables without a model). ``baseline`` "grow" (the step
+   detector): b is the mean of every earlier sample admitted while its quantity was healthy
+   (:func:`flight_fdi.core.voter_kernel.step_deviation`).
 4. **Vote**: eps_k = deviation of x_k inside the table's bounds at the flight time, the seed's
    truth table (:func:`flight_fdi.core.voting.vote_array`).
 5. **Persistence** (:class:`Persistence`): a single fault naming IMU k on a quantity for
