@@ -101,7 +101,8 @@ def summarize(core, parts, shift: float, data=None) -> dict[str, Any]:
            "mounting": mounting_summary(core.model.mounting),
            "table": {"alpha": core.table.alpha, "window": core.table.window,
                      "rate_hz": core.table.rate_hz, "learn_s": core.model.learn_s,
-                     "prefilter": core.model.prefilter}}
+                     "prefilter": core.model.prefilter, "baseline": core.model.baseline,
+                     "linear": sorted((core.model.linear or {}).get("coef", {}))}}
     if data is not None:
         out["triples"] = int(data.stamp_ns.size)
         out["dropped"] = {k: v for k, v in data.dropped.items() if v}
@@ -159,6 +160,9 @@ def print_text(res: dict[str, Any]) -> None:
           + ("-" if tau is None else f"{1e3 * tau[1]:.1f} / {1e3 * tau[2]:.1f} ms"))
     for key, m in res["mounting"].items():
         print(f"mounting {key}: rotation {m['rotation_deg']} deg, scale {m['scale_pct']} %")
+    tab = res["table"]
+    print(f"offset baseline: {tab['baseline']}; linear model on: "
+          + (", ".join(tab["linear"]) or "-"))
     print("status (share of decisions): " + ", ".join(
         f"{k} {100 * v:.2f}%" for k, v in res["fraction_by_status"].items()))
     for q, runs in res["timeline"].items():

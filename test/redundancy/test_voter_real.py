@@ -262,6 +262,7 @@ def test_imu_csv_reports_non_increasing_times(tmp_path):
     np.testing.assert_allclose(d.P[1, :, 0], [math.radians(10), 0, 0, 1, 0, 9.8])
 
 
+@pytest.mark.slow
 def test_voter_calibrate_from_bags_cli(tmp_path, bag):
     """The command's plumbing (the same recording five times: a smoke test, not a judgement):
     a table with the model section that vote accepts."""
@@ -275,8 +276,16 @@ def test_voter_calibrate_from_bags_cli(tmp_path, bag):
     model = VoterModel.from_table(table)
     assert model.learn_s == 5.0 and model.time_offsets_s is None and model.prefilter == 12
     assert table.window == 600 and table.alpha == 0.002
+    assert model.baseline == "learn" and model.linear is None or "coef" in model.linear
     r = _cli("vote", bag, "--thresholds", out, "--json")
     assert r.returncode == 0 and json.loads(r.stdout)["isolations"] == []
+    r = _cli("voter-calibrate", out, "--force", "--baseline", "grow", "--no-linear",
+             "--from-bags", *[bag] * 5)
+    assert r.returncode == 0, r.stderr
+    model = VoterModel.from_table(load_table(out))
+    assert model.baseline == "grow" and model.linear is None
+    r = _cli("vote", bag, "--thresholds", out)
+    assert r.returncode == 0 and "offset baseline: grow; linear model on: -" in r.stdout
 
 
 def test_grade_presets_change_the_simulated_errors():
