@@ -80,7 +80,7 @@ def truth_from_flight(flight, inp: Ins3dInput) -> dict[str, np.ndarray]:
     rate = flight.config.trajectory.rate_hz
     idx = np.rint((inp.steps.t - t[0]) * rate).astype(int)
     every = int(idx[1] - idx[0])
-    from ..sim.earth import radii
+    from ..core.earth import radii
     dv = flight.velocity_error()[idx]
     phi = flight.attitude_error()[idx]
     tr, ins = flight.truth.nav, flight.ins

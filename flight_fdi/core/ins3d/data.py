@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...sim.rotation import dcm_array
+from ..rotation import dcm_array
 from ..errors import CoreError
 
 

@@ -15,7 +15,7 @@ State (``STATE_NAMES``; 12, or 15 with ``position=True``)::
     x = [dv_E dv_N dv_U | phi_E phi_N phi_U | ba_x ba_y ba_z | bg_x bg_y bg_z | dp_E dp_N dp_U]
 
 Continuous dynamics, f = f^n the specific force in ENU, w_ie, w_en the Earth and transport
-rates (``sim.earth``), w_in = w_ie + w_en, D dv = dw_en(dv) the transport-rate error of a velocity
+rates (``core.earth``), w_in = w_ie + w_en, D dv = dw_en(dv) the transport-rate error of a velocity
 error, Np dp / Mp dp = the rate errors of a position error (dw_ie + dw_en resp. 2 dw_ie + dw_en)::
 
     dv'  = f x phi + C ba - (2 w_ie + w_en) x dv + v x (D dv + Mp dp) + dg(dh)
@@ -26,7 +26,7 @@ error, Np dp / Mp dp = the rate errors of a position error (dw_ie + dw_en resp. 
 dg = (0, 0, -dg/dh dh) with the derivative of the simulator's normal gravity. In level flight
 (f = (0, 0, g)) the east channel is dv_E' = -g phi_N + (C ba)_E: SPEC §1's V' = -g delta + a.
 
-Bias model per grade (``sim.imu3d.GRADES``, turn-on sigma0, Gauss-Markov sigma, tau): one
+Bias model per grade (``grades.GRADES``, turn-on sigma0, Gauss-Markov sigma, tau): one
 first-order Markov state per axis with the stationary variance sigma0^2 + sigma^2 and the
 short-term wander of the GM part, q = 2 sigma^2 / tau, hence tau_c = tau (sigma0^2 + sigma^2) /
 sigma^2 (a turn-on bias is a very slow Markov process, not a decaying one). Qc: VRW^2 on each
@@ -62,8 +62,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ...sim.earth import A, E2, GE, GF, GK, GM_RATIO, OMEGA_IE, gravity, radii
-from ...sim.imu3d import GRADES, ImuGrade
+from ..earth import A, E2, GE, GF, GK, GM_RATIO, OMEGA_IE, gravity, radii
+from .grades import GRADES, ImuGrade
 from ..errors import CoreError
 
 STATE_NAMES = ("dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u",
@@ -243,7 +243,7 @@ class Ins3dModel:
 
 @njit(cache=True)
 def dgravity_dh(lat, h):
-    """d g / d h of ``sim.earth.gravity`` (1/s^2, negative)."""
+    """d g / d h of ``core.earth.gravity`` (1/s^2, negative)."""
     s2 = math.sin(lat) ** 2
     g0 = GE * (1.0 + GK * s2) / math.sqrt(1.0 - E2 * s2)
     return g0 * (6.0 * h / (A * A) - (2.0 / A) * (1.0 + GF + GM_RATIO - 2.0 * GF * s2))
