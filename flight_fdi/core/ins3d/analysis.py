@@ -1,35 +1,49 @@
-"""``analyze_ins3d``: the 3-D analysis of one flight as far as it goes today -- the forward
-filter with the beta^2 gate and the persistence alarm, and the observability report.
+"""``analyze_ins3d``: the 3-D analysis of one flight -- the forward filter with the beta^2 gate
+and the persistence alarm, the observability report, and after the flight the backward
+information filter, the two-filter chi^2 J with the seed method's localisation and Fisher test,
+and the GLR isolation over the body-axis hypotheses (docs/ins3d.md).
 
-The post-flight parts of issue 15 (backward information filter, two-filter chi^2, body-axis GLR
-isolation) are not here yet (docs/ins3d.md, "What is next").
+``Ins3dAnalysis.post_flight_dict()`` is the ``post_flight`` section of the result
+(``result-v1.schema.json``); the object keeps the time series the figures need (``J``, the GLR
+curves per hypothesis, the smoothed body-axis bias estimates with their sd, the turns).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..diagnosis import DiagnosisConfig, SeedDiagnosis
 from ..kalman import ALARM_RAISED, GateConfig
-from .data import NavSteps, RefRows
+from .data import NavSteps, RefRows, coarsen
 from .filter import Ins3dForward, run_forward
-from .model import Ins3dModel
+from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
+from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
+from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
+from .result3d import post_flight
 
 
 @dataclass
 class Ins3dAnalysis:
     model: Ins3dModel
     forward: Ins3dForward
-    observability: ObservabilityReport
+    observability: ObservabilityReport | None
     manoeuvres: list[tuple[float, float, str]]
+    steps: NavSteps | None = None            # the step grid the passes ran on
+    refs: RefRows | None = None              # the reference updates, sorted
+    backward: Ins3dBackward | None = None
+    seed: SeedDiagnosis | None = None
+    glr: dict[str, GlrCurve] = field(default_factory=dict)
+    isolation: Isolation | None = None
+    thresholds: dict[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
 
     def summary(self) -> dict:
         """Plain numbers for reports and JSON."""
         f = self.forward
         raised = f.t_ref[f.alarm == ALARM_RAISED]
         names = ("east", "north", "up")[:self.model.rows]
-        return {
+        out = {
             "model": "ins3d", "grade": self.model.grade.name, "states": list(self.model.names),
             "updates": int(f.beta2.size), "beta2_mean": float(f.beta2.mean()),
             "beta2_row_mean": dict(zip(names, map(float, f.beta2_row.mean(axis=0)))),
@@ -37,25 +51,78 @@ class Ins3dAnalysis:
             "alarms_raised_s": [float(t) for t in raised],
             "final_state": dict(zip(self.model.names, map(float, f.x[-1]))),
             "final_sd": dict(zip(self.model.names, map(float, f.sd[-1]))),
-            "observability": self.observability.excited_at,
             "manoeuvres": [list(m) for m in self.manoeuvres],
         }
+        if self.observability is not None:
+            out["observability"] = self.observability.excited_at
+        return out
+
+    def post_flight_dict(self, t0: float = 0.0) -> dict:
+        """The ``post_flight`` section (times relative to ``t0``)."""
+        if self.seed is None or self.isolation is None:
+            raise ValueError("analyze_ins3d ran without the post-flight part")
+        return post_flight(self.glr, self.isolation, self.seed, self.thresholds, t0)
+
+    # ---- series for the figures
+    @property
+    def t_J(self) -> np.ndarray:
+        """Times of the chi^2 series (boundaries with reference updates)."""
+        return self.seed.t
+
+    @property
+    def J(self) -> np.ndarray:
+        """Two-filter chi^2 J(t) (its effective dof: ``seed.dof``, bound ``seed.gamma2``)."""
+        return self.seed.J
+
+    def bias_estimates(self) -> dict[str, np.ndarray]:
+        """Smoothed body-axis bias states with their sd (SI) at the update times."""
+        b = self.backward
+        return {"t": b.t, "accelerometer": b.x_s[:, IBA:IBA + 3],
+                "accelerometer_sd": b.sd_s[:, IBA:IBA + 3], "gyro": b.x_s[:, IBG:IBG + 3],
+                "gyro_sd": b.sd_s[:, IBG:IBG + 3]}
+
+    def turns(self) -> list[tuple[float, float]]:
+        return [(a, b) for a, b, kind in self.manoeuvres if kind == "turn"]
 
 
 def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", rows: int = 2,
                   position: bool = False, vertical: str = "damped", latency: bool = True,
                   ref_markov: tuple[float, float, float] | None = (0.02, 0.03, 30.0),
-                  gate: GateConfig = GateConfig(), aligned_prior: bool = True
-                  ) -> Ins3dAnalysis:
-    """Forward filter + observability report of one flight (see ``bagio.ins3d_input`` for the
-    inputs from a bag or a simulated flight)."""
+                  gate: GateConfig = GateConfig(), aligned_prior: bool = True,
+                  post: bool = True, max_dt: float | None = 0.1,
+                  thresholds: dict[str, float] | None = None,
+                  diagnosis: DiagnosisConfig | None = None,
+                  with_observability: bool = True) -> Ins3dAnalysis:
+    """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
+    simulated flight). ``max_dt``: the steps are merged onto the reference grid, at least every
+    ``max_dt`` s (``data.coarsen``; None: the input grid). ``post``: also the post-flight part
+    (backward sweep, seed method, GLR isolation). ``thresholds``: GLR thresholds per kind
+    (default ``glr3d.THRESHOLDS``)."""
     model = Ins3dModel.from_grade(grade, position=position, rows=rows, vertical=vertical,
                                   latency=latency, ref_markov=ref_markov)
+    order = np.argsort(refs.step, kind="stable")
+    refs = RefRows(refs.t[order], np.ascontiguousarray(refs.z[order]),
+                   np.ascontiguousarray(refs.r[order]), refs.step[order],
+                   np.ascontiguousarray(refs.a[order]))
+    turns = manoeuvres(steps)
+    if max_dt is not None:
+        steps, refs = coarsen(steps, refs, max_dt)
     P0 = model.p0_aligned(steps.C[0], steps.f_n[0], float(steps.lat[0])) if aligned_prior \
         else np.diag(model.p0())
-    fwd = run_forward(model, steps, refs, gate=gate, P0=P0)
-    obs = observability(model, steps, refs, P0=P0)
-    return Ins3dAnalysis(model, fwd, obs, manoeuvres(steps))
+    fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post)
+    obs = observability(model, steps, refs, P0=P0) if with_observability else None
+    out = Ins3dAnalysis(model, fwd, obs, turns, steps, refs)
+    if thresholds is not None:
+        out.thresholds.update(thresholds)
+    if not post:
+        return out
+    cfg = diagnosis or DiagnosisConfig()
+    out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
+    out.seed = seed_method(model, out.backward, cfg)
+    out.glr = glr_curves(model, steps, out.backward)
+    out.isolation = isolate(out.glr, out.thresholds)
+    resolve(model, steps, refs, fwd, out.glr, out.isolation)
+    return out
 
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d"]

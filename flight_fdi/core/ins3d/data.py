@@ -101,4 +101,37 @@ def ref_rows(steps: NavSteps, t_ins: np.ndarray, v_ins: np.ndarray, t_ref: np.nd
     return RefRows(t_ref, v_i - v_ref, np.ascontiguousarray(r_ref), step.astype(np.int64), a_i)
 
 
-__all__ = ["NavSteps", "RefRows", "nav_steps", "ref_rows"]
+def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSteps, RefRows]:
+    """The same flight on a coarser step grid: consecutive steps are merged into one between the
+    boundaries that carry reference updates, and at least every ``max_dt`` seconds (a merged
+    step is at most ``max_dt`` plus one original step long). A merged step carries the
+    dt-weighted means of C, f_n, w_b, v, lat and h of its steps: F is linear in them (in v to
+    first order), so the merged step's F is the mean F of its steps and Phi = expm of the
+    integral of F up to the commutators of F over one step (measured in test_backward.py).
+    At 100-Hz INS steps and 10-Hz references this is the 10-Hz grid: ten times fewer
+    covariance propagations."""
+    if not max_dt > 0:
+        raise CoreError("coarsen: max_dt must be > 0")
+    K = len(steps)
+    t = steps.t
+    keep = np.zeros(K + 1, dtype=bool)
+    keep[[0, K]] = True
+    keep[refs.step] = True
+    bins = np.floor((t - t[0]) / max_dt).astype(np.int64)
+    keep[1:] |= bins[1:] != bins[:-1]
+    b = np.flatnonzero(keep)                       # kept boundaries, b[0] = 0, b[-1] = K
+    starts = b[:-1]
+    dt = np.add.reduceat(steps.dt, starts)
+    w = steps.dt
+
+    def mean(y: np.ndarray) -> np.ndarray:
+        yw = y * w.reshape((-1,) + (1,) * (y.ndim - 1))
+        return np.add.reduceat(yw, starts, axis=0) / dt.reshape((-1,) + (1,) * (y.ndim - 1))
+
+    coarse = NavSteps(t[b], dt, np.ascontiguousarray(mean(steps.C)), mean(steps.f_n),
+                      mean(steps.w_b), mean(steps.v), mean(steps.lat), mean(steps.h))
+    step = np.searchsorted(b, refs.step).astype(np.int64)
+    return coarse, RefRows(refs.t, refs.z, refs.r, step, refs.a)
+
+
+__all__ = ["NavSteps", "RefRows", "coarsen", "nav_steps", "ref_rows"]

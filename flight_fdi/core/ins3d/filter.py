@@ -85,7 +85,8 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
 
 @njit(cache=True)
 def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il, im, rows, thr,
-             reject, keep_cov, x_o, sd_o, nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o):
+             reject, keep_cov, keep_prior, x_o, sd_o, nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o,
+             xpr_o, Ppr_o):
     n = s.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
@@ -107,6 +108,11 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il
             P = Phi @ P @ Phi.T + Qd
             P = 0.5 * (P + P.T)
         while j < m and ref_step[j] == k:
+            if keep_prior:
+                for a in range(n):
+                    xpr_o[j, a] = x[a] * s[a]
+                    for b in range(n):
+                        Ppr_o[j, a, b] = P[a, b] * s[a] * s[b]
             _update(x, P, s, z[j], r[j], acc[j], il, im, rows, thr, reject, j, nu_o, S_o,
                     b2_o, b2r_o, exc_o)
             if keep_cov:
@@ -138,6 +144,8 @@ class Ins3dForward:
     threshold: float
     threshold_row: float
     P_post: np.ndarray | None = None   # (M, n, n) posterior covariances (keep_cov)
+    x_prior: np.ndarray | None = None  # (M, n) state before each update (keep_prior)
+    P_prior: np.ndarray | None = None  # (M, n, n) its covariance (keep_prior)
 
 
 def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
@@ -151,8 +159,11 @@ def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
 
 def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                 gate: GateConfig = GateConfig(), x0: np.ndarray | None = None,
-                P0: np.ndarray | None = None, keep_cov: bool = False) -> Ins3dForward:
-    """Filter the whole flight (x0 default 0, P0 default diag(model.p0()))."""
+                P0: np.ndarray | None = None, keep_cov: bool = False,
+                keep_prior: bool = False) -> Ins3dForward:
+    """Filter the whole flight (x0 default 0, P0 default diag(model.p0())); ``keep_cov``
+    keeps the posterior covariance of every update, ``keep_prior`` the state and covariance
+    before every update (what the two-filter combination and GLR need)."""
     n, rows = model.n, model.rows
     p0 = model.p0()
     P0 = np.diag(p0) if P0 is None else np.asarray(P0, dtype=float)
@@ -167,16 +178,18 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     nu, S = np.empty((m, rows)), np.empty((m, rows, rows))
     b2, b2r, exc = np.empty(m), np.empty((m, rows)), np.zeros(m, dtype=np.bool_)
     Pp = np.empty((m if keep_cov else 0, n, n))
+    xpr, Ppr = np.empty((m if keep_prior else 0, n)), np.empty((m if keep_prior else 0, n, n))
     thr, thr_row = gate.threshold(rows), gate.threshold(1)
     order = np.argsort(refs.step, kind="stable")
     _forward(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, model.kernel_params(),
              model.qc(), s, x0, P0, refs.step[order], np.ascontiguousarray(refs.z[order]),
              white_variance(model, refs.r[order]), np.ascontiguousarray(refs.a[order]),
              model.il, model.im if model.n_markov else 0, rows, thr, gate.action == "reject",
-             keep_cov, x_o, sd_o, nu, S, b2, b2r, exc, Pp)
+             keep_cov, keep_prior, x_o, sd_o, nu, S, b2, b2r, exc, Pp, xpr, Ppr)
     return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,
                         b2r > thr_row, alarm_states(exc, gate), thr, thr_row,
-                        Pp if keep_cov else None)
+                        Pp if keep_cov else None, xpr if keep_prior else None,
+                        Ppr if keep_prior else None)
 
 
 __all__ = ["Ins3dForward", "run_forward", "scaled_H", "white_variance"]

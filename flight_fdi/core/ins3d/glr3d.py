@@ -1,0 +1,199 @@
+"""GLR isolation over the body-axis hypotheses of the ins3d model.
+
+Hypotheses (``hypotheses``): accelerometer and gyro x / y / z bias *step* and *ramp* (body axes),
+reference *jump* per row (east, north, up), reference *outliers* per row. Every onset is a
+boundary with reference updates; the statistics of all onsets come from one backward sweep
+(``backward.py``): for the direction tau of a hypothesis in the fault vector,
+
+    GLR(theta) = (tau' eta)^2 / (tau' I tau),   b^ = tau' eta / tau' I tau,
+    sd(b^) = 1 / sqrt(tau' I tau)
+
+(a step or a jump: tau = the unit vector of its column; a ramp r (t - theta): tau = e_r -
+(theta~ / T) e_a in the scaled columns). Per hypothesis the maximum over the onsets, the onset,
+its profile-likelihood 95 % interval (onsets within 3.84 of the maximum, contiguous around it),
+the magnitude and its sd.
+
+Decision (``isolate``), per hypothesis kind a threshold (``THRESHOLDS``, calibrated on nominal
+simulated flights, docs/ins3d.md):
+
+* no step / ramp / jump above its threshold: outliers above theirs -> ``single`` (a glitch), else
+  ``none``;
+* else the best one; the best hypothesis naming *another* (sensor, axis) is its rival: closer
+  than ``margin`` (default 2 ln 100 = 9.21, a likelihood ratio of 100) -> ``ambiguous``, both
+  named; else ``single``, with the time the ambiguity resolved: the first time t from which the
+  GLR gap computed with the data up to t (``signature.signature_stats``, each at its own onset)
+  stays above the margin -- on a straight leg a gyro and an accelerometer error can look alike
+  until a turn.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .backward import GROUP_START, REF
+
+IMU_AXES = ("x", "y", "z")
+REF_AXES = ("east", "north", "up")
+AMBIGUITY_MARGIN = 2.0 * math.log(100.0)
+#: thresholds of the maximum GLR over the onsets per hypothesis kind (docs/ins3d.md,
+#: "Thresholds": calibrated on nominal simulated flights with scale factors, misalignment,
+#: correlated GNSS and latency)
+THRESHOLDS = {"step": 60.0, "ramp": 60.0, "jump": 60.0, "outliers": 45.0}
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    name: str          # e.g. "gyro_x_step"
+    sensor: str        # accelerometer | gyro | reference
+    axis: str          # x | y | z (IMU, body) or east | north | up (reference)
+    kind: str          # step | ramp | jump | outliers
+    column: int        # its column of the fault vector (a ramp: the rate's; outliers: the row)
+
+    @property
+    def unit(self) -> str:
+        return {("accelerometer", "step"): "m/s^2", ("accelerometer", "ramp"): "m/s^3",
+                ("gyro", "step"): "rad/s", ("gyro", "ramp"): "rad/s^2"}.get(
+            (self.sensor, self.kind), "m/s")
+
+    @property
+    def element(self) -> str:
+        """The state (or measurement) element the hypothesis acts on."""
+        if self.sensor == "reference":
+            return "dv_" + self.axis[0]
+        return ("ba_" if self.sensor == "accelerometer" else "bg_") + self.axis
+
+
+def hypotheses(rows: int) -> list[Hypothesis]:
+    out = []
+    for sensor, g in (("accelerometer", 0), ("gyro", 1)):
+        for c, ax in enumerate(IMU_AXES):
+            out.append(Hypothesis(f"{sensor}_{ax}_step", sensor, ax, "step", GROUP_START[g] + c))
+            out.append(Hypothesis(f"{sensor}_{ax}_ramp", sensor, ax, "ramp",
+                                  GROUP_START[g] + 3 + c))
+    for i in range(rows):
+        out.append(Hypothesis(f"reference_{REF_AXES[i]}_jump", "reference", REF_AXES[i], "jump",
+                              REF + i))
+    for i in range(rows):
+        out.append(Hypothesis(f"reference_{REF_AXES[i]}_outliers", "reference", REF_AXES[i],
+                              "outliers", i))
+    return out
+
+
+@dataclass
+class GlrCurve:
+    """One hypothesis over its onsets (outliers: over the updates)."""
+
+    hypothesis: Hypothesis
+    t: np.ndarray          # onset times
+    stat: np.ndarray       # GLR(theta)
+    mag: np.ndarray        # b^(theta), SI (reference: the offset of z = v_INS - v_ref)
+    sd: np.ndarray         # its sd
+
+    @property
+    def best(self) -> int:
+        return int(np.argmax(self.stat)) if self.stat.size else -1
+
+    @property
+    def statistic(self) -> float:
+        return float(self.stat.max()) if self.stat.size else 0.0
+
+    def onset_interval(self, drop: float = 3.84) -> tuple[float, float] | None:
+        k = self.best
+        if k < 0:
+            return None
+        ok = self.stat >= self.stat[k] - drop
+        a = k
+        while a > 0 and ok[a - 1]:
+            a -= 1
+        b = k
+        while b < ok.size - 1 and ok[b + 1]:
+            b += 1
+        return float(self.t[a]), float(self.t[b])
+
+
+def _direction(eta, I3, g, c_a, c_r, alpha):
+    """(tau' eta, tau' I tau) over the onsets for tau = e_r - alpha e_a (alpha per onset; a step:
+    c_r = -1)."""
+    if c_r < 0:
+        return eta[:, GROUP_START[g] + c_a], I3[:, g, c_a, c_a]
+    e = eta[:, GROUP_START[g] + c_r] - alpha * eta[:, GROUP_START[g] + c_a]
+    i = (I3[:, g, c_r, c_r] - 2.0 * alpha * I3[:, g, c_a, c_r]
+         + alpha * alpha * I3[:, g, c_a, c_a])
+    return e, i
+
+
+def curves(hyps: list[Hypothesis], t_onset: np.ndarray, t_start: float, duration: float,
+           eta: np.ndarray, I3: np.ndarray, sB: np.ndarray, t_upd: np.ndarray,
+           oe: np.ndarray, oI: np.ndarray) -> dict[str, GlrCurve]:
+    """GLR curves of every hypothesis from the sweep's per-onset eta (U, pB), I3 (U, 3, 6, 6)
+    and per-update outlier information oe (M, rows), oI (M, rows, rows)."""
+    alpha = (t_onset - t_start) / duration
+    out = {}
+    for h in hyps:
+        if h.kind == "outliers":
+            i = h.column
+            info = oI[:, i, i]
+            e = oe[:, i]
+            t, scale = t_upd, 1.0
+        else:
+            g = 2 if h.sensor == "reference" else (0 if h.sensor == "accelerometer" else 1)
+            c = h.column - GROUP_START[g]
+            e, info = _direction(eta, I3, g, c % 3 if h.kind == "ramp" else c,
+                                 c if h.kind == "ramp" else -1, alpha)
+            t, scale = t_onset, sB[h.column]
+        ok = info > 1e-12 * max(float(np.max(np.abs(info))) if info.size else 0.0, 1e-300)
+        safe = np.where(ok, info, 1.0)
+        stat = np.where(ok, e * e / safe, 0.0)
+        mag = np.where(ok, e / safe, np.nan) * scale
+        sd = np.where(ok, 1.0 / np.sqrt(safe), np.nan) * scale
+        out[h.name] = GlrCurve(h, t, stat, mag, sd)
+    return out
+
+
+@dataclass
+class Isolation:
+    """The decision (module docstring)."""
+
+    isolation: str                   # none | single | ambiguous
+    best: str | None                 # hypothesis name
+    rival: str | None                # the best hypothesis of another (sensor, axis)
+    outliers: int                    # updates whose outlier statistic exceeds its threshold
+    ambiguity_resolved_s: float | None = None
+    gap: np.ndarray | None = None    # (M,) GLR gap best - rival with the data up to t_j
+
+
+def isolate(cv: dict[str, GlrCurve], thresholds: dict[str, float],
+            margin: float = AMBIGUITY_MARGIN) -> Isolation:
+    main = [c for c in cv.values() if c.hypothesis.kind != "outliers"]
+    outl = [c for c in cv.values() if c.hypothesis.kind == "outliers"]
+    n_out = int(sum(np.sum(c.stat > thresholds["outliers"]) for c in outl))
+    det = [c for c in main if c.statistic > thresholds[c.hypothesis.kind]]
+    if not det:
+        if n_out:
+            top = max(outl, key=lambda c: c.statistic)
+            return Isolation("single", top.hypothesis.name, None, n_out)
+        return Isolation("none", None, None, n_out)
+    best = max(det, key=lambda c: c.statistic)
+    hb = best.hypothesis
+    others = [c for c in main if (c.hypothesis.sensor, c.hypothesis.axis) != (hb.sensor, hb.axis)]
+    rival = max(others, key=lambda c: c.statistic) if others else None
+    if rival is not None and best.statistic - rival.statistic < margin:
+        return Isolation("ambiguous", hb.name, rival.hypothesis.name, n_out)
+    return Isolation("single", hb.name, None if rival is None else rival.hypothesis.name, n_out)
+
+
+def resolved_time(t_upd: np.ndarray, gap: np.ndarray, margin: float = AMBIGUITY_MARGIN
+                  ) -> float | None:
+    """The first update time from which the gap stays above the margin (None: never)."""
+    below = np.flatnonzero(~(gap >= margin))
+    if below.size == 0:
+        return float(t_upd[0]) if t_upd.size else None
+    if below[-1] == gap.size - 1:
+        return None
+    return float(t_upd[below[-1] + 1])
+
+
+__all__ = ["AMBIGUITY_MARGIN", "GlrCurve", "Hypothesis", "IMU_AXES", "Isolation", "REF_AXES",
+           "THRESHOLDS", "curves", "hypotheses", "isolate", "resolved_time"]

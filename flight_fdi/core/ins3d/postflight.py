@@ -1,0 +1,144 @@
+"""The post-flight part of the ins3d analysis: the backward sweep over the forward pass, the
+seed method (chi^2 J with effective dof, UDU^T / LDL^T localisation, Fisher test: the single-axis
+``core.diagnosis.diagnose`` on the sweep's terms), the GLR curves and the isolation
+(``glr3d``), and the ``post_flight`` result in the form of ``result-v1.schema.json``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+
+from ..diagnosis import DiagnosisConfig, SeedDiagnosis, diagnose
+from ..errors import CoreError
+from ..ldl import localization
+from .backward import ACC_A, ACC_R, GYR_A, GYR_R, REF, backward_sweep
+from .data import NavSteps, RefRows
+from .filter import Ins3dForward, white_variance
+from .glr3d import (AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, isolate,
+                    resolved_time)
+from .model import IBA, IBG, Ins3dModel
+from .signature import signature_stats
+
+
+@dataclass
+class Ins3dBackward:
+    """The backward sweep per reference update (sorted), physical units."""
+
+    t: np.ndarray            # (M,) update times
+    x_s: np.ndarray          # (M, n) smoothed state at the update's boundary
+    sd_s: np.ndarray         # (M, n) its sd
+    terms: np.ndarray        # (M, n) cumulative element terms J(i/k)
+    dof: np.ndarray          # (M, n) their effective degrees of freedom
+    normalized: np.ndarray   # (M, n)
+    v_tilde: np.ndarray      # (M, n)
+    d: np.ndarray            # (M, n)
+    eta: np.ndarray          # (M, pB) fault information vector (scaled fault columns)
+    I3: np.ndarray           # (M, 3, 6, 6) its information, group blocks
+    oe: np.ndarray           # (M, rows) outlier information vector
+    oI: np.ndarray           # (M, rows, rows)
+    sB: np.ndarray           # (pB,) scales of the fault columns (SI per scaled unit)
+    first: np.ndarray        # (U,) first update of every boundary with updates (the onsets)
+
+
+def fault_scales(model: Ins3dModel, duration: float) -> np.ndarray:
+    """SI per scaled unit of every fault column: the grade's bias sigma for a step, that over
+    the flight's duration for a ramp, 0.1 m/s for a reference offset."""
+    s = np.sqrt(model.p0())
+    sB = np.empty(REF + model.rows)
+    sB[ACC_A:ACC_A + 3] = s[IBA:IBA + 3]
+    sB[ACC_R:ACC_R + 3] = s[IBA:IBA + 3] / duration
+    sB[GYR_A:GYR_A + 3] = s[IBG:IBG + 3]
+    sB[GYR_R:GYR_R + 3] = s[IBG:IBG + 3] / duration
+    sB[REF:] = 0.1
+    return sB
+
+
+def _kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
+    return (steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt,
+            np.ascontiguousarray(steps.t[:-1] - steps.t[0]), model.kernel_params(), model.qc(),
+            np.sqrt(model.p0()), fault_scales(model, float(steps.t[-1] - steps.t[0])),
+            refs.step)
+
+
+def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+                 rank_tol: float) -> Ins3dBackward:
+    """The backward sweep (``refs`` sorted by step, ``fwd`` run with keep_prior=True)."""
+    if fwd.P_prior is None:
+        raise CoreError("ins3d backward: the forward pass must keep its priors (keep_prior)")
+    n, rows, m = model.n, model.rows, refs.t.size
+    args = _kernel_args(model, steps, refs)
+    sB = args[10]
+    x_s, sd_s, terms, norm, vt, d = (np.empty((m, n)) for _ in range(6))
+    dof = np.empty((m, n), dtype=np.int64)
+    eta, I3 = np.empty((m, sB.size)), np.zeros((m, 3, 6, 6))
+    oe, oI = np.empty((m, rows)), np.empty((m, rows, rows))
+    k, code = backward_sweep(*args, np.ascontiguousarray(refs.z),
+                             white_variance(model, refs.r), np.ascontiguousarray(refs.a),
+                             model.il, model.im if model.n_markov else 0, rows, fwd.x_prior,
+                             fwd.P_prior, rank_tol, x_s, sd_s, terms, dof, norm, vt, d, eta, I3,
+                             oe, oI)
+    if code:
+        raise CoreError(f"ins3d backward: {'I + Y Q' if code == 1 else 'the combination'} "
+                        f"is singular at t = {steps.t[k]:.3f} s")
+    first = np.flatnonzero(np.r_[True, refs.step[1:] != refs.step[:-1]]) if m else \
+        np.zeros(0, dtype=np.int64)
+    return Ins3dBackward(refs.t, x_s, sd_s, terms, dof, norm, vt, d, eta, I3, oe, oI, sB, first)
+
+
+def seed_method(model: Ins3dModel, bwd: Ins3dBackward, config: DiagnosisConfig
+                ) -> SeedDiagnosis:
+    """The single-axis seed method (``diagnose``) on the sweep's element terms, one sample per
+    boundary with updates."""
+    f = bwd.first
+    loc = localization(bwd.v_tilde[f], bwd.d[f], bwd.terms[f], bwd.dof[f], bwd.normalized[f])
+    t = bwd.t[f]
+    return diagnose(SimpleNamespace(n=model.n, state_names=list(model.names)),
+                    SimpleNamespace(t=t), SimpleNamespace(t=t, rank_tol=config.rank_tol,
+                                                          localization=loc), config)
+
+
+def glr_curves(model: Ins3dModel, steps: NavSteps, bwd: Ins3dBackward) -> dict[str, GlrCurve]:
+    f = bwd.first
+    return curves(hypotheses(model.rows), bwd.t[f], float(steps.t[0]),
+                  float(steps.t[-1] - steps.t[0]), bwd.eta[f], bwd.I3[f], bwd.sB, bwd.t,
+                  bwd.oe, bwd.oI)
+
+
+def direction(model: Ins3dModel, cv: GlrCurve, t_start: float, duration: float) -> np.ndarray:
+    """tau (pB,) of a hypothesis at its best onset (a ramp: e_r - (theta~ / T) e_a)."""
+    tau = np.zeros(REF + model.rows)
+    h = cv.hypothesis
+    tau[h.column] = 1.0
+    if h.kind == "ramp":
+        tau[h.column - 3] = -(cv.t[cv.best] - t_start) / duration
+    return tau
+
+
+def data_up_to(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+               cv: GlrCurve) -> np.ndarray:
+    """GLR(t) of a hypothesis at its best onset with the data up to every update (M,)."""
+    args = _kernel_args(model, steps, refs)
+    k0 = int(np.searchsorted(steps.t, cv.t[cv.best] - 1e-9))
+    e, d = np.zeros(refs.t.size), np.zeros(refs.t.size)
+    tau = direction(model, cv, float(steps.t[0]), float(steps.t[-1] - steps.t[0]))
+    signature_stats(*args, np.ascontiguousarray(refs.a), model.il,
+                    model.im if model.n_markov else 0, model.rows, fwd.P_prior, fwd.S, fwd.nu,
+                    k0, tau, e, d)
+    return np.where(d > 0, e * e / np.where(d > 0, d, 1.0), 0.0)
+
+
+def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+            cv: dict[str, GlrCurve], iso: Isolation) -> None:
+    """Fill ``iso.gap`` and ``iso.ambiguity_resolved_s`` for a single IMU/jump isolation."""
+    if iso.isolation != "single" or iso.rival is None or cv[iso.best].hypothesis.kind == \
+            "outliers":
+        return
+    iso.gap = data_up_to(model, steps, refs, fwd, cv[iso.best]) - \
+        data_up_to(model, steps, refs, fwd, cv[iso.rival])
+    iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
+
+
+__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "glr_curves",
+           "resolve", "run_backward", "seed_method"]

@@ -1,0 +1,150 @@
+"""The ``post_flight`` section of the result (``flight_fdi/schema/result-v1.schema.json``) for the
+ins3d model, in the single-axis form (``core.result``: the same fault record, engineering units
+and headline), plus ``ambiguity_resolved_s``.
+
+Verdict: a single step / ramp / jump -> ``failure`` with ``fault``; outliers only -> ``glitch``;
+ambiguous -> ``ambiguous`` with both ``candidates`` and ``fault`` null; no GLR detection -> the
+seed method's verdict (as the single-axis analysis), no sensor named.
+"""
+from __future__ import annotations
+
+from ..diagnosis import SeedDiagnosis
+from ..result import ENGINEERING, _num, describe
+from .glr3d import GlrCurve, Isolation
+
+
+def _rel(x: float | None, t0: float) -> float | None:
+    return None if x is None else _num(x - t0)
+
+
+def fault_record(cv: dict[str, GlrCurve], name: str, thresholds: dict[str, float], t0: float,
+                 runner_up: str | None, outliers: int = 0) -> dict:
+    """One fault (``$defs/fault``): magnitude signed as the sensor's error (a reference jumping
+    by +d reads +d, although the offset of z = v_INS - v_ref is -d)."""
+    c = cv[name]
+    h = c.hypothesis
+    k = c.best
+    sign = -1.0 if h.sensor == "reference" else 1.0
+    mag = sign * float(c.mag[k])
+    unit_eng, factor = ENGINEERING.get((h.sensor, h.kind), (h.unit, 1.0))
+    onset, end, count = float(c.t[k]), None, None
+    interval = c.onset_interval()
+    if h.kind == "outliers":
+        above = c.t[c.stat > thresholds["outliers"]]
+        count = max(int(above.size), 1)
+        if above.size:
+            onset, end = float(above.min()), float(above.max())
+        else:
+            end = onset
+        interval = None
+    return {
+        "sensor": h.sensor, "axis": h.axis, "kind": h.kind, "hypothesis": name,
+        "onset_s": _rel(onset, t0),
+        "onset_interval_s": None if interval is None else [_rel(interval[0], t0),
+                                                           _rel(interval[1], t0)],
+        "end_s": _rel(end, t0), "count": count if h.kind == "outliers" else None,
+        "magnitude": _num(mag), "unit": h.unit,
+        "magnitude_eng": _num(mag * factor), "unit_eng": unit_eng,
+        "magnitude_std": _num(c.sd[k]),
+        "statistic": float(c.statistic), "threshold": float(thresholds[h.kind]),
+        "runner_up": None if runner_up is None else {
+            "hypothesis": runner_up, "statistic": float(cv[runner_up].statistic)},
+    }
+
+
+def _top(cv: dict[str, GlrCurve], iso: Isolation) -> str:
+    if iso.best is not None:
+        return iso.best
+    return max((c for c in cv.values() if c.hypothesis.kind != "outliers"),
+               key=lambda c: c.statistic).hypothesis.name
+
+
+def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0) -> dict:
+    if seed.verdict == "insufficient_data":
+        return {"verdict": "insufficient_data", "fault": None, "candidates": [],
+                "headline": "insufficient data for the analysis", "element": None,
+                "onset_s": None, "magnitude": None}
+    if iso.isolation == "single":
+        f = fault_record(cv, iso.best, thresholds, t0, iso.rival, iso.outliers)
+        head = describe(f)
+        if iso.ambiguity_resolved_s is not None and iso.rival is not None:
+            head += (f" (told from {cv[iso.rival].hypothesis.sensor} "
+                     f"{cv[iso.rival].hypothesis.axis} from {iso.ambiguity_resolved_s - t0:.0f} s)")
+        return {"verdict": "glitch" if f["kind"] == "outliers" else "failure", "fault": f,
+                "candidates": [], "headline": head, "element": cv[iso.best].hypothesis.element,
+                "onset_s": f["onset_s"], "magnitude": f["magnitude"]}
+    if iso.isolation == "ambiguous":
+        cands = [fault_record(cv, iso.best, thresholds, t0, iso.rival),
+                 fault_record(cv, iso.rival, thresholds, t0, iso.best)]
+        a, b = (c["statistic"] for c in cands)
+        head = ("ambiguous: " + " or ".join(describe(c) for c in cands)
+                + f" (statistics {a:.4g} and {b:.4g}, within the margin: the flight does not "
+                "separate them, e.g. a straight leg without a turn)")
+        return {"verdict": "ambiguous", "fault": None, "candidates": cands, "headline": head,
+                "element": None, "onset_s": None, "magnitude": None}
+    verdict = seed.verdict
+    head = ("no fault" if verdict == "no_fault" else
+            f"{verdict} in the seed method (element {seed.element}); GLR finds no fault above "
+            "its threshold, so no sensor is named")
+    return {"verdict": verdict, "fault": None, "candidates": [], "headline": head,
+            "element": seed.element, "onset_s": _rel(seed.onset_t, t0), "magnitude": None}
+
+
+def _disagreement(seed: SeedDiagnosis, glr_element: str | None, top: GlrCurve,
+                  threshold: float) -> str | None:
+    if seed.element == glr_element:
+        return None
+    if seed.element is None:
+        return (f"the seed method finds no lasting chi-square episode, GLR's "
+                f"{top.hypothesis.name} is above its threshold: GLR tests the fault's shape")
+    if glr_element is None:
+        return (f"the seed method flags {seed.element}, GLR finds no fault above its threshold "
+                f"({top.statistic:.4g} <= {threshold:.4g}): a short or unmodelled "
+                "disturbance, not a sensor fault GLR can name")
+    return (f"the seed method's UDU^T split names {seed.element}, the first element of its "
+            f"order whose term exceeds the bound; GLR compares the fault shapes and names "
+            f"{glr_element}")
+
+
+def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
+                thresholds: dict[str, float], t0: float = 0.0) -> dict:
+    """The ``post_flight`` dict (times relative to ``t0``)."""
+    dec = _decision(cv, iso, seed, thresholds, t0)
+    top = cv[_top(cv, iso)]
+    glr_elem = top.hypothesis.element if iso.isolation == "single" else None
+    interval = top.onset_interval()
+    k = top.best
+    return {
+        "verdict": dec["verdict"], "headline": dec["headline"], "fault": dec["fault"],
+        "candidates": dec["candidates"], "isolation": iso.isolation,
+        "element": dec["element"], "onset_s": dec["onset_s"], "magnitude": dec["magnitude"],
+        "methods_agree": bool(seed.element == glr_elem),
+        "disagreement": _disagreement(seed, glr_elem, top, thresholds[top.hypothesis.kind]),
+        "ambiguity_resolved_s": _rel(iso.ambiguity_resolved_s, t0),
+        "seed_method": {
+            "verdict": seed.verdict, "element": seed.element,
+            "onset_s": _rel(seed.onset_t, t0),
+            "elements": [{"name": e.name, "J_peak": _num(e.J_peak), "gamma2": _num(e.gamma2),
+                          "F_peak": _num(e.F_peak), "eta2": _num(e.eta2),
+                          "exceed_fraction": float(e.exceed_fraction), "dof": int(e.dof)}
+                         for e in seed.elements]},
+        "glr": {
+            "hypothesis": top.hypothesis.name,
+            "onset_s": _rel(float(top.t[k]), t0),
+            "onset_interval_s": None if interval is None else [_rel(interval[0], t0),
+                                                               _rel(interval[1], t0)],
+            "magnitude": _num(top.mag[k]), "unit": top.hypothesis.unit,
+            "statistic": float(top.statistic),
+            "threshold": float(thresholds[top.hypothesis.kind]),
+            "isolation": iso.isolation, "runner_up": iso.rival,
+            "runner_up_statistic": float(cv[iso.rival].statistic) if iso.rival else 0.0,
+            "residual": None,
+            "statistics": {n: float(c.statistic) for n, c in cv.items()},
+            "thresholds": {k_: float(v) for k_, v in thresholds.items()},
+            "outliers_above_threshold": int(iso.outliers),
+            "ambiguity_resolved_s": _rel(iso.ambiguity_resolved_s, t0)},
+    }
+
+
+__all__ = ["fault_record", "post_flight"]
+
