@@ -117,8 +117,10 @@ def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSte
     keep = np.zeros(K + 1, dtype=bool)
     keep[[0, K]] = True
     keep[refs.step] = True
-    bins = np.floor((t - t[0]) / max_dt).astype(np.int64)
-    keep[1:] |= bins[1:] != bins[:-1]
+    # between two update boundaries further apart than max_dt: one more every max_dt
+    last = np.maximum.accumulate(np.where(keep, np.arange(K + 1), 0))
+    bins = np.floor((t - t[last]) / max_dt + 1e-9).astype(np.int64)
+    keep[1:] |= (bins[1:] != bins[:-1]) & (last[1:] == last[:-1])
     b = np.flatnonzero(keep)                       # kept boundaries, b[0] = 0, b[-1] = K
     starts = b[:-1]
     dt = np.add.reduceat(steps.dt, starts)

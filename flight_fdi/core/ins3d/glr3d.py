@@ -18,7 +18,9 @@ simulated flights, docs/ins3d.md):
 
 * no step / ramp / jump above its threshold: outliers above theirs -> ``single`` (a glitch), else
   ``none``;
-* else the best one; the best hypothesis naming *another* (sensor, axis) is its rival: closer
+* else the best one (a step rather than a ramp of the same sensor and axis unless the ramp's
+  statistic is larger by the margin: over a short span after the onset the two shapes are
+  alike); the best hypothesis naming *another* (sensor, axis) is its rival: closer
   than ``margin`` (default 2 ln 100 = 9.21, a likelihood ratio of 100) -> ``ambiguous``, both
   named; else ``single``, with the time the ambiguity resolved: the first time t from which the
   GLR gap computed with the data up to t (``signature.signature_stats``, each at its own onset)
@@ -177,6 +179,9 @@ def isolate(cv: dict[str, GlrCurve], thresholds: dict[str, float],
         return Isolation("none", None, None, n_out)
     best = max(det, key=lambda c: c.statistic)
     hb = best.hypothesis
+    step = cv.get(hb.name.replace("_ramp", "_step")) if hb.kind == "ramp" else None
+    if step is not None and step in det and step.statistic > best.statistic - margin:
+        best, hb = step, step.hypothesis        # the simpler shape unless the ramp is clear
     others = [c for c in main if (c.hypothesis.sensor, c.hypothesis.axis) != (hb.sensor, hb.axis)]
     rival = max(others, key=lambda c: c.statistic) if others else None
     if rival is not None and best.statistic - rival.statistic < margin:
