@@ -14,10 +14,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..diagnosis import DiagnosisConfig, SeedDiagnosis
+from ..errors import CoreError
 from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .filter import Ins3dForward, run_forward
-from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
+from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, thresholds_for
 from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
@@ -60,7 +61,7 @@ class Ins3dAnalysis:
     def post_flight_dict(self, t0: float = 0.0) -> dict:
         """The ``post_flight`` section (times relative to ``t0``)."""
         if self.seed is None or self.isolation is None:
-            raise ValueError("analyze_ins3d ran without the post-flight part")
+            raise CoreError("analyze_ins3d ran without the post-flight part (post=False)")
         return post_flight(self.glr, self.isolation, self.seed, self.thresholds, t0)
 
     # ---- series for the figures
@@ -75,11 +76,27 @@ class Ins3dAnalysis:
         return self.seed.J
 
     def bias_estimates(self) -> dict[str, np.ndarray]:
-        """Smoothed body-axis bias states with their sd (SI) at the update times."""
+        """At the update times (SI): the smoothed body-axis bias states of the no-fault model
+        with their sd (``accelerometer``, ``gyro``, ``*_sd``: the slow bias model follows a
+        step only partly) and the isolated fault's profile per axis (``*_fault``: the GLR step
+        or ramp from its onset, zero elsewhere and without an isolated IMU fault)."""
         b = self.backward
-        return {"t": b.t, "accelerometer": b.x_s[:, IBA:IBA + 3],
-                "accelerometer_sd": b.sd_s[:, IBA:IBA + 3], "gyro": b.x_s[:, IBG:IBG + 3],
-                "gyro_sd": b.sd_s[:, IBG:IBG + 3]}
+        out = {"t": b.t, "accelerometer": b.x_s[:, IBA:IBA + 3],
+               "accelerometer_sd": b.sd_s[:, IBA:IBA + 3], "gyro": b.x_s[:, IBG:IBG + 3],
+               "gyro_sd": b.sd_s[:, IBG:IBG + 3],
+               "accelerometer_fault": np.zeros((b.t.size, 3)),
+               "gyro_fault": np.zeros((b.t.size, 3))}
+        iso = self.isolation
+        if iso is not None and iso.isolation == "single":
+            c = self.glr[iso.best]
+            h = c.hypothesis
+            if h.sensor in ("accelerometer", "gyro"):
+                t0, m = float(c.t[c.best]), float(c.mag[c.best])
+                on = b.t >= t0
+                shape = np.where(on, 1.0, 0.0) if h.kind == "step" else \
+                    np.where(on, b.t - t0, 0.0)
+                out[h.sensor + "_fault"][:, "xyz".index(h.axis)] = m * shape
+        return out
 
     def turns(self) -> list[tuple[float, float]]:
         return [(a, b) for a, b, kind in self.manoeuvres if kind == "turn"]
@@ -97,7 +114,7 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
     simulated flight). ``max_dt``: the steps are merged onto the reference grid, at least every
     ``max_dt`` s (``data.coarsen``; None: the input grid). ``post``: also the post-flight part
     (backward sweep, seed method, GLR isolation). ``thresholds``: GLR thresholds per kind
-    (default ``glr3d.THRESHOLDS``)."""
+    (default: the grade's, ``glr3d.thresholds_for``)."""
     model = Ins3dModel.from_grade(grade, position=position, rows=rows, vertical=vertical,
                                   latency=latency, ref_markov=ref_markov)
     order = np.argsort(refs.step, kind="stable")
@@ -111,7 +128,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
         else np.diag(model.p0())
     fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post)
     obs = observability(model, steps, refs, P0=P0) if with_observability else None
-    out = Ins3dAnalysis(model, fwd, obs, turns, steps, refs)
+    out = Ins3dAnalysis(model, fwd, obs, turns, steps, refs,
+                        thresholds=thresholds_for(model.grade.name))
     if thresholds is not None:
         out.thresholds.update(thresholds)
     if not post:

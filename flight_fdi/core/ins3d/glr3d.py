@@ -13,8 +13,8 @@ boundary with reference updates; the statistics of all onsets come from one back
 its profile-likelihood 95 % interval (onsets within 3.84 of the maximum, contiguous around it),
 the magnitude and its sd.
 
-Decision (``isolate``), per hypothesis kind a threshold (``THRESHOLDS``, calibrated on nominal
-simulated flights, docs/ins3d.md):
+Decision (``isolate``), per IMU grade and hypothesis kind a threshold (``THRESHOLDS_BY_GRADE``,
+calibrated on nominal simulated flights, docs/ins3d.md):
 
 * no step / ramp / jump above its threshold: outliers above theirs -> ``single`` (a glitch), else
   ``none``;
@@ -39,10 +39,22 @@ from .backward import GROUP_START, REF
 IMU_AXES = ("x", "y", "z")
 REF_AXES = ("east", "north", "up")
 AMBIGUITY_MARGIN = 2.0 * math.log(100.0)
-#: thresholds of the maximum GLR over the onsets per hypothesis kind (docs/ins3d.md,
-#: "Thresholds": calibrated on nominal simulated flights with scale factors, misalignment,
-#: correlated GNSS and latency)
-THRESHOLDS = {"step": 60.0, "ramp": 60.0, "jump": 60.0, "outliers": 45.0}
+#: thresholds of the maximum GLR over the onsets per IMU grade and hypothesis kind
+#: (docs/ins3d.md, "Thresholds": calibrated on nominal simulated flights with scale factors,
+#: misalignment, correlated GNSS and latency -- navigation 36 flights of 30-60 min: largest
+#: step 14.4, ramp 13.2, jump 23.5, outliers 28.0; tactical 12 flights of 30 min: 17.0, 14.7,
+#: 22.0, 22.3). mems: not calibrated (the linear error model leaves the small-angle regime
+#: within minutes on a free-inertial mems INS); it uses the tactical values.
+THRESHOLDS_BY_GRADE = {
+    "navigation": {"step": 20.0, "ramp": 20.0, "jump": 30.0, "outliers": 32.0},
+    "tactical": {"step": 25.0, "ramp": 22.0, "jump": 30.0, "outliers": 32.0},
+}
+THRESHOLDS = THRESHOLDS_BY_GRADE["navigation"]
+
+
+def thresholds_for(grade: str) -> dict[str, float]:
+    """The calibrated thresholds of a grade (tactical's for grades not calibrated)."""
+    return dict(THRESHOLDS_BY_GRADE.get(grade, THRESHOLDS_BY_GRADE["tactical"]))
 
 
 @dataclass(frozen=True)
@@ -201,4 +213,5 @@ def resolved_time(t_upd: np.ndarray, gap: np.ndarray, margin: float = AMBIGUITY_
 
 
 __all__ = ["AMBIGUITY_MARGIN", "GlrCurve", "Hypothesis", "IMU_AXES", "Isolation", "REF_AXES",
-           "THRESHOLDS", "curves", "hypotheses", "isolate", "resolved_time"]
+           "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves", "hypotheses", "isolate",
+           "resolved_time", "thresholds_for"]
