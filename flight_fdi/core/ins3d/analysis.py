@@ -9,6 +9,7 @@ curves per hypothesis, the smoothed body-axis bias estimates with their sd, the 
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -126,21 +127,27 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
         steps, refs = coarsen(steps, refs, max_dt)
     P0 = model.p0_aligned(steps.C[0], steps.f_n[0], float(steps.lat[0])) if aligned_prior \
         else np.diag(model.p0())
-    fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post)
-    obs = observability(model, steps, refs, P0=P0) if with_observability else None
-    out = Ins3dAnalysis(model, fwd, obs, turns, steps, refs,
-                        thresholds=thresholds_for(model.grade.name))
-    if thresholds is not None:
-        out.thresholds.update(thresholds)
-    if not post:
-        return out
-    cfg = diagnosis or DiagnosisConfig()
+    with ThreadPoolExecutor(max_workers=1) as pool:     # the second core: the Gramian
+        obs = pool.submit(observability, model, steps, refs, P0=P0) if with_observability \
+            else None
+        fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post)
+        out = Ins3dAnalysis(model, fwd, None, turns, steps, refs,
+                            thresholds=thresholds_for(model.grade.name))
+        if thresholds is not None:
+            out.thresholds.update(thresholds)
+        if post:
+            _post_flight(out, diagnosis or DiagnosisConfig())
+        out.observability = obs.result() if obs is not None else None
+    return out
+
+
+def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig) -> None:
+    model, steps, refs, fwd = out.model, out.steps, out.refs, out.forward
     out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
     out.seed = seed_method(model, out.backward, cfg)
     out.glr = glr_curves(model, steps, out.backward)
     out.isolation = isolate(out.glr, out.thresholds)
     resolve(model, steps, refs, fwd, out.glr, out.isolation)
-    return out
 
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d"]

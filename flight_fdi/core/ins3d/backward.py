@@ -24,7 +24,7 @@ follow (A = (I + Y Q)^-1)::
     update:   Y_xb += H' R^-1 D,  Y_bb += D' R^-1 D,  y_b += D' R^-1 z
     predict:  Yt_xb = A Y_xb,  Yt_bb = Y_bb - Y_xb' Q Yt_xb,  yt_b = y_b - Y_xb' Q yt
               Y_xb <- Phi' (Yt Gamma + Yt_xb)
-              Y_bb <- Yt_bb + Gamma' Yt_xb + Yt_xb' Gamma + Gamma' Yt Gamma
+              Y_bb <- Yt_bb + Gamma' Yt_xb + Yt_xb' Gamma + Gamma' Yt Gamma  (group blocks)
               y_b  <- yt_b + Gamma' yt
 
 A fault that starts at boundary k (b = 0 before it) is independent of the forward prior at k, so
@@ -175,19 +175,19 @@ def _predict_back(Y, y, YxB, YBB, yB, Phi, Qd, G, A):
                     QYt[a, c] += q * A[j, 2 * n + 1 + c]
                 QYt[a, pB] += q * A[j, 2 * n]
     YtG = np.zeros((n, pB))
-    for a in range(n):
-        for j in range(n):
-            yt = Yt[a, j]
-            for c in range(pB):
-                g = G[j, c]
-                if g != 0.0:
-                    YtG[a, c] += yt * g
+    for j in range(n):
+        for c in range(pB):
+            g = G[j, c]
+            if g != 0.0:
+                for a in range(n):
+                    YtG[a, c] += Yt[a, j] * g
     for p in range(pB):
         acc_y = yB[p]
         for a in range(n):
             acc_y += -YxB[a, p] * QYt[a, pB] + G[a, p] * A[a, 2 * n]
         yB[p] = acc_y
-        for q in range(p, pB):
+        grp = p // GROUP_SIZE                # the group blocks of Y_bb only (what is used)
+        for q in range(p, min(pB, (grp + 1) * GROUP_SIZE)):
             acc = YBB[p, q]
             for a in range(n):
                 acc += (-YxB[a, p] * QYt[a, q] + G[a, p] * A[a, 2 * n + 1 + q]
@@ -211,12 +211,12 @@ def _predict_back(Y, y, YxB, YBB, yB, Phi, Qd, G, A):
                     YxB[a, c] += f * YtG[j, c]
                 y[a] += f * A[j, 2 * n]
     YtPhi = np.zeros((n, n))
-    for a in range(n):
-        for j in range(n):
-            yt = Yt[a, j]
-            if yt != 0.0:
-                for c in range(n):
-                    YtPhi[a, c] += yt * Phi[j, c]
+    for j in range(n):
+        for c in range(n):
+            f = Phi[j, c]
+            if f != 0.0:
+                for a in range(n):
+                    YtPhi[a, c] += Yt[a, j] * f
     for j in range(n):
         for a in range(n):
             f = Phi[j, a]

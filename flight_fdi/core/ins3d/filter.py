@@ -3,10 +3,11 @@
 One numba kernel (``_forward``, ``njit(cache=True)``) runs the whole flight: per propagation step
 k the continuous F is built from the navigation solution (``model.fill_F``), discretised at the
 step's dt (``model.discretize``), scaled, and the prediction x = Phi x, P = Phi P Phi' + Q is
-taken; at the step boundaries that carry reference messages the update follows (Joseph form)::
+taken (loops that skip the zeros of Phi); at the step boundaries that carry reference messages
+the update follows (Joseph form, expanded: O(n^2) for the 2-3 rows)::
 
     nu = z - H x,  S = H P H' + R,  K = P H' S^-1,
-    x += K nu,     P = (I - K H) P (I - K H)' + K R K'
+    x += K nu,     P = (I - K H) P (I - K H)' + K R K' = P - K H P - (K H P)' + K S K'
 
 Scaled coordinates (SPEC §1, numerics): x' = T^-1 x with T = diag(sqrt(P0)), Phi' = T^-1 Phi T,
 Q' = T^-1 Q T^-1, H' = H T; everything returned is in physical units. The gate (SPEC §2):
@@ -52,10 +53,18 @@ def scaled_H(s, a, il, im, rows):
 
 @njit(cache=True)
 def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o):
-    """One reference update (scaled x, P; z, r physical); fills output row j."""
+    """One reference update (scaled x, P; z, r physical); fills output row j. Joseph form,
+    expanded: P <- P - K H P - (K H P)' + K S K' (= (I - K H) P (I - K H)' + K R K' for any
+    K), computed in O(n^2 rows^2)."""
     n = x.size
     Hs = scaled_H(s, a, il, im, rows)
-    HP = Hs @ P
+    HP = np.zeros((rows, n))
+    for i in range(rows):
+        for c in range(n):
+            h = Hs[i, c]
+            if h != 0.0:
+                for b in range(n):
+                    HP[i, b] += h * P[c, b]
     S = HP @ Hs.T
     nu = z[:rows] - Hs @ x
     for i in range(rows):
@@ -72,18 +81,44 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
         return
     K = HP.T @ Si                       # (n, rows) = P H' S^-1
     x += K @ nu
-    IKH = np.eye(n) - K @ Hs
-    Pn = IKH @ P @ IKH.T
+    KS = K @ S
     for p_ in range(n):
-        for q_ in range(n):
-            acc = 0.0
+        for q_ in range(p_, n):
+            acc = P[p_, q_]
             for i in range(rows):
-                acc += K[p_, i] * r[i] * K[q_, i]
-            Pn[p_, q_] += acc
-    P[:, :] = 0.5 * (Pn + Pn.T)
+                acc += -K[p_, i] * HP[i, q_] - HP[i, p_] * K[q_, i] + KS[p_, i] * K[q_, i]
+            P[p_, q_] = acc
+            P[q_, p_] = acc
 
 
 @njit(cache=True)
+def predict(x, P, Phi, Qd, T, xt):
+    """x <- Phi x, P <- Phi P Phi' + Qd (exactly symmetric), skipping the zeros of Phi
+    (T (n, n), xt (n) scratch)."""
+    n = x.size
+    T[:, :] = 0.0
+    for i in range(n):
+        acc = 0.0
+        for k in range(n):
+            f = Phi[i, k]
+            if f != 0.0:
+                acc += f * x[k]
+                for j in range(n):
+                    T[i, j] += f * P[k, j]
+        xt[i] = acc
+    for i in range(n):
+        x[i] = xt[i]
+        for j in range(i, n):
+            acc = Qd[i, j]
+            for k in range(n):
+                f = Phi[j, k]
+                if f != 0.0:
+                    acc += T[i, k] * f
+            P[i, j] = acc
+            P[j, i] = acc
+
+
+@njit(cache=True, nogil=True)
 def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il, im, rows, thr,
              reject, keep_cov, keep_prior, x_o, sd_o, nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o,
              xpr_o, Ppr_o):
@@ -91,6 +126,7 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il
     F = np.empty((n, n))
     Phi = np.empty((n, n))
     Qd = np.empty((n, n))
+    T, xt = np.empty((n, n)), np.empty(n)
     x = x0 / s
     P = P0.copy()
     for i in range(n):
@@ -104,9 +140,7 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il
             fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], bias)
             discretize(F, dt[k - 1], qc, Phi, Qd)
             _scale(Phi, Qd, s)
-            x = Phi @ x
-            P = Phi @ P @ Phi.T + Qd
-            P = 0.5 * (P + P.T)
+            predict(x, P, Phi, Qd, T, xt)
         while j < m and ref_step[j] == k:
             if keep_prior:
                 for a in range(n):
@@ -192,4 +226,4 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                         Ppr if keep_prior else None)
 
 
-__all__ = ["Ins3dForward", "run_forward", "scaled_H", "white_variance"]
+__all__ = ["Ins3dForward", "predict", "run_forward", "scaled_H", "white_variance"]

@@ -346,23 +346,52 @@ def _fill_position(F, ve, vn, vu, lat, h, rn, rm, sl, cl, tl):
 
 
 @njit(cache=True)
+def square(F, F2):
+    """F2 = F F, skipping the zeros of F (about a quarter of its entries are nonzero)."""
+    n = F.shape[0]
+    F2[:, :] = 0.0
+    for i in range(n):
+        for k in range(n):
+            f = F[i, k]
+            if f != 0.0:
+                for j in range(n):
+                    F2[i, j] += f * F[k, j]
+
+
+@njit(cache=True)
+def transition(F, dt, Phi, F2):
+    """Phi = I + F dt + (F dt)^2 / 2 alone (``discretize`` without Qd); F2 = F F (scratch)."""
+    n = F.shape[0]
+    square(F, F2)
+    h = 0.5 * dt * dt
+    for i in range(n):
+        for j in range(n):
+            Phi[i, j] = F[i, j] * dt + F2[i, j] * h
+        Phi[i, i] += 1.0
+
+
+@njit(cache=True)
 def discretize(F, dt, qc, Phi, Qd):
     """Phi = I + F dt + (F dt)^2 / 2 and the Van Loan integral Qd = int_0^dt e^(Fs) Qc
     e^(F's) ds by its Taylor series to dt^3 (Qc = diag(qc), A = F Qc):
-    Qd = Qc dt + (A + A') dt^2 / 2 + (F A + (F A)' + 2 A F') dt^3 / 6."""
+    Qd = Qc dt + (A + A') dt^2 / 2 + (F A + (F A)' + 2 A F') dt^3 / 6, with F A = F^2 Qc and
+    (A F')_ij = sum_k F_ik qc_k F_jk; the products skip the zeros of F."""
     n = F.shape[0]
-    Fd = F * dt
-    Phi[:, :] = Fd + 0.5 * (Fd @ Fd)
+    F2 = np.empty((n, n))
+    transition(F, dt, Phi, F2)
+    AF = np.zeros((n, n))
     for i in range(n):
-        Phi[i, i] += 1.0
-    A = F * qc[None, :]
-    FA = F @ A
-    AF = A @ F.T
+        for k in range(n):
+            a = F[i, k] * qc[k]
+            if a != 0.0:
+                for j in range(n):
+                    AF[i, j] += a * F[j, k]
     c2 = 0.5 * dt * dt
     c3 = dt * dt * dt / 6.0
     for i in range(n):
         for j in range(i, n):
-            q = (A[i, j] + A[j, i]) * c2 + (FA[i, j] + FA[j, i] + 2.0 * AF[i, j]) * c3
+            q = (F[i, j] * qc[j] + F[j, i] * qc[i]) * c2 \
+                + (F2[i, j] * qc[j] + F2[j, i] * qc[i] + 2.0 * AF[i, j]) * c3
             if i == j:
                 q += qc[i] * dt
             Qd[i, j] = q
@@ -415,5 +444,6 @@ def F_matrix(model: Ins3dModel, steps, k: int) -> np.ndarray:
     return F
 
 
-__all__ = ["IBA", "IBG", "IP", "IPHI", "IV", "Ins3dModel", "STATE_NAMES", "discretize",
+__all__ = ["IBA", "IBG", "IP", "IPHI", "IV", "Ins3dModel", "STATE_NAMES", "discretize", "square",
+           "transition",
            "dgravity_dh", "fill_F", "F_matrix", "gravity", "propagate"]

@@ -25,27 +25,34 @@ from numba import njit
 
 from ..errors import CoreError
 from .data import NavSteps, RefRows
-from .filter import _scale, scaled_H, white_variance
-from .model import Ins3dModel, discretize, fill_F
+from .filter import scaled_H, white_variance
+from .model import Ins3dModel, fill_F, transition
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, im, rows, report_step, W_o):
     n = s.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
-    Qd = np.empty((n, n))
-    qc = np.zeros(n)
+    F2 = np.empty((n, n))
     M = np.eye(n)                       # Phi(t_k, t_0), scaled
+    M2 = np.empty((n, n))
     W = np.zeros((n, n))
     j = 0
     o = 0
     for k in range(dt.size + 1):
         if k > 0:
             fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], kp)
-            discretize(F, dt[k - 1], qc, Phi, Qd)
-            _scale(Phi, Qd, s)
-            M = Phi @ M
+            transition(F, dt[k - 1], Phi, F2)
+            M2[:, :] = 0.0              # M <- T^-1 Phi T M, skipping the zeros of Phi
+            for a in range(n):
+                for b in range(n):
+                    f = Phi[a, b]
+                    if f != 0.0:
+                        f *= s[b] / s[a]
+                        for c in range(n):
+                            M2[a, c] += f * M[b, c]
+            M[:, :] = M2
         while j < ref_step.size and ref_step[j] == k:
             HM = scaled_H(s, acc[j], il, im, rows) @ M
             for i in range(rows):

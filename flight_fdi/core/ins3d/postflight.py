@@ -5,6 +5,7 @@ seed method (chi^2 J with effective dof, UDU^T / LDL^T localisation, Fisher test
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -135,8 +136,9 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
     if iso.isolation != "single" or iso.rival is None or cv[iso.best].hypothesis.kind == \
             "outliers":
         return
-    iso.gap = data_up_to(model, steps, refs, fwd, cv[iso.best]) - \
-        data_up_to(model, steps, refs, fwd, cv[iso.rival])
+    with ThreadPoolExecutor(max_workers=1) as pool:     # the kernels release the GIL
+        rival = pool.submit(data_up_to, model, steps, refs, fwd, cv[iso.rival])
+        iso.gap = data_up_to(model, steps, refs, fwd, cv[iso.best]) - rival.result()
     iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
 
 

@@ -19,11 +19,11 @@ import numpy as np
 from numba import njit
 
 from .backward import REF, fault_gamma
-from .filter import _scale, scaled_H
-from .model import discretize, fill_F
+from .filter import scaled_H
+from .model import fill_F, transition
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows,
                     P_pr, S, nu, k0, tau, e_o, d_o):
     """Cumulative e and d (module docstring) at every update j (0 before the onset)."""
@@ -31,9 +31,11 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
     pB = sB.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
-    Qd = np.empty((n, n))
+    F2 = np.empty((n, n))
     G = np.empty((n, pB))
     mu = np.zeros(n)
+    mu2 = np.empty(n)
+    u = np.empty(n)
     e = 0.0
     d = 0.0
     j = 0
@@ -48,25 +50,38 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
             rho = Hs @ mu
             for i in range(rows):
                 rho[i] += sB[REF + i] * tau[REF + i]
-            Si = np.linalg.inv(S[j])
-            Sr = Si @ rho
+            Sr = np.linalg.solve(S[j], rho)
             e += Sr @ nu[j]
             d += Sr @ rho
             e_o[j] = e
             d_o[j] = d
-            Ps = np.empty((n, n))
+            for b in range(n):                  # mu -= P' H' S^-1 rho (P' = P / s s')
+                acc_ = 0.0
+                for i in range(rows):
+                    acc_ += Hs[i, b] * Sr[i]
+                u[b] = acc_ / s[b]
             for a in range(n):
+                acc_ = 0.0
                 for b in range(n):
-                    Ps[a, b] = P_pr[j, a, b] / (s[a] * s[b])
-            mu -= (Ps @ Hs.T) @ Sr
+                    acc_ += P_pr[j, a, b] * u[b]
+                mu[a] -= acc_ / s[a]
             j += 1
         if k == dt.size:
             break
         fill_F(F, C[k], f_n[k], v[k], lat[k], h[k], kp)
         fault_gamma(F, dt[k], tt[k], s, sB, G)
-        discretize(F, dt[k], qc, Phi, Qd)
-        _scale(Phi, Qd, s)
-        mu = Phi @ mu + G @ tau
+        transition(F, dt[k], Phi, F2)
+        for a in range(n):                      # mu <- Phi' mu + Gamma' tau (scaled)
+            acc_ = 0.0
+            for b in range(n):
+                f = Phi[a, b]
+                if f != 0.0:
+                    acc_ += f * s[b] * mu[b]
+            for c in range(pB):
+                acc_ += G[a, c] * tau[c] * s[a]
+            mu2[a] = acc_ / s[a]
+        for a in range(n):
+            mu[a] = mu2[a]
 
 
 __all__ = ["signature_stats"]
