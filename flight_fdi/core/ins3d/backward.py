@@ -53,6 +53,7 @@ from numba import njit
 from ..information import combine_step, solve
 from .filter import _scale, scaled_H
 from .model import IBA, IBG, IPHI, IV, discretize, fill_F
+from .sparse import mul_left, mul_right
 
 #: columns of the fault vector b: accelerometer a (x, y, z), r (x, y, z), gyro a, r, then one
 #: offset per reference row
@@ -166,63 +167,34 @@ def _predict_back(Y, y, YxB, YBB, yB, Phi, Qd, G, A):
         return False
     Yt = A[:, n:2 * n]
     # Y_bb, y_b first (they need the old Y_xb)
-    QYt = np.zeros((n, pB + 1))             # Q [Yt_xb | yt]
-    for a in range(n):
-        for j in range(n):
-            q = Qd[a, j]
-            if q != 0.0:
-                for c in range(pB):
-                    QYt[a, c] += q * A[j, 2 * n + 1 + c]
-                QYt[a, pB] += q * A[j, 2 * n]
+    QYt = np.zeros((n, pB + 1))             # Q [yt | Yt_xb]
+    mul_left(Qd, A[:, 2 * n:], QYt, False)
     YtG = np.zeros((n, pB))
-    for j in range(n):
-        for c in range(pB):
-            g = G[j, c]
-            if g != 0.0:
-                for a in range(n):
-                    YtG[a, c] += Yt[a, j] * g
+    mul_right(Yt, G, YtG)
     for p in range(pB):
         acc_y = yB[p]
         for a in range(n):
-            acc_y += -YxB[a, p] * QYt[a, pB] + G[a, p] * A[a, 2 * n]
+            acc_y += -YxB[a, p] * QYt[a, 0] + G[a, p] * A[a, 2 * n]
         yB[p] = acc_y
         grp = p // GROUP_SIZE                # the group blocks of Y_bb only (what is used)
         for q in range(p, min(pB, (grp + 1) * GROUP_SIZE)):
             acc = YBB[p, q]
             for a in range(n):
-                acc += (-YxB[a, p] * QYt[a, q] + G[a, p] * A[a, 2 * n + 1 + q]
+                acc += (-YxB[a, p] * QYt[a, 1 + q] + G[a, p] * A[a, 2 * n + 1 + q]
                         + A[a, 2 * n + 1 + p] * G[a, q] + G[a, p] * YtG[a, q])
             YBB[p, q] = acc
             YBB[q, p] = acc
-    for c in range(pB):                     # Y_xb <- Phi' (Yt Gamma + Yt_xb)
+    for c in range(pB):                     # Y_xb <- Phi' (Yt Gamma + Yt_xb), y <- Phi' yt
         for a in range(n):
             YtG[a, c] += A[a, 2 * n + 1 + c]
-    for a in range(n):
-        for c in range(pB):
-            YxB[a, c] = 0.0
-        for c in range(n):
-            Y[a, c] = 0.0
-        y[a] = 0.0
-    for j in range(n):                      # Phi' rows: Phi[j, a] nonzero
-        for a in range(n):
-            f = Phi[j, a]
-            if f != 0.0:
-                for c in range(pB):
-                    YxB[a, c] += f * YtG[j, c]
-                y[a] += f * A[j, 2 * n]
-    YtPhi = np.zeros((n, n))
-    for j in range(n):
-        for c in range(n):
-            f = Phi[j, c]
-            if f != 0.0:
-                for a in range(n):
-                    YtPhi[a, c] += Yt[a, j] * f
-    for j in range(n):
-        for a in range(n):
-            f = Phi[j, a]
-            if f != 0.0:
-                for c in range(n):
-                    Y[a, c] += f * YtPhi[j, c]
+    YxB[:, :] = 0.0
+    mul_left(Phi, YtG, YxB, True)
+    y[:] = 0.0
+    mul_left(Phi, A[:, 2 * n:2 * n + 1], y.reshape((n, 1)), True)
+    YtPhi = np.zeros((n, n))                # Y <- Phi' Yt Phi
+    mul_right(Yt, Phi, YtPhi)
+    Y[:, :] = 0.0
+    mul_left(Phi, YtPhi, Y, True)
     for a in range(n):
         for c in range(a + 1, n):
             sym = 0.5 * (Y[a, c] + Y[c, a])

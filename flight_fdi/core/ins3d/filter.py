@@ -26,6 +26,7 @@ from ..errors import CoreError
 from ..kalman import GateConfig, alarm_states
 from .data import NavSteps, RefRows
 from .model import Ins3dModel, discretize, fill_F
+from .sparse import mul_left
 
 
 @njit(cache=True)
@@ -59,12 +60,7 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
     n = x.size
     Hs = scaled_H(s, a, il, im, rows)
     HP = np.zeros((rows, n))
-    for i in range(rows):
-        for c in range(n):
-            h = Hs[i, c]
-            if h != 0.0:
-                for b in range(n):
-                    HP[i, b] += h * P[c, b]
+    mul_left(Hs, P, HP, False)
     S = HP @ Hs.T
     nu = z[:rows] - Hs @ x
     for i in range(rows):
@@ -97,15 +93,9 @@ def predict(x, P, Phi, Qd, T, xt):
     (T (n, n), xt (n) scratch)."""
     n = x.size
     T[:, :] = 0.0
-    for i in range(n):
-        acc = 0.0
-        for k in range(n):
-            f = Phi[i, k]
-            if f != 0.0:
-                acc += f * x[k]
-                for j in range(n):
-                    T[i, j] += f * P[k, j]
-        xt[i] = acc
+    mul_left(Phi, P, T, False)
+    xt[:] = 0.0
+    mul_left(Phi, x.reshape((n, 1)), xt.reshape((n, 1)), False)
     for i in range(n):
         x[i] = xt[i]
         for j in range(i, n):

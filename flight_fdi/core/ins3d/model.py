@@ -64,6 +64,7 @@ from numba import njit
 
 from ..earth import A, E2, GE, GF, GK, GM_RATIO, OMEGA_IE, gravity, radii
 from .grades import GRADES, ImuGrade
+from .sparse import mul_left
 from ..errors import CoreError
 
 STATE_NAMES = ("dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u",
@@ -348,14 +349,8 @@ def _fill_position(F, ve, vn, vu, lat, h, rn, rm, sl, cl, tl):
 @njit(cache=True)
 def square(F, F2):
     """F2 = F F, skipping the zeros of F (about a quarter of its entries are nonzero)."""
-    n = F.shape[0]
     F2[:, :] = 0.0
-    for i in range(n):
-        for k in range(n):
-            f = F[i, k]
-            if f != 0.0:
-                for j in range(n):
-                    F2[i, j] += f * F[k, j]
+    mul_left(F, F, F2, False)
 
 
 @njit(cache=True)

@@ -27,6 +27,7 @@ from ..errors import CoreError
 from .data import NavSteps, RefRows
 from .filter import scaled_H, white_variance
 from .model import Ins3dModel, fill_F, transition
+from .sparse import mul_left
 
 
 @njit(cache=True, nogil=True)
@@ -44,14 +45,11 @@ def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, im, rows, repor
         if k > 0:
             fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], kp)
             transition(F, dt[k - 1], Phi, F2)
-            M2[:, :] = 0.0              # M <- T^-1 Phi T M, skipping the zeros of Phi
-            for a in range(n):
+            for a in range(n):          # M <- T^-1 Phi T M
                 for b in range(n):
-                    f = Phi[a, b]
-                    if f != 0.0:
-                        f *= s[b] / s[a]
-                        for c in range(n):
-                            M2[a, c] += f * M[b, c]
+                    Phi[a, b] *= s[b] / s[a]
+            M2[:, :] = 0.0
+            mul_left(Phi, M, M2, False)
             M[:, :] = M2
         while j < ref_step.size and ref_step[j] == k:
             HM = scaled_H(s, acc[j], il, im, rows) @ M
