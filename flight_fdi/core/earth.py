@@ -1,5 +1,6 @@
-"""WGS-84 Earth model (the 3-D simulator and the ins3d error model): radii of curvature, normal gravity, Earth rate and
-transport rate in the local-level ENU navigation frame (REP 103: x East, y North, z Up).
+"""WGS-84 Earth model (the 3-D simulator and the ins3d error model): radii of curvature, normal
+gravity, Earth rate and transport rate in the local-level ENU navigation frame (REP 103: x East,
+y North, z Up).
 
 Constants as IS-GPS-200 / NIMA TR8350.2 (the same values the ``inu`` package uses, so the
 comparison test runs both mechanizations on one Earth)::

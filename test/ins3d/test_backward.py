@@ -70,7 +70,8 @@ def test_two_filter_combination_equals_filterpy_rts(short):
     idx = refs.step
     sd = np.sqrt(np.diagonal(Pss, axis1=1, axis2=2))[idx]
     err = np.abs(a.backward.x_s - xs[idx]) / sd
-    print(f"max |x_s - RTS| / sd {err.max():.2e}; sd rel {np.max(np.abs(a.backward.sd_s / sd - 1)):.2e}")
+    rel = np.max(np.abs(a.backward.sd_s / sd - 1))
+    print(f"max |x_s - RTS| / sd {err.max():.2e}; sd rel {rel:.2e}")
     assert err.max() < 1e-5
     np.testing.assert_allclose(a.backward.sd_s, sd, rtol=1e-5)
     # the backward filter starts from zero information: at the last update it is the forward

@@ -210,8 +210,9 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, z, r, acc
     """The backward sweep (module docstring). Per update j (sorted by step; x_pr, P_pr the
     forward prior before it, physical) it writes the combination at its boundary: x_s, sd_s
     (physical), the cumulative element terms J(i/k), their effective dof and the normalised
-    residuals, v~ and dD (seed method; physical units); the fault information eta (pB,) and the group blocks I (3, 6, 6)
-    (scaled fault units, ``sB``); the outlier information oe (rows,), oI (rows, rows).
+    residuals, v~ and dD (seed method; physical units); the fault information eta (pB,) and
+    the group blocks I (3, 6, 6) (scaled fault units, ``sB``); the outlier information oe
+    (rows,), oI (rows, rows).
     Returns (boundary, code) of a failure (1: I + Y Q singular, 2: the combination) or
     (-1, 0)."""
     n = s.size

@@ -17,8 +17,7 @@ from ..ldl import localization
 from .backward import ACC_A, ACC_R, GYR_A, GYR_R, REF, backward_sweep
 from .data import NavSteps, RefRows
 from .filter import Ins3dForward, white_variance
-from .glr3d import (AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, isolate,
-                    resolved_time)
+from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, resolved_time
 from .model import IBA, IBG, Ins3dModel
 from .signature import signature_stats
 
