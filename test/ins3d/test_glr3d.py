@@ -107,6 +107,24 @@ def test_gyro_step_before_a_turn_is_isolated_with_the_ambiguity_resolved(faulty)
     assert pf["ambiguity_resolved_s"] is not None and pf["ambiguity_resolved_s"] >= f["onset_s"]
 
 
+def test_joint_statistic_is_at_least_each_axis_and_equals_it_for_one_axis(faulty):
+    """The 3-dof GLR of a sensor's step is >= every one-axis GLR at the same onset, and the
+    brute force: eta' I^-1 eta of the 3 x 3 block."""
+    a = faulty
+    b = a.backward
+    f = b.first
+    for sensor in ("accelerometer", "gyro"):
+        j = a.joint[sensor + "_step"]
+        for ax in "xyz":
+            assert np.all(j >= a.glr[f"{sensor}_{ax}_step"].stat * (1 - 1e-9) - 1e-9)
+        g = 0 if sensor == "accelerometer" else 1
+        k = len(f) // 2
+        e = b.eta[f[k], 6 * g:6 * g + 3]
+        assert j[k] == pytest.approx(e @ np.linalg.solve(b.I3[f[k], g, :3, :3], e), rel=1e-9)
+    assert a.post_flight_dict()["glr"]["joint"]["gyro_step"] == pytest.approx(
+        a.joint["gyro_step"].max())
+
+
 def test_isolation_rules():
     """Synthetic curves: single, ambiguous within the margin, outliers only, none."""
     hyps = {h.name: h for h in hypotheses(2)}

@@ -19,7 +19,7 @@ from ..errors import CoreError
 from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .filter import Ins3dForward, run_forward
-from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, thresholds_for
+from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, joint, thresholds_for
 from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
@@ -38,6 +38,7 @@ class Ins3dAnalysis:
     seed: SeedDiagnosis | None = None
     glr: dict[str, GlrCurve] = field(default_factory=dict)
     isolation: Isolation | None = None
+    joint: dict[str, np.ndarray] = field(default_factory=dict)   # 3-dof GLR over the onsets
     thresholds: dict[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
 
     def summary(self) -> dict:
@@ -63,7 +64,9 @@ class Ins3dAnalysis:
         """The ``post_flight`` section (times relative to ``t0``)."""
         if self.seed is None or self.isolation is None:
             raise CoreError("analyze_ins3d ran without the post-flight part (post=False)")
-        return post_flight(self.glr, self.isolation, self.seed, self.thresholds, t0)
+        out = post_flight(self.glr, self.isolation, self.seed, self.thresholds, t0)
+        out["glr"]["joint"] = {k: float(v.max(initial=0.0)) for k, v in self.joint.items()}
+        return out
 
     # ---- series for the figures
     @property
@@ -146,6 +149,8 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig) -> None:
     out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
     out.seed = seed_method(model, out.backward, cfg)
     out.glr = glr_curves(model, steps, out.backward)
+    f = out.backward.first
+    out.joint = joint(out.backward.eta[f], out.backward.I3[f], model.rows)
     out.isolation = isolate(out.glr, out.thresholds)
     resolve(model, steps, refs, fwd, out.glr, out.isolation)
 

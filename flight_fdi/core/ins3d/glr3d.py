@@ -13,6 +13,8 @@ boundary with reference updates; the statistics of all onsets come from one back
 its profile-likelihood 95 % interval (onsets within 3.84 of the maximum, contiguous around it),
 the magnitude and its sd.
 
+``joint``: the same for a step on all three axes of a sensor at once (3 dof), reported beside.
+
 Decision (``isolate``), per IMU grade and hypothesis kind a threshold (``THRESHOLDS_BY_GRADE``,
 calibrated on nominal simulated flights, docs/ins3d.md):
 
@@ -166,6 +168,20 @@ def curves(hyps: list[Hypothesis], t_onset: np.ndarray, t_start: float, duration
     return out
 
 
+def joint(eta: np.ndarray, I3: np.ndarray, rows: int) -> dict[str, np.ndarray]:
+    """GLR over the onsets of a step on all three axes of a sensor at once (3 dof; a reference
+    jump on all its rows): eta_a' I_aa^+ eta_a of the step columns (pseudo-inverse: near the
+    end of the flight an axis may carry no information)."""
+    out = {}
+    for name, g, m in (("accelerometer_step", 0, 3), ("gyro_step", 1, 3),
+                       ("reference_jump", 2, rows)):
+        e = eta[:, GROUP_START[g]:GROUP_START[g] + m]
+        info = I3[:, g, :m, :m]
+        x = np.einsum("kij,kj->ki", np.linalg.pinv(info, rcond=1e-10, hermitian=True), e)
+        out[name] = np.einsum("ki,ki->k", e, x)        # pinv: an axis without information
+    return out
+
+
 @dataclass
 class Isolation:
     """The decision (module docstring)."""
@@ -213,5 +229,5 @@ def resolved_time(t_upd: np.ndarray, gap: np.ndarray, margin: float = AMBIGUITY_
 
 
 __all__ = ["AMBIGUITY_MARGIN", "GlrCurve", "Hypothesis", "IMU_AXES", "Isolation", "REF_AXES",
-           "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves", "hypotheses", "isolate",
+           "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves", "hypotheses", "isolate", "joint",
            "resolved_time", "thresholds_for"]
