@@ -13,6 +13,7 @@ import pytest
 from flight_fdi.bagio.ins3d_input import from_flight, read_ins3d
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
+from flight_fdi.core.ins3d.data import RefRows
 
 from .conftest import flight
 
@@ -103,6 +104,18 @@ def test_straight_leg_is_ambiguous_not_confidently_wrong(fault, pair):
     assert any(n.startswith(p) for n in named for p in pair - {truth})
     assert pf["ambiguity_resolved_s"] is None
     assert "ambiguous" in pf["headline"]
+
+
+def test_too_few_updates_are_insufficient_data_or_a_clear_error():
+    inp = from_flight(flight("cruise_turns", 120.0, "navigation", "baro", 2))
+    r = inp.refs
+    few = RefRows(r.t[:40], r.z[:40], r.r[:40], r.step[:40], r.a[:40])
+    pf = analyze_ins3d(inp.steps, few, with_observability=False).post_flight_dict()
+    validate(pf)
+    assert (pf["verdict"], pf["fault"]) == ("insufficient_data", None)
+    none = RefRows(r.t[:0], r.z[:0], r.r[:0], r.step[:0], r.a[:0])
+    with pytest.raises(CoreError, match="no reference update"):
+        analyze_ins3d(inp.steps, none)
 
 
 def test_post_flight_needs_the_post_flight_part():

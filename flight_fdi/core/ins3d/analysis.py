@@ -121,6 +121,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
     (default: the grade's, ``glr3d.thresholds_for``)."""
     model = Ins3dModel.from_grade(grade, position=position, rows=rows, vertical=vertical,
                                   latency=latency, ref_markov=ref_markov)
+    if refs.t.size == 0:
+        raise CoreError("ins3d analysis: no reference update inside the INS record")
     order = np.argsort(refs.step, kind="stable")
     refs = RefRows(refs.t[order], np.ascontiguousarray(refs.z[order]),
                    np.ascontiguousarray(refs.r[order]), refs.step[order],
