@@ -106,6 +106,26 @@ def test_straight_leg_is_ambiguous_not_confidently_wrong(fault, pair):
     assert "ambiguous" in pf["headline"]
 
 
+@pytest.mark.parametrize("fault,expect", [
+    ("ref:jump:t=300,mag=0.3,axis=x", ("failure", "east", "jump")),
+    ("ref:outliers:t=300,end=500,mag=1.0,freq=0.02,axis=y", ("glitch", "north", "outliers")),
+])
+def test_reference_jump_and_outliers(fault, expect):
+    """A GNSS velocity jump of +0.3 m/s east reads +0.3 (the reference's error); four 1-m/s
+    spikes on north are outliers (a glitch), not a jump starting at one of them."""
+    inp = from_flight(flight("cruise_turns", 600.0, "navigation", "baro", 4, faults=(fault,)))
+    pf = analyze_ins3d(inp.steps, inp.refs, with_observability=False).post_flight_dict()
+    validate(pf)
+    f = pf["fault"]
+    assert (pf["verdict"], f["sensor"], f["axis"], f["kind"]) == ("glitch" if expect[0] ==
+                                                                 "glitch" else "failure",
+                                                                 "reference", *expect[1:])
+    if f["kind"] == "jump":
+        assert f["magnitude"] == pytest.approx(0.3, abs=0.03) and abs(f["onset_s"] - 300) < 1
+    else:
+        assert 300.0 <= f["onset_s"] <= f["end_s"] <= 500.0 and f["count"] >= 2
+
+
 def test_too_few_updates_are_insufficient_data_or_a_clear_error():
     inp = from_flight(flight("cruise_turns", 120.0, "navigation", "baro", 2))
     r = inp.refs

@@ -18,8 +18,9 @@ the magnitude and its sd.
 Decision (``isolate``), per IMU grade and hypothesis kind a threshold (``THRESHOLDS_BY_GRADE``,
 calibrated on nominal simulated flights, docs/ins3d.md):
 
-* no step / ramp / jump above its threshold: outliers above theirs -> ``single`` (a glitch), else
-  ``none``;
+* outliers above their threshold whose largest statistic is at least that of every step / ramp /
+  jump above its threshold (a spike explains the data better than a sustained fault starting
+  at it) -> ``single`` outliers (a glitch); no step / ramp / jump above its threshold -> ``none``;
 * else the best one (a step rather than a ramp of the same sensor and axis unless the ramp's
   statistic is larger by the margin: over a short span after the onset the two shapes are
   alike); the best hypothesis naming *another* (sensor, axis) is its rival: closer
@@ -200,10 +201,10 @@ def isolate(cv: dict[str, GlrCurve], thresholds: dict[str, float],
     outl = [c for c in cv.values() if c.hypothesis.kind == "outliers"]
     n_out = int(sum(np.sum(c.stat > thresholds["outliers"]) for c in outl))
     det = [c for c in main if c.statistic > thresholds[c.hypothesis.kind]]
+    top = max(outl, key=lambda c: c.statistic) if outl else None
+    if n_out and (not det or top.statistic >= max(c.statistic for c in det)):
+        return Isolation("single", top.hypothesis.name, None, n_out)   # spikes explain best
     if not det:
-        if n_out:
-            top = max(outl, key=lambda c: c.statistic)
-            return Isolation("single", top.hypothesis.name, None, n_out)
         return Isolation("none", None, None, n_out)
     best = max(det, key=lambda c: c.statistic)
     hb = best.hypothesis
