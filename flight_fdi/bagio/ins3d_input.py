@@ -20,6 +20,11 @@ from .errors import BagError
 
 TOPICS = {"ins_velocity": "/ins/velocity", "ins_imu": "/ins/imu", "ins_fix": "/ins/fix",
           "ref_velocity": "/reference/velocity"}
+#: the message type each contract topic must carry
+TYPES = {"ins_velocity": "geometry_msgs/msg/TwistStamped", "ins_imu": "sensor_msgs/msg/Imu",
+         "ins_fix": "sensor_msgs/msg/NavSatFix",
+         "ref_velocity": "geometry_msgs/msg/TwistWithCovarianceStamped"}
+TRUTH_TOPIC = "/sim/truth"
 
 
 @dataclass
@@ -29,6 +34,7 @@ class Ins3dInput:
     steps: NavSteps
     refs: RefRows
     q: np.ndarray          # (K+1, 4) INS q_b^n (w, x, y, z) at the step boundaries
+    t0_ns: int = 0         # the stamp times are relative to (a bag: the earliest first stamp)
 
 
 def _interp(t_out: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -98,14 +104,60 @@ def truth_from_flight(flight, inp: Ins3dInput) -> dict[str, np.ndarray]:
     return {"x": x, "u_a": u_a, "u_g": u_g}
 
 
+def check_topics(path: str | Path, topics: dict[str, str] | None = None) -> dict[str, str]:
+    """The contract topic names (TOPICS overridden by ``topics``) after checking that the bag
+    has each of them with the right type (BagError, one line, naming what is wrong; a bag of
+    the single-axis simulator is recognised and said so)."""
+    from .reader import _topic_list, bag_topics
+    names = {**TOPICS, **(topics or {})}
+    if len(set(names.values())) != len(names):
+        raise BagError(f"the ins3d input topics must be distinct, got {sorted(names.values())}")
+    have = bag_topics(path)
+    missing = [v for v in names.values() if v not in have]
+    if missing:
+        hint = (" -- a single-axis bag? --model ins3d needs the 3-D contract (docs/sim3d.md)"
+                if names["ins_imu"] in missing and names["ins_velocity"] in have else "")
+        raise BagError(f"bag '{path}': no topic {', '.join(missing)} (topics: "
+                       f"{_topic_list(have)}){hint}")
+    for k, v in names.items():
+        if have[v] != TYPES[k]:
+            raise BagError(f"bag '{path}': {v} carries {have[v]}, expected {TYPES[k]}")
+    return names
+
+
 def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dInput:
     """Decode a bag's contract topics (names configurable) into the estimator's input."""
     from .reader import read_messages
-    names = {**TOPICS, **(topics or {})}
+    names = check_topics(path, topics)
     by_topic: dict[str, list] = {v: [] for v in names.values()}
     for topic, _, _, msg in read_messages(path, list(names.values())):
         by_topic[topic].append(msg)
-    return build_input(*_decode({k: by_topic[v] for k, v in names.items()}, names, path))
+    *arrays, t0 = _decode({k: by_topic[v] for k, v in names.items()}, names, path)
+    inp = build_input(*arrays)
+    inp.t0_ns = t0
+    return inp
+
+
+def read_truth3d(path: str | Path, t0_ns: int, topic: str = TRUTH_TOPIC
+                 ) -> dict[str, np.ndarray] | None:
+    """The simulator's truth (/sim/truth, FilterState channel ``truth3d``) as {"t": seconds from
+    ``t0_ns``, name: values}, or None when the bag has no such topic."""
+    from .reader import bag_topics, read_messages
+    if topic not in bag_topics(path):
+        return None
+    t, rows, names = [], [], None
+    for _, _, _, m in read_messages(path, [topic]):
+        if m.channel != "truth3d":
+            continue
+        names = names or list(m.state_names)
+        if list(m.state_names) != names or len(m.x) != len(names):
+            raise BagError(f"bag '{path}': {topic} messages with different state names")
+        t.append((_stamp_ns(m) - t0_ns) * 1e-9)
+        rows.append(np.asarray(m.x, dtype=float))
+    if not rows:
+        return None
+    x = np.vstack(rows)
+    return {"t": np.array(t), **{n: x[:, i] for i, n in enumerate(names)}}
 
 
 def _stamp_ns(m) -> int:
@@ -117,7 +169,7 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
         if len(got[k]) < 2:
             raise BagError(f"{path}: topic {v} has fewer than two messages")
     ns = {k: sorted(((_stamp_ns(m), m) for m in ms), key=lambda p: p[0]) for k, ms in got.items()}
-    t0 = min(r[0][0] for r in ns.values())       # times in s from the first stamp, exact in ns
+    t0_ns = t0 = min(r[0][0] for r in ns.values())   # times in s from the first stamp, exact
     rows = {k: [((s_ - t0) * 1e-9, m) for s_, m in r] for k, r in ns.items()}
     t0 = 0.0
     imu = rows["ins_imu"]
@@ -140,8 +192,8 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
     lin = [m.twist.twist.linear for _, m in ref]
     v_ref = np.array([[a.x, a.y, a.z] for a in lin])
     r_ref = np.array([np.asarray(m.twist.covariance)[[0, 7, 14]] for _, m in ref])
-    return t_imu, q, f, w, t_vel, v, t_fix, lat, h, t_ref, v_ref, r_ref
+    return t_imu, q, f, w, t_vel, v, t_fix, lat, h, t_ref, v_ref, r_ref, t0_ns
 
 
-__all__ = ["Ins3dInput", "TOPICS", "build_input", "from_flight", "read_ins3d",
-           "truth_from_flight"]
+__all__ = ["Ins3dInput", "TOPICS", "TRUTH_TOPIC", "TYPES", "build_input", "check_topics",
+           "from_flight", "read_ins3d", "read_truth3d", "truth_from_flight"]

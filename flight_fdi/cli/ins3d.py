@@ -1,0 +1,161 @@
+"""``--model ins3d`` for ``flight-fdi analyze``, ``run`` and ``report``: the 3-D INS error model
+(docs/ins3d.md) on a bag of the 3-D contract (/ins/imu, /ins/velocity, /ins/fix,
+/reference/velocity; docs/sim3d.md).
+
+``analyze`` reads the bag (``bagio.ins3d_input``) and runs ``core.ins3d.analysis.analyze_ins3d``;
+``run`` replays the bag through the node pipeline with ``filter_node`` in its ins3d mode and the
+smoother analysing the recording (the same verdict); ``report`` draws the per-axis figures
+(``report.figures3d``). The result is the v1 result JSON with ``"model": "ins3d"``
+(``core.ins3d_result``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from flight_fdi.cli.errors import CliError
+
+GRADES = ("navigation", "tactical", "mems")
+#: the single-axis input options that mean nothing to the 3-D model
+SINGLE_AXIS_ONLY = (("channel", "--channel"), ("nav_frame", "--nav-frame"),
+                    ("odometry_twist_frame", "--odometry-twist-frame"),
+                    ("input_profile", "--input-profile"))
+
+
+def add_ins3d_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("3-D model (--model ins3d; docs/ins3d.md)")
+    g.add_argument("--grade", default=None, choices=GRADES,
+                   help="IMU grade preset of the bias models (default navigation)")
+    g.add_argument("--rows", type=int, default=None, choices=(2, 3),
+                   help="reference rows: 2 (east, north) or 3 (with up) (default 2)")
+    g.add_argument("--imu-topic", default=None,
+                   help="INS attitude and IMU means, sensor_msgs/Imu (default /ins/imu)")
+    g.add_argument("--fix-topic", default=None,
+                   help="INS latitude and height, sensor_msgs/NavSatFix (default /ins/fix)")
+
+
+def is_ins3d(args: argparse.Namespace) -> bool:
+    """True for ``--model ins3d``; refuses options of the other model (one line)."""
+    ins3d = getattr(args, "model", None) == "ins3d"
+    if ins3d:
+        for attr, opt in SINGLE_AXIS_ONLY:
+            if getattr(args, attr, None) is not None:
+                raise CliError(f"{opt} applies to the single-axis models, not to --model ins3d")
+        if args.reference_topic and len(args.reference_topic) > 1:
+            raise CliError("--model ins3d takes one --reference-topic")
+        if getattr(args, "jobs", None) == 2 and "--jobs" in sys.argv[1:]:
+            raise CliError("--jobs applies to the single-axis models")
+    else:
+        for opt in ("grade", "rows", "imu_topic", "fix_topic"):
+            if getattr(args, opt, None) is not None:
+                raise CliError(f"--{opt.replace('_', '-')} applies only to --model ins3d")
+    return ins3d
+
+
+def topics(args: argparse.Namespace) -> dict[str, str]:
+    """The contract topic names given as options (the rest: bagio.ins3d_input.TOPICS)."""
+    out = {"ins_velocity": args.ins_topic, "ins_imu": args.imu_topic,
+           "ins_fix": args.fix_topic,
+           "ref_velocity": args.reference_topic[0] if args.reference_topic else None}
+    return {k: v for k, v in out.items() if v}
+
+
+def settings(args: argparse.Namespace) -> dict:
+    """grade, rows and the gate of the options."""
+    from flight_fdi.cli.analyze import analysis_config
+
+    return {"grade": args.grade or "navigation", "rows": args.rows or 2,
+            "gate": analysis_config(args).gate}
+
+
+def source(names: dict[str, str], s: dict) -> dict:
+    return {"ins_topic": names["ins_velocity"], "reference_topics": [names["ref_velocity"]],
+            "imu_topic": names["ins_imu"], "fix_topic": names["ins_fix"],
+            "grade": s["grade"], "rows": s["rows"]}
+
+
+def analyze_bag(bag: str, args: argparse.Namespace):
+    """(result dict, Ins3dAnalysis, Ins3dInput) of one bag."""
+    from flight_fdi.bagio.ins3d_input import check_topics, read_ins3d
+    from flight_fdi.core.ins3d.analysis import analyze_ins3d
+    from flight_fdi.core.ins3d_result import ins3d_result
+
+    s = settings(args)
+    names = check_topics(bag, topics(args))
+    inp = read_ins3d(bag, names)
+    analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
+                             gate=s["gate"])
+    return ins3d_result(analysis, bag, source(names, s)), analysis, inp
+
+
+def format_result(res: dict) -> str:
+    """A short table of a 3-D result."""
+    from flight_fdi.core.ins3d_result import fault_line
+
+    post, inf, summ = res["post_flight"], res["in_flight"], res["ins3d"]
+    src = res.get("source") or {}
+    lines = [f"{post['verdict'].upper()}: {post.get('headline', '')}",
+             "  " + fault_line(res), "",
+             f"bag {res['bag']}  model ins3d ({summ['grade']} grade, {len(summ['states'])} "
+             f"states, rows {res['channel']})  {res['duration_s']:.1f} s  {res['samples']} "
+             "reference updates"]
+    if src:
+        lines.append(f"input: IMU {src['imu_topic']}, INS {src['ins_topic']}, fix "
+                     f"{src['fix_topic']}, reference {', '.join(src['reference_topics'])}")
+    rows = ", ".join(f"{k} {v:.3f}" for k, v in summ["beta2_row_mean"].items())
+    lines += ["",
+              f"in flight: beta2 mean {summ['beta2_mean']:.3f} (per row {rows}); gate "
+              f"{inf['gate_threshold']:.3g} exceeded on {100 * inf['exceed_fraction']:.2f}% "
+              f"of updates; {len(inf['alarms'])} alarm(s)"
+              + (f", the first at {inf['first_alarm_s']:.1f} s" if inf["alarms"] else "")]
+    for a in inf["alarms"][:5]:
+        lines.append(f"  alarm {a['start_s']:9.1f} .. {a['end_s']:9.1f} s  peak beta2 "
+                     f"{a['peak_beta2']:.3g}")
+    turns = [m for m in summ["manoeuvres"] if m[2].startswith("turn")]
+    if turns:
+        lines.append("turns: " + ", ".join(f"{a:.0f}-{b:.0f} s" for a, b, _ in turns))
+    return "\n".join(lines)
+
+
+def emit(res: dict, args: argparse.Namespace, extra: list[str] = ()) -> int:
+    from flight_fdi.cli.analyze import exit_status
+
+    if args.json:
+        json.dump(res, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(format_result(res))
+        for line in extra:
+            print(line)
+    return exit_status(res, args)
+
+
+def run_analyze(args: argparse.Namespace) -> int:
+    res, _, _ = analyze_bag(args.bag, args)
+    return emit(res, args)
+
+
+def run_report(args: argparse.Namespace) -> int:
+    """``flight-fdi report BAG --model ins3d --out DIR``."""
+    from flight_fdi.bagio.ins3d_input import read_truth3d
+    from flight_fdi.report.figures3d import write_report3d
+
+    src = Path(args.input)
+    if src.is_dir() and (src / "result.json").exists() and not (src / "metadata.yaml").exists():
+        doc = json.loads((src / "result.json").read_text(encoding="utf-8"))
+        src = Path(doc.get("bag") or "")
+        if not (src / "metadata.yaml").exists() and src.suffix not in (".mcap", ".db3"):
+            raise CliError(f"{args.input}: the input bag named in result.json ({str(src)!r}) "
+                           "does not exist")
+    res, analysis, inp = analyze_bag(str(src), args)
+    truth = read_truth3d(str(src), inp.t0_ns)
+    index = write_report3d(res, analysis, args.out, truth=truth)
+    if args.json:
+        json.dump({"index": str(index), "summary": res}, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(f"{res['post_flight']['verdict'].upper()}: {res['post_flight']['headline']}\n"
+              f"report in {index}")
+    return 0
