@@ -19,8 +19,12 @@ def add_analysis_options(p: argparse.ArgumentParser) -> None:
     configuration)."""
     add_input_options(p)
     p.add_argument("--model", default="ins_channel",
-                   help="built-in model name or a model YAML file (default ins_channel)")
+                   help="built-in model name or a model YAML file (default ins_channel); "
+                        "ins3d: the 3-D INS error model on a 3-D contract bag (docs/ins3d.md)")
     add_gate_options(p)
+    from flight_fdi.cli.ins3d import add_ins3d_options  # --model ins3d (cli/ins3d.py)
+
+    add_ins3d_options(p)
     p.add_argument("--gate-action", default="flag", choices=("flag", "reject"),
                    help="fuse (flag) or drop (reject) a gated sample (default flag)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
@@ -237,6 +241,10 @@ def _interval(iv) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from flight_fdi.cli import ins3d
+
+    if ins3d.is_ins3d(args):
+        return ins3d.run_analyze(args)
     res = analyze_bag(args.bag, args)
     if args.json:
         json.dump(res, sys.stdout, allow_nan=False)
