@@ -137,21 +137,83 @@ def run_analyze(args: argparse.Namespace) -> int:
     return emit(res, args)
 
 
-def run_report(args: argparse.Namespace) -> int:
-    """``flight-fdi report BAG --model ins3d --out DIR``."""
+def _load_result(path: Path) -> dict:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise CliError(f"cannot read the result {path}: {exc}") from None
+    if not isinstance(doc, dict) or "post_flight" not in doc:
+        raise CliError(f"{path} is not an analysis result (no 'post_flight')")
+    return doc
+
+
+def _run_folder(src: Path) -> Path | None:
+    """The ``flight-fdi run`` output folder that ``src`` names (the folder or its result.json)."""
+    folder = src.parent if src.name == "result.json" else src
+    return folder if (folder / "result.json").exists() and (folder / "recording").exists() \
+        else None
+
+
+def wants_ins3d(args: argparse.Namespace) -> bool:
+    """``report``: --model ins3d, or a result / run folder of the ins3d model."""
+    if is_ins3d(args):
+        return True
+    src = Path(args.input)
+    doc = src / "result.json" if src.is_dir() else src
+    if doc.suffix == ".json" and doc.is_file():
+        if _load_result(doc).get("model") == "ins3d":
+            args.model = "ins3d"
+            return True
+    return False
+
+
+def _is_bag(p: Path) -> bool:
+    return (p.is_dir() and (p / "metadata.yaml").exists()) or p.suffix in (".mcap", ".db3")
+
+
+def _truth(bag: str | None, t0_ns: int):
     from flight_fdi.bagio.ins3d_input import read_truth3d
+
+    return read_truth3d(bag, t0_ns) if bag and _is_bag(Path(bag)) and Path(bag).exists() \
+        else None
+
+
+def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Path:
+    """The report of a ``run --model ins3d`` folder, rebuilt from its recording."""
+    from flight_fdi.nodes.ins3d_recording import analyze_recording3d
+    from flight_fdi.report.figures3d import write_report3d
+
+    doc = doc or _load_result(folder / "result.json")
+    res, analysis, rec = analyze_recording3d(folder / "recording", bag_label=doc.get("bag"))
+    if doc.get("source"):
+        res["source"] = doc["source"]
+    notes = [f"Rebuilt from the recording {folder / 'recording'} of the node pipeline."]
+    return write_report3d(res, analysis, out, truth=_truth(doc.get("bag"), rec["t0_ns"]),
+                          notes=notes)
+
+
+def run_report(args: argparse.Namespace) -> int:
+    """``flight-fdi report INPUT --model ins3d --out DIR``: INPUT a bag, a ``run`` output folder
+    or a result JSON naming its bag."""
     from flight_fdi.report.figures3d import write_report3d
 
     src = Path(args.input)
-    if src.is_dir() and (src / "result.json").exists() and not (src / "metadata.yaml").exists():
-        doc = json.loads((src / "result.json").read_text(encoding="utf-8"))
-        src = Path(doc.get("bag") or "")
-        if not (src / "metadata.yaml").exists() and src.suffix not in (".mcap", ".db3"):
-            raise CliError(f"{args.input}: the input bag named in result.json ({str(src)!r}) "
-                           "does not exist")
-    res, analysis, inp = analyze_bag(str(src), args)
-    truth = read_truth3d(str(src), inp.t0_ns)
-    index = write_report3d(res, analysis, args.out, truth=truth)
+    if not src.exists():
+        raise CliError(f"input {str(src)!r} does not exist")
+    folder = _run_folder(src)
+    if folder is not None:
+        index = report_of_run(folder, args.out)
+    else:
+        if not _is_bag(src):
+            doc = _load_result(src)
+            src = Path(doc.get("bag") or "")
+            if not (_is_bag(src) and src.exists()):
+                raise CliError(f"{args.input} names the bag {doc.get('bag')!r}, which does not "
+                               "exist; the figures need the flight's data")
+        res, analysis, inp = analyze_bag(str(src), args)
+        index = write_report3d(res, analysis, args.out, truth=_truth(str(src), inp.t0_ns),
+                               notes=[f"Analysed from the bag {src}."])
+    res = json.loads((Path(index).parent / "summary.json").read_text(encoding="utf-8"))
     if args.json:
         json.dump({"index": str(index), "summary": res}, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
@@ -159,3 +221,29 @@ def run_report(args: argparse.Namespace) -> int:
         print(f"{res['post_flight']['verdict'].upper()}: {res['post_flight']['headline']}\n"
               f"report in {index}")
     return 0
+
+
+def run_run(args: argparse.Namespace) -> int:
+    """``flight-fdi run BAG --model ins3d``: the node pipeline (nodes/ins3d_pipeline.py)."""
+    from flight_fdi.bagio.ins3d_input import check_topics
+    from flight_fdi.nodes.errors import ParameterError
+    from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
+    from flight_fdi.nodes.pipeline import PipelineError
+
+    bag = Path(args.bag)
+    if not bag.exists():
+        raise CliError(f"bag {str(bag)!r} does not exist")
+    out = Path(args.out) if args.out else Path("out") / bag.resolve().name
+    s = settings(args)
+    names = check_topics(bag, topics(args))
+    try:
+        run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
+                             gate=s["gate"], storage=args.storage, overwrite=True,
+                             source=source(names, s),
+                             progress=None if args.no_progress else sys.stderr)
+    except (PipelineError, ParameterError) as exc:
+        raise CliError(str(exc)) from None
+    extra = ["", f"recording and result.json in {out}/"]
+    if not args.no_report:
+        extra.append(f"report (figures and verdict): {report_of_run(out, out / 'report')}")
+    return emit(run.result, args, extra)

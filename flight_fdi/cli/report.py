@@ -127,8 +127,11 @@ def _load_json(path: Path) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from flight_fdi.cli import ins3d
     from flight_fdi.report import write_report
 
+    if ins3d.wants_ins3d(args):  # the 3-D model (cli/ins3d.py)
+        return ins3d.run_report(args)
     src = Path(args.input)
     if not src.exists():
         raise CliError(f"input {str(src)!r} does not exist")

@@ -37,9 +37,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from flight_fdi.cli import ins3d
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.pipeline import PipelineError, run_pipeline
 
+    if ins3d.is_ins3d(args):  # the 3-D model (cli/ins3d.py)
+        return ins3d.run_run(args)
     bag = Path(args.bag)
     if not bag.exists():
         raise CliError(f"bag {str(bag)!r} does not exist")

@@ -147,7 +147,7 @@ from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
 from ..core.references import ReferenceConfig
 from ..core.timeline import ACCEPT, DUPLICATE, HELD, NEW_LINE, OUT_OF_ORDER, OUTLIER, StampLine
-from . import attitude_mode, convert, filter_diag
+from . import attitude_mode, convert, filter_diag, ins3d_mode
 from .convert import VELOCITY_TYPES
 from .filter_parts import Channel as _Channel, Epoch as _Epoch, Reference as _Reference
 from .qos import INPUT_QOS_CHOICES, InputSubscriptions, input_profile, output_qos
@@ -173,9 +173,10 @@ _ACTUATOR = ActuatorConfig()  # the monitor's defaults
 FILTER_PARAMS = (
     ParamSpec("model", "string", "ins_channel",
               "Error model, which also selects the mode: ins_channel (INS velocity mode), "
-              "attitude_axis (attitude mode, seed 003), or the path of a model YAML file (no "
-              "control input: INS velocity mode, one measurement row; with a control input B: "
-              "attitude mode)", non_empty=True),
+              "attitude_axis (attitude mode, seed 003), ins3d (the 3-D INS error model on the "
+              "four 3-D contract topics, nodes/ins3d_mode.py), or the path of a model YAML file "
+              "(no control input: INS velocity mode, one measurement row; with a control input "
+              "B: attitude mode)", non_empty=True),
     ParamSpec("tau_a", "double", 3600.0, "Accelerometer bias correlation time (ins_channel)",
               "s", min=0.0, min_exclusive=True),
     ParamSpec("tau_w", "double", 3600.0, "Gyro drift correlation time (ins_channel)",
@@ -336,7 +337,7 @@ FILTER_PARAMS = (
               min=0.0, min_exclusive=True),
     ParamSpec("rate_window_s", "double", 5.0, "Window of the input rate estimate", "s",
               min=0.0, max=3600.0, min_exclusive=True),
-)
+) + ins3d_mode.INS3D_PARAMS  # --- the ins3d mode's own (nodes/ins3d_mode.py)
 
 _DEFAULTS = {s.name: s.default for s in FILTER_PARAMS}
 
@@ -359,11 +360,14 @@ def _only_defaults(values: dict[str, Any], names: tuple[str, ...], other: str) -
                  f"{'INS velocity' if other == 'attitude' else 'attitude'} mode")
 
 
-def build_model(values: dict[str, Any]) -> LinearModel:
+def build_model(values: dict[str, Any]) -> Any:
     """The channel model from the node parameters (ParameterError when it cannot be built).
     A model with a control input B runs the attitude mode (``attitude_mode``), any other the
     INS velocity mode."""
     name = values["model"]
+    if name == ins3d_mode.MODEL:  # the 3-D INS error model (nodes/ins3d_mode.py)
+        return ins3d_mode.build_model(values, _DEFAULTS)
+    ins3d_mode.refuse_in_other_modes(values, _DEFAULTS)
     if attitude_mode.is_attitude_model(name):
         _only_defaults(values, INS_ONLY, "INS velocity")
         return attitude_mode.build_attitude_model(values, _DEFAULTS)
@@ -447,6 +451,11 @@ class FilterNode(Node):
         except CoreError as exc:  # the table's checks should make this unreachable
             raise ParameterError(f"invalid gate parameters: {exc}") from None
         qos = input_profile(p["input_qos"], p["input_queue_depth"])
+        self.ins3d = None
+        if ins3d_mode.is_ins3d(self.model):  # the ins3d mode (nodes/ins3d_mode.py)
+            self.attitude = None
+            self.ins3d = ins3d_mode.Ins3dMode(self, self.model, self.gate, qos)
+            return
         if self.model.B is not None:  # a model with a control input: the attitude mode
             self.attitude = attitude_mode.AttitudeMode(self, self.model, self.gate, qos)
             return
@@ -960,6 +969,8 @@ class FilterNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_statuses(self) -> list:
+        if self.ins3d is not None:
+            return self.ins3d.diagnostic_statuses()
         if self.attitude is not None:
             return self.attitude.diagnostic_statuses()
         return filter_diag.statuses(self)

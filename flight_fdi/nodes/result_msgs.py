@@ -42,8 +42,10 @@ def fault_localization_msg(result: Mapping[str, Any], stamp: Any, flight_start_s
     from flight_fdi_msgs.msg import FaultLocalization
 
     post = result["post_flight"]
-    seed = post["seed_method"]
-    glr = post["glr"]
+    # (an ins3d forward-only result has neither: empty fields)
+    seed = post.get("seed_method") or {"verdict": "", "element": None, "elements": []}
+    glr = post.get("glr") or {"hypothesis": "", "onset_s": None, "magnitude": None,
+                              "statistic": None, "threshold": None}
     verdict = post["verdict"]
     if verdict not in VERDICT_CODES:
         raise ValueError(f"unknown verdict {verdict!r}; expected one of {', '.join(VERDICTS)}")
@@ -79,7 +81,7 @@ def fault_localization_msg(result: Mapping[str, Any], stamp: Any, flight_start_s
         glr_hypothesis=str(glr["hypothesis"]),
         glr_onset_s=_num(glr["onset_s"]),
         glr_magnitude=_num(glr["magnitude"]),
-        glr_statistic=float(glr["statistic"]),
+        glr_statistic=_num(glr["statistic"]),
         glr_threshold=_num(glr["threshold"]),
     )
 

@@ -62,8 +62,9 @@ SMOOTHER_PARAMS = (
     ParamSpec("bag", "string", "",
               "recorded bag to analyse (recorder_node output); may be set at run time, then call "
               "~/analyze", read_only=False),
-    ParamSpec("channel", "string", "x", "channel (velocity axis) to analyse", choices=("x", "y"),
-              read_only=False),
+    ParamSpec("channel", "string", "x", "channel (velocity axis) to analyse; ins3d: a recording "
+              "of filter_node with model ins3d (nodes/ins3d_recording.py)",
+              choices=("x", "y", "ins3d"), read_only=False),
     ParamSpec("output_json", "string", "",
               "write the JSON result here (empty = do not write)", read_only=False),
     ParamSpec("state_topic", "string", "/fdi/state", "FilterState topic in the bag",
@@ -381,7 +382,9 @@ def error_result(bag: str, channel: str, message: str) -> dict:
 
 def summary_line(result: dict) -> str:
     """One log line: verdict, element, onset, magnitude, GLR, first alarm."""
-    post, glr, inf = result["post_flight"], result["post_flight"]["glr"], result["in_flight"]
+    post, inf = result["post_flight"], result["in_flight"]
+    glr = post.get("glr") or {"hypothesis": "none (" + post.get("method", "-") + ")",
+                              "statistic": None, "threshold": None}
 
     def f(v: Any, spec: str = ".4g") -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
@@ -390,7 +393,8 @@ def summary_line(result: dict) -> str:
             + (f": {post['headline']}" if post.get("headline") else
                f" of {post['element']}" if post["element"] else "")
             + f", onset {f(post['onset_s'], '.1f')} s, magnitude {f(post['magnitude'])}; "
-            f"seed method {post['seed_method']['verdict']}, GLR {glr['hypothesis']} "
+            f"seed method {post.get('seed_method', {}).get('verdict', '-')}, GLR "
+            f"{glr['hypothesis']} "
             f"(l = {f(glr['statistic'])}, threshold {f(glr['threshold'])}); "
             f"{len(inf['alarms'])} in-flight alarm(s), first at {f(inf['first_alarm_s'], '.1f')} s")
     if result.get("error"):
@@ -483,11 +487,17 @@ class SmootherNode(Node):
         try:
             if not bag:
                 raise BagError("no bag given (set the 'bag' parameter)")
-            rec = read_recording(bag, channel, p["state_topic"], p["model_topic"])
-            config = self.config or analysis_config(
-                gate=rec.gate, fisher_window=p["fisher_window"],
-                persistence_s=p["persistence_s"], glr_p_false_alarm=p["glr_false_alarm"])
-            run = analyze_recording(rec, config, p["flight_start_s"] or None, bag_label=bag)
+            if channel == "ins3d":  # the 3-D model (nodes/ins3d_recording.py)
+                from .ins3d_recording import analyze_recording3d
+                run = SmootherRun(result=analyze_recording3d(
+                    bag, p["state_topic"], p["model_topic"], bag_label=bag,
+                    gate=self.config.gate if self.config else None)[0])
+            else:
+                rec = read_recording(bag, channel, p["state_topic"], p["model_topic"])
+                config = self.config or analysis_config(
+                    gate=rec.gate, fisher_window=p["fisher_window"],
+                    persistence_s=p["persistence_s"], glr_p_false_alarm=p["glr_false_alarm"])
+                run = analyze_recording(rec, config, p["flight_start_s"] or None, bag_label=bag)
         except (BagError, CoreError) as exc:
             run = SmootherRun(result=error_result(bag, channel, str(exc)), error=str(exc))
         self.runs += 1
@@ -561,7 +571,7 @@ class SmootherNode(Node):
         else:
             post = run.result["post_flight"]
             values += [("verdict", post["verdict"]), ("element", post["element"] or ""),
-                       ("glr_hypothesis", post["glr"]["hypothesis"]),
+                       ("glr_hypothesis", (post.get("glr") or {}).get("hypothesis", "")),
                        ("samples", run.result["samples"])]
             values += [(k, v) for k, v in (run.recording.problems if run.recording else {}).items()]
             level = d.WARN if post["verdict"] in ("failure", "glitch", "ambiguous") else d.OK

@@ -1,0 +1,298 @@
+"""filter_node's ins3d mode (``model: ins3d``): the 3-D INS error model's forward filter in flight.
+
+Inputs, the four topics of the 3-D contract (docs/sim3d.md; names are parameters):
+``imu_topic`` (sensor_msgs/Imu: INS attitude, mean body rate and specific force),
+``ins_topic`` (geometry_msgs/TwistStamped: INS velocity ENU), ``fix_topic``
+(sensor_msgs/NavSatFix: INS latitude, height) and ``reference_topic``
+(geometry_msgs/TwistWithCovarianceStamped: reference velocity and its variances).
+
+Per message the core's ``Ins3dAssembler`` builds the propagation steps (the IMU stamps are the
+step boundaries) and the reference rows exactly as ``flight-fdi analyze --model ins3d`` reads a
+bag, and ``Ins3dStream`` runs the same compiled kernels as the batch filter (equal bit for bit).
+A step waits for the samples it needs (the next fix: 0.2 s at 5 Hz) and for the reference
+stream to pass it, at most ``ins3d_wait_s`` of IMU time. The filter starts at the first step
+(the aligned prior needs its attitude and specific force).
+
+Outputs (channel ``ins3d``): ``fdi/state`` (FilterState per step and per update, the layout of
+``ins3d_recording``: the smoother re-runs the whole 3-D analysis from a recording),
+``fdi/innovation`` (Innovation per update: nu, S, beta^2 over the rows and per row, the gate and
+the M-of-N alarm), ``fdi/model`` (ModelInfo once t0 is known, transient local), ``/diagnostics``.
+Bad input is dropped and counted (``dropped_<topic key>_<reason>``: non_finite,
+duplicate_stamp, out_of_order, invalid_covariance, core_error), never stopping the node.
+"""
+from __future__ import annotations
+
+import inspect
+import math
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import CoreError
+from ..core.gate import ALARM_CLEARED, ALARM_RAISED, GateConfig
+from ..core.ins3d.analysis import analyze_ins3d
+from ..core.ins3d.model import Ins3dModel
+from ..core.ins3d.stream import Boundary, Ins3dAssembler, Ins3dStream
+from . import diagnostics as diag
+from .convert import header
+from .ins3d_recording import CHANNEL, ROW_NAMES, pack_step, state_units, t0_params
+from .params import ParamSpec, fail
+
+MODEL = "ins3d"
+GRADES = ("navigation", "tactical", "mems")
+
+INS3D_PARAMS = (
+    ParamSpec("imu_topic", "string", "/ins/imu",
+              "ins3d mode: INS attitude and mean IMU rate / specific force (sensor_msgs/Imu)",
+              non_empty=True),
+    ParamSpec("fix_topic", "string", "/ins/fix",
+              "ins3d mode: INS latitude and height (sensor_msgs/NavSatFix)", non_empty=True),
+    ParamSpec("ins3d_grade", "string", "navigation",
+              "ins3d mode: IMU grade preset of the bias models", choices=GRADES),
+    ParamSpec("ins3d_rows", "int", 2,
+              "ins3d mode: reference rows, 2 (east, north) or 3 (with up)", "rows",
+              min=2, max=3),
+    ParamSpec("ins3d_wait_s", "double", 1.0,
+              "ins3d mode: longest wait (in IMU stamps) of a step for the reference stream to "
+              "pass it; after that a late reference sample is dropped", "s",
+              min=0.0, max=60.0, min_exclusive=True),
+)
+INS3D_ONLY = tuple(s.name for s in INS3D_PARAMS)
+#: filter_node parameters the ins3d mode uses besides its own
+USED = INS3D_ONLY + (
+    "model", "ins_topic", "reference_topic", "input_qos", "input_queue_depth", "gate_rule",
+    "gate_probability", "alarm_m", "alarm_n", "gate_action", "frame_id",
+    "diagnostics_period_s", "stale_after_s", "rate_window_s")
+#: the model options of ``analyze_ins3d`` (one set of defaults for the node and the CLI)
+_ANALYZE = {k: v.default for k, v in inspect.signature(analyze_ins3d).parameters.items()}
+
+
+def build_model(values: dict[str, Any], defaults: dict[str, Any]) -> Ins3dModel:
+    """The node's Ins3dModel; refuses a changed parameter that the ins3d mode would ignore."""
+    for k, v in values.items():
+        if k not in USED and k in defaults and v != defaults[k]:
+            fail(k, v, f"its default ({defaults[k]!r}): it does not apply to the ins3d mode")
+    if values["imu_topic"] in (values["ins_topic"], values["fix_topic"],
+                               values["reference_topic"]) or len(
+            {values["ins_topic"], values["fix_topic"], values["reference_topic"]}) < 3:
+        fail("imu_topic", values["imu_topic"], "four distinct topics (imu_topic, ins_topic, "
+             "fix_topic, reference_topic)")
+    try:
+        return Ins3dModel.from_grade(values["ins3d_grade"], position=_ANALYZE["position"],
+                                     rows=values["ins3d_rows"], vertical=_ANALYZE["vertical"],
+                                     latency=_ANALYZE["latency"],
+                                     ref_markov=_ANALYZE["ref_markov"])
+    except CoreError as exc:  # the table's checks should make this unreachable
+        fail("ins3d_grade", values["ins3d_grade"], f"a valid ins3d model ({exc})")
+
+
+def refuse_in_other_modes(values: dict[str, Any], defaults: dict[str, Any]) -> None:
+    """A changed ins3d-only parameter with another model would be ignored: refuse it."""
+    for k in INS3D_ONLY:
+        if values[k] != defaults[k]:
+            fail(k, values[k], f"its default ({defaults[k]!r}): it applies only to model ins3d")
+
+
+def is_ins3d(model: Any) -> bool:
+    return isinstance(model, Ins3dModel)
+
+
+class Ins3dMode:
+    """The ins3d mode of a FilterNode (module docstring); built by the node after its
+    parameters are declared. ``finish()`` flushes the steps that wait for samples that will
+    not come (the end of a replay)."""
+
+    def __init__(self, node: Any, model: Ins3dModel, gate: GateConfig, qos: Any) -> None:
+        from geometry_msgs.msg import TwistStamped, TwistWithCovarianceStamped
+        from sensor_msgs.msg import Imu, NavSatFix
+
+        self.node, self.model, self.gate = node, model, gate
+        p = self.p = node.p
+        self.names = {"ins_imu": node._resolve("imu_topic", p["imu_topic"]),
+                      "ins_velocity": node._resolve("ins_topic", p["ins_topic"]),
+                      "ins_fix": node._resolve("fix_topic", p["fix_topic"]),
+                      "ref_velocity": node._resolve("reference_topic", p["reference_topic"])}
+        if len(set(self.names.values())) < 4:
+            fail("imu_topic", p["imu_topic"], f"four distinct topics (they resolve to "
+                 f"{sorted(self.names.values())})")
+        self.asm = Ins3dAssembler(wait_s=p["ins3d_wait_s"])
+        self.stream: Ins3dStream | None = None
+        self._held: list = []
+        self.last: Any = None
+        self.last_t: float | None = None
+        self.alarm_since: float | None = None
+        self.counters = node.counters = diag.Counters(
+            ("received_ins", "received_reference", "published", "published_states"))
+        node._create_outputs(1)
+        cb = {"ins_imu": (Imu, self._on_imu), "ins_velocity": (TwistStamped, self._on_vel),
+              "ins_fix": (NavSatFix, self._on_fix),
+              "ref_velocity": (TwistWithCovarianceStamped, self._on_ref)}
+        for key, (cls, fn) in cb.items():
+            node.create_subscription(cls, self.names[key], fn, qos)
+        self.inputs = node.inputs = diag.InputMonitor(node._now, list(self.names.values()),
+                                                      window_s=p["rate_window_s"],
+                                                      stale_after_s=p["stale_after_s"])
+        node.diagnostics = diag.DiagnosticsTimer(node, p["diagnostics_period_s"],
+                                                 self.diagnostic_statuses)
+        node.get_logger().info(
+            f"ins3d mode: {model.grade.name} grade, {model.n} states, {model.rows} reference "
+            f"rows; inputs {', '.join(self.names.values())} (gate {gate.rule}, alarm "
+            f"{gate.alarm_m} of {gate.alarm_n}, action {gate.action})")
+
+    # ------------------------------------------------------------------ inputs
+    def _on_imu(self, m: Any) -> None:
+        o, w, f = m.orientation, m.angular_velocity, m.linear_acceleration
+        self._add("ins_imu", "received_ins", m, np.array([o.w, o.x, o.y, o.z]),
+                  np.array([f.x, f.y, f.z]), np.array([w.x, w.y, w.z]))
+
+    def _on_vel(self, m: Any) -> None:
+        v = m.twist.linear
+        self._add("ins_velocity", "received_ins", m, np.array([v.x, v.y, v.z]))
+
+    def _on_fix(self, m: Any) -> None:
+        self._add("ins_fix", "received_ins", m, np.radians(np.array([m.latitude]))[0],
+                  float(m.altitude))
+
+    def _on_ref(self, m: Any) -> None:
+        v = m.twist.twist.linear
+        self._add("ref_velocity", "received_reference", m, np.array([v.x, v.y, v.z]),
+                  np.asarray(m.twist.covariance)[[0, 7, 14]])
+
+    def _add(self, key: str, counter: str, msg: Any, *values: Any) -> None:
+        name = self.names[key]
+        self.inputs.seen(name)
+        self.counters.inc(counter)
+        ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        try:
+            got = self.asm.add(key, ns, *values)
+            if isinstance(got, str):
+                self.node._drop(f"{key}_{got}", f"{name} message at {ns * 1e-9:.3f} s: {got}")
+                return
+            self._process(got)
+        except (CoreError, ValueError, np.linalg.LinAlgError) as exc:
+            self.node._drop(f"{key}_core_error", f"{name} message at {ns * 1e-9:.3f} s: {exc}")
+
+    def finish(self) -> None:
+        """Flush the end of the record (see the class docstring)."""
+        self._process(self.asm.finish())
+
+    # ------------------------------------------------------------------ filter
+    def _process(self, events: list) -> None:
+        for e in events:
+            if self.stream is None:
+                if not (isinstance(e, Boundary) and e.step is not None):
+                    self._held.append(e)
+                    continue
+                s = e.step
+                P0 = self.model.p0_aligned(s.C[0], s.f_n[0], float(s.lat[0]))
+                self.stream = Ins3dStream(self.model, self.gate, P0=P0)
+                self._publish_model()
+                held, self._held = self._held, []
+                for h in held:
+                    self._apply(h)
+            self._apply(e)
+
+    def _apply(self, e: Any) -> None:
+        st = self.stream
+        if isinstance(e, Boundary):
+            if e.step is not None:
+                st.predict(e.step)
+            self._publish_state(e.ns, u=() if e.step is None else pack_step(e.step),
+                                dt=0.0 if e.step is None else float(e.step.dt[0]),
+                                reset=e.step is None)
+            return
+        res = st.update(e.z, e.r, e.a)
+        rows = self.model.rows
+        H = self.model.H(e.a)
+        self._publish_state(e.ns, z=e.z, r=np.diag(e.r), h=H, u=e.a, fused=res.fused,
+                            gated=res.exceeded)
+        self._publish_innovation(e.ns, res, rows)
+        self.last, self.last_t = res, e.t
+        if res.alarm == ALARM_RAISED:
+            self.alarm_since = e.t
+            self.node.get_logger().warning(
+                f"ins3d: innovation alarm at t={e.t:.3f} s (beta2 {res.beta2:.3g} > "
+                f"{st.threshold:.3g} in {self.gate.alarm_m} of the last {self.gate.alarm_n})")
+        elif res.alarm == ALARM_CLEARED:
+            self.alarm_since = None
+
+    # ------------------------------------------------------------------ outputs
+    @staticmethod
+    def _stamp(ns: int) -> Any:
+        from builtin_interfaces.msg import Time
+
+        return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+    def _publish_state(self, ns: int, z: Any = (), r: Any = (), h: Any = (), u: Any = (),
+                       dt: float = 0.0, fused: bool = False, gated: bool = False,
+                       reset: bool = False) -> None:
+        from .convert import filter_state_msg
+
+        st = self.stream
+        self.node.pub_state.publish(filter_state_msg(
+            self._stamp(ns), CHANNEL, self.model.names, st.x, st.P, z, r, h, u, dt, fused,
+            gated, reset, frame_id=self.p["frame_id"]))
+        self.counters.inc("published_states")
+
+    def _publish_innovation(self, ns: int, res: Any, rows: int) -> None:
+        from .convert import innovation_msg
+
+        r = SimpleNamespace(nu=res.nu, S=res.S, beta2=res.beta2,
+                            threshold=self.stream.threshold, exceeded=res.exceeded,
+                            alarm_state=res.alarm)
+        self.node.pub_innovation.publish(innovation_msg(
+            self._stamp(ns), CHANNEL, list(ROW_NAMES[:rows]), r, frame_id=self.p["frame_id"]))
+        self.counters.inc("published")
+
+    def _publish_model(self) -> None:
+        from flight_fdi_msgs.msg import ModelInfo
+
+        m, g, st = self.model, self.gate, self.stream
+        flat = lambda a: np.asarray(a, dtype=float).reshape(-1).tolist()
+        self.node.pub_model.publish(ModelInfo(
+            header=header(self.node.get_clock().now().to_msg(), self.p["frame_id"]),
+            channel=CHANNEL, model_name=f"{MODEL}/{m.grade.name}", state_names=list(m.names),
+            state_units=state_units(m.names), measurement_names=list(ROW_NAMES[:m.rows]),
+            n=m.n, m=m.rows, p=0, a=[], qc=flat(np.diag(m.qc())), h=flat(m.H()), r=[],
+            p0=flat(st.P), b=[], scale=flat(st.s),
+            param_names=["rows", "t0_sec", "t0_nanosec"],
+            param_values=[float(m.rows), *t0_params(self.asm.t0_ns)],
+            gate_rule=g.rule, gate_probability=float(g.probability), alarm_m=g.alarm_m,
+            alarm_n=g.alarm_n, gate_action=g.action))
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostic_statuses(self) -> list:
+        name = self.node.get_name()
+        problems = self.inputs.problems(self.node.diagnostics.clock_stalled_s())
+        values = self.inputs.key_values() + self.counters.key_values()
+        values += [("late_reference_rows", str(self.asm.late)),
+                   ("reference_outside_imu_record", str(self.asm.outside)),
+                   ("waiting_reference_rows", str(len(self.asm.refs)))]
+        out = [diag.make_status(f"{name}: inputs", diag.WARN if problems else diag.OK,
+                                "; ".join(problems) if problems else "inputs OK", values,
+                                hardware_id=self.names["ins_imu"])]
+        res = self.last
+        vals: list[tuple[str, Any]] = [
+            ("beta2", math.nan if res is None else res.beta2),
+            ("gate_threshold", self.gate.threshold(self.model.rows)),
+            ("alarm_since_s", "" if self.alarm_since is None else f"{self.alarm_since:.3f}"),
+            ("last_stamp_s", "" if self.last_t is None else f"{self.last_t:.3f}")]
+        if res is not None:
+            vals += [(f"beta2_{r}", float(b)) for r, b in zip(ROW_NAMES, res.beta2_row)]
+        if self.stream is not None:
+            vals += [(n, float(v)) for n, v in zip(self.model.names, self.stream.x)]
+        if self.alarm_since is not None:
+            level, text = diag.WARN, (f"innovation alarm since t={self.alarm_since:.3f} s (the "
+                                      "reference disagrees with the INS error model)")
+        elif self.stream is None:
+            level, text = diag.OK, "waiting for the first step (all four inputs)"
+        else:
+            level, text = diag.OK, "filtering"
+        out.append(diag.make_status(f"{name}: ins3d", level, text, vals,
+                                    hardware_id=self.names["ins_imu"]))
+        return out
+
+
+__all__ = ["INS3D_ONLY", "INS3D_PARAMS", "Ins3dMode", "MODEL", "build_model", "is_ins3d",
+           "refuse_in_other_modes"]

@@ -1,0 +1,158 @@
+"""``flight-fdi run BAG --model ins3d``: the node pipeline on a 3-D contract bag, in one process.
+
+bag_player (the four contract topics) -> filter_node (``model: ins3d``) -> recorder_node ->
+smoother_node (``channel: ins3d``) on one executor, in the private context of
+``pipeline.run_pipeline_detailed`` (nothing outside this process hears the replay). The smoother
+rebuilds the 3-D filter's inputs from the recording (``ins3d_recording``) and runs the analysis of
+``flight-fdi analyze --model ins3d``: the same verdict and numbers (test_ins3d_pipeline.py).
+
+The player paces on ``fdi/state`` with a window of ``ACK_WINDOW`` messages: the ins3d filter
+looks ahead (a step waits for the next /ins/fix sample, 0.2 s at 5 Hz), so the window must cover
+~15 messages; at the end of the replay the filter is flushed (``Ins3dMode.finish``) before the
+recording is closed.
+"""
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+from flight_fdi.bagio.errors import BagError
+
+from .errors import ParameterError
+from .pipeline import PipelineError, PipelineRun, Progress, _private_context, _spin_until
+from .runner import StopSignals, make_executor
+
+ACK_WINDOW = 400
+
+
+def _message_count(bag: Path, topics: list[str]) -> int:
+    from rosbags.rosbag2 import Reader
+
+    try:
+        with Reader(bag) as r:
+            return sum(c.msgcount for c in r.connections if c.topic in topics)
+    except Exception:  # only for the progress lines; the reader reports real problems
+        return 1
+
+
+def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any) -> dict:
+    """filter_node parameters of the ins3d mode for a replay (reliable inputs)."""
+    return {"model": "ins3d", "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
+            "fix_topic": names["ins_fix"], "reference_topic": names["ref_velocity"],
+            "ins3d_grade": grade, "ins3d_rows": int(rows), "input_qos": "reliable",
+            "gate_rule": gate.rule, "gate_probability": float(gate.probability),
+            "alarm_m": int(gate.alarm_m), "alarm_n": int(gate.alarm_n),
+            "gate_action": gate.action}
+
+
+def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, str] | None = None,
+                   grade: str = "navigation", rows: int = 2, gate: Any = None,
+                   storage: str = "mcap", overwrite: bool = False, timeout_s: float = 600.0,
+                   executor: str = "events", log_level: str = "warn", source: dict | None = None,
+                   progress: Any = None) -> PipelineRun:
+    """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
+    before any node exists (BagError). Leaves ``recording/`` and ``result.json`` in
+    ``out_dir``."""
+    from rclpy.parameter import Parameter
+
+    from flight_fdi.bagio.ins3d_input import check_topics
+    from flight_fdi.core.analysis import AnalysisConfig
+    from flight_fdi.core.gate import GateConfig
+
+    from .bag_player import BagPlayer
+    from .filter_node import FilterNode
+    from .recorder_node import RecorderNode
+    from .smoother_node import SmootherNode, write_json
+
+    gate = gate or GateConfig()
+    bag = Path(bag)
+    names = check_topics(bag, topics)
+    played = list(names.values())
+    tick_progress = Progress(_message_count(bag, played), progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    recording, result_json = out / "recording", out / "result.json"
+    deadline = time.monotonic() + timeout_s
+    with StopSignals((signal.SIGINT,)) as stop, \
+            _private_context(["--log-level", log_level]) as ctx:
+        ex = make_executor(executor, ctx)
+        nodes: list[Any] = []
+
+        def build(cls: Any, values: dict[str, Any], **extra: Any) -> Any:
+            try:
+                node = cls(context=ctx, start_parameter_services=False, **extra,
+                           parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+            except ParameterError as exc:
+                raise PipelineError(f"{cls.__name__}: {exc}") from None
+            nodes.append(node)
+            ex.add_node(node)
+            return node
+
+        def drop(node: Any) -> None:
+            ex.remove_node(node)
+            node.destroy_node()
+            nodes.remove(node)
+
+        try:
+            flt = build(FilterNode, filter_parameters3d(names, grade, rows, gate))
+            rec = build(RecorderNode, {"output": str(recording), "storage": storage,
+                                       "overwrite": overwrite})
+            player = build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
+                                       "ack_window": ACK_WINDOW, "publish_clock": False,
+                                       "topics": played})
+            _spin_until(ex, player.done.done, deadline, "replaying the bag", stop,
+                        lambda: tick_progress(player.published))
+            tick_progress(player.published)
+            if player.error:
+                raise BagError(player.error)
+            c = flt.counters
+            _spin_until(ex, lambda: c["received_ins"] + c["received_reference"]
+                        >= player.published, deadline, "filtering the last inputs", stop)
+            flt.ins3d.finish()
+            state, innov, model = (rec.resolve_topic_name(t) for t in
+                                   ("fdi/state", "fdi/innovation", "fdi/model"))
+
+            def settled() -> bool:
+                n = rec.counts()
+                return (n.get(state, 0) >= c["published_states"]
+                        and n.get(innov, 0) >= c["published"] and n.get(model, 0) >= 1)
+
+            _spin_until(ex, settled, deadline, "recording the filter's last outputs", stop)
+            replay_s = time.monotonic() - player.started_at
+            rec.close()
+            if rec.error:
+                raise PipelineError(f"recording failed: {rec.error}")
+            recorded, n_played, acks = rec.counts(), player.published, player.ack_timeouts
+            for node in (player, flt, rec):
+                drop(node)
+            t_analysis = time.monotonic()
+            smoother = build(SmootherNode, {"bag": str(recording), "channel": "ins3d",
+                                            "output_json": str(result_json),
+                                            "publish_smoothed": False},
+                             config=AnalysisConfig(gate=gate))
+            _spin_until(ex, smoother.done.done, deadline, "analysing the recording", stop)
+            run = smoother.last
+            if run is None or run.error:
+                raise PipelineError(f"analysis of {recording} failed: "
+                                    f"{run.error if run else 'no result'}")
+            result = dict(run.result)
+            result["bag"] = str(bag)
+            if source is not None:
+                result["source"] = source
+            write_json(result, result_json)
+            return PipelineRun(result=result, recording=recording, result_json=result_json,
+                               messages_played=n_played, recorded=recorded, replay_s=replay_s,
+                               analysis_s=time.monotonic() - t_analysis, ack_timeouts=acks)
+        finally:
+            for node in list(nodes):
+                try:
+                    ex.remove_node(node)
+                except Exception:
+                    pass
+                node.destroy_node()
+            ex.shutdown()
+
+
+__all__ = ["ACK_WINDOW", "filter_parameters3d", "run_pipeline3d"]
