@@ -8,8 +8,10 @@ rebuilds the 3-D filter's inputs from the recording (``ins3d_recording``) and ru
 
 The player paces on ``fdi/state`` with a window of ``ACK_WINDOW`` messages: the ins3d filter
 looks ahead (a step waits for the next /ins/fix sample, 0.2 s at 5 Hz), so the window must cover
-~15 messages; at the end of the replay the filter is flushed (``Ins3dMode.finish``) before the
-recording is closed.
+~15 messages; and it bounds how far one topic's messages can run ahead of another's in the
+filter's callbacks (~1.1 s of the sample bags), which must stay below the filter's
+``ins3d_wait_s`` (``WAIT_S``) or reference rows would come after their step was taken. At the end
+of the replay the filter is flushed (``Ins3dMode.finish``) before the recording is closed.
 """
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ from .errors import ParameterError
 from .pipeline import PipelineError, PipelineRun, Progress, _private_context, _spin_until
 from .runner import StopSignals, make_executor
 
-ACK_WINDOW = 400
+ACK_WINDOW = 60
+WAIT_S = 5.0
 
 
 def _message_count(bag: Path, topics: list[str]) -> int:
@@ -41,7 +44,8 @@ def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any)
     """filter_node parameters of the ins3d mode for a replay (reliable inputs)."""
     return {"model": "ins3d", "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
             "fix_topic": names["ins_fix"], "reference_topic": names["ref_velocity"],
-            "ins3d_grade": grade, "ins3d_rows": int(rows), "input_qos": "reliable",
+            "ins3d_grade": grade, "ins3d_rows": int(rows), "ins3d_wait_s": WAIT_S,
+            "input_qos": "reliable",
             "gate_rule": gate.rule, "gate_probability": float(gate.probability),
             "alarm_m": int(gate.alarm_m), "alarm_n": int(gate.alarm_n),
             "gate_action": gate.action}
@@ -91,6 +95,8 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
             return node
 
         def drop(node: Any) -> None:
+            for timer in list(node.timers):   # the events executor may still run a removed
+                timer.cancel()                # node's due timer (seen: /diagnostics)
             ex.remove_node(node)
             node.destroy_node()
             nodes.remove(node)
