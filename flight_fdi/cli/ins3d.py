@@ -113,6 +113,17 @@ def format_result(res: dict) -> str:
     for a in inf["alarms"][:5]:
         lines.append(f"  alarm {a['start_s']:9.1f} .. {a['end_s']:9.1f} s  peak beta2 "
                      f"{a['peak_beta2']:.3g}")
+    glr, seed = post.get("glr"), post.get("seed_method")
+    if glr:
+        lines.append(f"after the flight: GLR {glr['hypothesis']} statistic {glr['statistic']:.4g} "
+                     f"(threshold {glr['threshold']:.4g})"
+                     + (f", runner-up {glr['runner_up']} {glr['runner_up_statistic']:.4g}"
+                        if glr.get("runner_up") else "")
+                     + (f"; told apart from {post['ambiguity_resolved_s']:.0f} s"
+                        if post.get("ambiguity_resolved_s") is not None else ""))
+    if seed:
+        lines.append(f"  seed method (two-filter chi2, UDU^T, Fisher): {seed['verdict']}, "
+                     f"element {seed['element'] or '-'}")
     turns = [m for m in summ["manoeuvres"] if m[2].startswith("turn")]
     if turns:
         lines.append("turns: " + ", ".join(f"{a:.0f}-{b:.0f} s" for a, b, _ in turns))

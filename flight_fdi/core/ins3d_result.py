@@ -3,9 +3,9 @@
 ins3d recording write (one function for all of them).
 
 ``post_flight`` comes from the analysis' ``post_flight_dict()`` (the backward information filter,
-two-filter chi-square and body-axis GLR of core/ins3d) when the analysis has one; otherwise it is
-the forward filter's in-flight verdict only, marked ``"method": "forward_only"`` (no sensor is
-isolated: ``fault`` null, ``isolation`` none).
+two-filter chi-square and body-axis GLR of core/ins3d); an analysis run without its post-flight
+part (``analyze_ins3d(..., post=False)``) gives the forward filter's in-flight verdict only,
+marked ``"method": "forward_only"`` (no sensor is isolated: ``fault`` null, ``isolation`` none).
 """
 from __future__ import annotations
 
@@ -59,8 +59,8 @@ def ins3d_result(analysis: Any, bag: str, source: dict | None = None) -> dict:
     """The whole result of one 3-D analysis (core.ins3d.analysis.Ins3dAnalysis)."""
     fwd = analysis.forward
     inf = in_flight(fwd)
-    post_fn = getattr(analysis, "post_flight_dict", None)
-    post = post_fn() if callable(post_fn) else forward_only_post_flight(inf)
+    post = analysis.post_flight_dict() if getattr(analysis, "seed", None) is not None \
+        else forward_only_post_flight(inf)
     rows = fwd.beta2_row.shape[1]
     res = {
         "schema": SCHEMA_ID,

@@ -5,13 +5,14 @@ ins3d``) writes to a folder ``index.html`` (the verdict on top), ``summary.json`
 JSON) and the PNG figures:
 
 * ``axis_x.png``, ``axis_y.png``, ``axis_z.png``: per body axis, the accelerometer and the gyro
-  bias estimated by the forward filter with its 1-sigma band, and the true total systematic error
-  of that sensor axis when the bag carries the simulator's /sim/truth (``accel_error_*``,
-  ``gyro_error_*``: bias + scale factor and misalignment on the true input + fault);
+  bias estimated by the forward filter and after the flight by the two-filter smoother (with its
+  1-sigma band), and the true total systematic error of that sensor axis when the bag carries the
+  simulator's /sim/truth (``accel_error_*``, ``gyro_error_*``: bias + scale factor and
+  misalignment on the true input + fault);
 * ``gate.png``: beta^2 over time against the chi-square gate, total and per reference row, the
   alarms;
-* ``post_flight.png``: the post-flight statistics over time (chi-square J, GLR per hypothesis)
-  when the analysis provides them (``analysis.figure_series()``: {name: (t, y, threshold)}).
+* ``post_flight.png``: the two-filter chi-square J over time against its bound, and the GLR
+  statistic of each body-axis hypothesis over its onset time against the thresholds.
 
 Every figure shades the turns (the observability report's manoeuvres) and marks the isolated
 fault's onset.
@@ -49,26 +50,46 @@ def _onset(ax: Any, res: dict) -> None:
                    label=f"onset ({f['sensor']} {f['axis']})")
 
 
+def _glr_step(ax: Any, res: dict, sensor: str, axis: str, unit: str, t: np.ndarray) -> None:
+    """The step GLR isolated (or one of the ambiguous candidates) on this sensor axis."""
+    post = res["post_flight"]
+    for f in [post.get("fault")] + list(post.get("candidates") or []):
+        if not f or f["sensor"] != sensor or f["axis"] != axis or f["kind"] != "step" \
+                or f.get("unit_eng") != unit or f.get("magnitude_eng") is None:
+            continue
+        on = f["onset_s"]
+        ax.plot([t[0], on, on, t[-1]], [0.0, 0.0, f["magnitude_eng"], f["magnitude_eng"]],
+                color="#d62728", lw=1.4, label=f"GLR step {f['magnitude_eng']:+.3g} {unit}")
+
+
 def axis_figure(analysis: Any, res: dict, axis: str, path: Path,
                 truth: dict | None = None) -> Path:
     """Estimated vs true accelerometer and gyro bias of one body axis (module docstring)."""
     fwd, names = analysis.forward, list(analysis.model.names)
     man = res["ins3d"]["manoeuvres"]
-    fig, (a1, a2) = _canvas(2, f"body axis {axis}: estimated (forward filter) vs true sensor "
-                               "error")
-    for ax, state, key, scale, unit in (
-            (a1, f"ba_{axis}", f"accel_error_{axis}", MG, "mg"),
-            (a2, f"bg_{axis}", f"gyro_error_{axis}", DEG_PER_HOUR, "deg/h")):
+    j = AXES.index(axis)
+    smooth = analysis.bias_estimates() if getattr(analysis, "backward", None) is not None \
+        else None
+    fig, (a1, a2) = _canvas(2, f"body axis {axis}: estimated vs true sensor error")
+    for ax, state, sensor, key, scale, unit in (
+            (a1, f"ba_{axis}", "accelerometer", f"accel_error_{axis}", MG, "mg"),
+            (a2, f"bg_{axis}", "gyro", f"gyro_error_{axis}", DEG_PER_HOUR, "deg/h")):
         _turns(ax, man)
         i = names.index(state)
-        t, x, sd = _stride(fwd.t, fwd.x[:, i] / scale, fwd.sd[:, i] / scale)
-        ax.fill_between(t, x - sd, x + sd, color="#9ecae1", alpha=0.5, lw=0, label="1 sigma")
-        ax.plot(t, x, color="#1f5fa0", lw=1.2, label=f"estimate {state}")
+        t, x = _stride(fwd.t, fwd.x[:, i] / scale)
+        ax.plot(t, x, color="#7fa7cf", lw=0.9, label=f"forward filter {state}")
+        if smooth is not None:
+            t, x, sd = _stride(smooth["t"], smooth[sensor][:, j] / scale,
+                               smooth[f"{sensor}_sd"][:, j] / scale)
+            ax.fill_between(t, x - sd, x + sd, color="#9ecae1", alpha=0.5, lw=0,
+                            label="1 sigma (smoothed)")
+            ax.plot(t, x, color="#1f5fa0", lw=1.4, label="smoothed (two-filter)")
         if truth is not None and key in truth:
             tt, y = _stride(truth["t"], truth[key] / scale)
             ax.plot(tt, y, color="k", lw=1, ls=":", label="true (bias + SF/misalignment + fault)")
+        _glr_step(ax, res, sensor, axis, unit, fwd.t)
         _onset(ax, res)
-        ax.set_ylabel(f"{'accelerometer' if unit == 'mg' else 'gyro'} {axis} [{unit}]")
+        ax.set_ylabel(f"{sensor} {axis} [{unit}]")
         ax.legend(loc="upper left", fontsize=8)
         ax.grid(alpha=0.3)
     a2.set_xlabel("time [s]")
@@ -102,23 +123,39 @@ def gate_figure3d(analysis: Any, res: dict, path: Path) -> Path:
 
 
 def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
-    """The post-flight statistics over time, when the analysis provides them."""
-    series_fn = getattr(analysis, "figure_series", None)
-    series = series_fn() if callable(series_fn) else None
-    if not series:
+    """The two-filter chi-square J over time with its bound, and the GLR statistic of every
+    body-axis hypothesis over its onset time with the thresholds (the isolated one and its
+    runner-up drawn bold)."""
+    seed, curves = getattr(analysis, "seed", None), getattr(analysis, "glr", None)
+    if seed is None or not curves:
         return None
-    fig, (ax,) = _canvas(1, "after the flight: chi-square J and GLR statistics over time")
-    _turns(ax, res["ins3d"]["manoeuvres"])
-    for name, (t, y, thr) in series.items():
-        t, y = _maxpool(np.asarray(t, dtype=float), np.asarray(y, dtype=float))
-        line, = ax.plot(t, y, lw=0.8, label=name)
-        if thr is not None:
-            ax.axhline(float(thr), color=line.get_color(), ls="--", lw=0.8)
-    _onset(ax, res)
-    ax.set_yscale("symlog", linthresh=1.0)
-    ax.set_xlabel("time [s]")
-    ax.legend(loc="upper left", fontsize=7, ncol=2)
-    ax.grid(alpha=0.3)
+    glr = res["post_flight"].get("glr") or {}
+    bold = {glr.get("hypothesis"), glr.get("runner_up")}
+    fig, (a1, a2) = _canvas(2, "after the flight: two-filter chi-square and GLR statistics")
+    _turns(a1, res["ins3d"]["manoeuvres"])
+    t, J = _maxpool(np.asarray(seed.t, dtype=float), np.asarray(seed.J, dtype=float))
+    a1.semilogy(t, np.maximum(J, 1e-3), lw=0.7, color="#1f5fa0", label="J (two-filter chi^2)")
+    t, g = _stride(np.asarray(seed.t, dtype=float), np.asarray(seed.gamma2, dtype=float))
+    a1.semilogy(t, g, color="#c03030", lw=1, label="bound gamma^2 (effective dof)")
+    a1.set_ylabel("chi-square J")
+    _turns(a2, res["ins3d"]["manoeuvres"])
+    thresholds = glr.get("thresholds") or {}
+    for name, c in curves.items():
+        if c.hypothesis.kind == "outliers" or not c.t.size:
+            continue
+        t, y = _maxpool(np.asarray(c.t, dtype=float), np.asarray(c.stat, dtype=float))
+        strong = name in bold
+        a2.plot(t, y, lw=1.4 if strong else 0.5, alpha=1.0 if strong else 0.5,
+                label=name if strong else None)
+    for kind, thr in thresholds.items():
+        if kind != "outliers":
+            a2.axhline(float(thr), ls="--", lw=0.8, color="#c03030")
+    a2.set_ylabel("GLR statistic over the onset")
+    a2.set_xlabel("time [s] (GLR: onset time)")
+    for ax in (a1, a2):
+        _onset(ax, res)
+        ax.legend(loc="upper left", fontsize=8)
+        ax.grid(alpha=0.3)
     return _save(fig, path)
 
 
@@ -172,11 +209,13 @@ def write_report3d(res: dict, analysis: Any, out_dir: str | Path, truth: dict | 
     for axis in AXES:
         axis_figure(analysis, res, axis, out / f"axis_{axis}.png", truth)
         figs.append((f"axis_{axis}.png", f"Body axis {axis}: accelerometer and gyro bias "
-                     "estimates with 1 sigma" + (", and the true sensor error" if truth else "")))
+                     "estimates (forward filter; two-filter smoother with 1 sigma)"
+                     + (", and the true sensor error" if truth else "")))
     gate_figure3d(analysis, res, out / "gate.png")
     figs.append(("gate.png", "beta^2 against the gate, total and per reference row"))
     if post_flight_figure(analysis, res, out / "post_flight.png") is not None:
-        figs.append(("post_flight.png", "post-flight statistics over time"))
+        figs.append(("post_flight.png", "After the flight: chi-square J with its bound; GLR "
+                     "statistic per body-axis hypothesis over the onset time, thresholds dashed"))
     notes = list(notes or [])
     if truth is None:
         notes.append("The bag has no /sim/truth: no true sensor errors are drawn.")
