@@ -122,5 +122,23 @@ def analyze_recording3d(path: str | Path, state_topic: str = "/fdi/state",
     return ins3d_result(analysis, bag_label or str(path)), analysis, rec
 
 
+def smoother_run3d(bag: str, state_topic: str, model_topic: str, gate: Any = None):
+    """What ``smoother_node`` (``channel: ins3d``) runs: a SmootherRun with the result, or for
+    a bag that cannot be analysed a schema-valid ``insufficient_data`` result with the error
+    (never raises for bad input)."""
+    from flight_fdi.core.errors import CoreError
+
+    from .smoother_node import SmootherRun, error_result
+
+    try:
+        if not bag:
+            raise BagError("no bag given (set the 'bag' parameter)")
+        return SmootherRun(result=analyze_recording3d(bag, state_topic, model_topic,
+                                                      bag_label=bag, gate=gate)[0])
+    except (BagError, CoreError, ValueError) as exc:
+        return SmootherRun(result={**error_result(bag, "en", str(exc)), "model": "ins3d"},
+                           error=str(exc))
+
+
 __all__ = ["CHANNEL", "STEP_U", "analyze_recording3d", "pack_step", "read_recording3d",
-           "state_units", "t0_params"]
+           "smoother_run3d", "state_units", "t0_params"]

@@ -484,22 +484,22 @@ class SmootherNode(Node):
         p = self.params
         bag, channel = p["bag"], p["channel"]
         run = SmootherRun(result={})
-        try:
-            if not bag:
-                raise BagError("no bag given (set the 'bag' parameter)")
-            if channel == "ins3d":  # the 3-D model (nodes/ins3d_recording.py)
-                from .ins3d_recording import analyze_recording3d
-                run = SmootherRun(result=analyze_recording3d(
-                    bag, p["state_topic"], p["model_topic"], bag_label=bag,
-                    gate=self.config.gate if self.config else None)[0])
-            else:
+        if channel == "ins3d":  # the 3-D model (nodes/ins3d_recording.py)
+            from .ins3d_recording import smoother_run3d
+            run = smoother_run3d(bag, p["state_topic"], p["model_topic"],
+                                 self.config.gate if self.config else None)
+        else:
+            try:
+                if not bag:
+                    raise BagError("no bag given (set the 'bag' parameter)")
                 rec = read_recording(bag, channel, p["state_topic"], p["model_topic"])
                 config = self.config or analysis_config(
                     gate=rec.gate, fisher_window=p["fisher_window"],
                     persistence_s=p["persistence_s"], glr_p_false_alarm=p["glr_false_alarm"])
-                run = analyze_recording(rec, config, p["flight_start_s"] or None, bag_label=bag)
-        except (BagError, CoreError) as exc:
-            run = SmootherRun(result=error_result(bag, channel, str(exc)), error=str(exc))
+                run = analyze_recording(rec, config, p["flight_start_s"] or None,
+                                        bag_label=bag)
+            except (BagError, CoreError) as exc:
+                run = SmootherRun(result=error_result(bag, channel, str(exc)), error=str(exc))
         self.runs += 1
         self.last = run
         rec = run.recording

@@ -115,3 +115,23 @@ def test_bad_bags_are_one_line_errors(bag3d, tmp_path, capsys):
     assert main(["analyze", str(bad), "--model", "ins3d"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("flight-fdi analyze: error:")
+
+
+def test_schema_holds_the_ins3d_form(bag3d, capsys):
+    import jsonschema
+
+    rc, res, _ = _json(capsys, ["analyze", str(bag3d), "--model", "ins3d", "--json"])
+    validate_result(res)
+    for change in ({"channel": "x"}, {"ins3d": None}, {"model": "ins3d", "channel": "east"}):
+        bad = {k: v for k, v in {**res, **change}.items() if v is not None}
+        with pytest.raises(jsonschema.ValidationError):
+            validate_result(bad)
+    fault = res["post_flight"]["fault"]
+    # the simulated fault: gyro x step of 3 deg/h at 150 s
+    assert (fault["sensor"], fault["axis"], fault["kind"]) == ("gyro", "x", "step")
+    assert abs(fault["onset_s"] - 150.0) < 10.0 and fault["unit_eng"] == "deg/h"
+    assert fault["magnitude_eng"] == pytest.approx(3.0, rel=0.1)
+    bad = json.loads(json.dumps(res))
+    bad["post_flight"]["fault"]["axis"] = "forward"
+    with pytest.raises(jsonschema.ValidationError):
+        validate_result(bad)
