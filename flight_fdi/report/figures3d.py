@@ -50,6 +50,14 @@ def _onset(ax: Any, res: dict) -> None:
                    label=f"onset ({f['sensor']} {f['axis']})")
 
 
+def _finish(fig: Any, axes: tuple, res: dict, path: Path) -> Path:
+    for ax in axes:
+        _onset(ax, res)
+        ax.legend(loc="upper left", fontsize=8)
+        ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
 def _glr_step(ax: Any, res: dict, sensor: str, axis: str, unit: str, t: np.ndarray) -> None:
     """The step GLR isolated (or one of the ambiguous candidates) on this sensor axis."""
     post = res["post_flight"]
@@ -115,11 +123,7 @@ def gate_figure3d(analysis: Any, res: dict, path: Path) -> Path:
     a2.axhline(fwd.threshold_row, color="#c03030", lw=1, label=f"row gate {fwd.threshold_row:.3g}")
     a2.set_ylabel("beta^2 per row")
     a2.set_xlabel("time [s]")
-    for ax in (a1, a2):
-        _onset(ax, res)
-        ax.legend(loc="upper left", fontsize=8)
-        ax.grid(alpha=0.3)
-    return _save(fig, path)
+    return _finish(fig, (a1, a2), res, path)
 
 
 def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
@@ -152,11 +156,7 @@ def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
             a2.axhline(float(thr), ls="--", lw=0.8, color="#c03030")
     a2.set_ylabel("GLR statistic over the onset")
     a2.set_xlabel("time [s] (GLR: onset time)")
-    for ax in (a1, a2):
-        _onset(ax, res)
-        ax.legend(loc="upper left", fontsize=8)
-        ax.grid(alpha=0.3)
-    return _save(fig, path)
+    return _finish(fig, (a1, a2), res, path)
 
 
 def _e(x: Any) -> str:
