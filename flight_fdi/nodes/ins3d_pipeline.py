@@ -23,7 +23,8 @@ from typing import Any
 from flight_fdi.bagio.errors import BagError
 
 from .errors import ParameterError
-from .pipeline import PipelineError, PipelineRun, Progress, _private_context, _spin_until
+from .pipeline import (PipelineError, PipelineRun, Progress, _private_context, _spin_until,
+                       smoother_result)
 from .runner import StopSignals, make_executor
 
 ACK_WINDOW = 60
@@ -68,7 +69,7 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     from .bag_player import BagPlayer
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
-    from .smoother_node import SmootherNode, write_json
+    from .smoother_node import write_json
 
     gate = gate or GateConfig()
     bag = Path(bag)
@@ -134,16 +135,9 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
             for node in (player, flt, rec):
                 drop(node)
             t_analysis = time.monotonic()
-            smoother = build(SmootherNode, {"bag": str(recording), "channel": "ins3d",
-                                            "output_json": str(result_json),
-                                            "publish_smoothed": False},
-                             config=AnalysisConfig(gate=gate))
-            _spin_until(ex, smoother.done.done, deadline, "analysing the recording", stop)
-            run = smoother.last
-            if run is None or run.error:
-                raise PipelineError(f"analysis of {recording} failed: "
-                                    f"{run.error if run else 'no result'}")
-            result = dict(run.result)
+            result = smoother_result(build, ex, deadline, stop, AnalysisConfig(gate=gate), {
+                "bag": str(recording), "channel": "ins3d", "output_json": str(result_json),
+                "publish_smoothed": False})
             result["bag"] = str(bag)
             if source is not None:
                 result["source"] = source

@@ -180,6 +180,21 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
         executor.spin_once(timeout_sec=min(0.05, left))
 
 
+def smoother_result(build: Any, ex: Any, deadline: float, stop: StopSignals, config: Any,
+                    params: dict[str, Any]) -> dict:
+    """Build the smoother node (``build(cls, params, config=...)``), spin until its analysis of
+    the recording is done and return a copy of its result (PipelineError when it failed)."""
+    from .smoother_node import SmootherNode
+
+    smoother = build(SmootherNode, params, config=config)
+    _spin_until(ex, smoother.done.done, deadline, "analysing the recording", stop)
+    run = smoother.last
+    if run is None or run.error:
+        raise PipelineError(f"analysis of {params['bag']} failed: "
+                            f"{run.error if run else 'no result'}")
+    return dict(run.result)
+
+
 def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "x", *,
                           config: Any = None, model: str = "ins_channel", storage: str = "mcap",
                           overwrite: bool = False, timeout_s: float = 600.0,
@@ -207,7 +222,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     from .bag_player import BagPlayer
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
-    from .smoother_node import SmootherNode, write_json
+    from .smoother_node import write_json
 
     if config is None:
         config = AnalysisConfig()
@@ -287,15 +302,9 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                 nodes.remove(node)
 
             t_analysis = time.monotonic()
-            smoother = build(SmootherNode, {
+            result = smoother_result(build, ex, deadline, stop, config, {
                 "bag": str(recording), "channel": channel, "output_json": str(result_json),
-                "flight_start_s": flight_start, "publish_smoothed": False}, config=config)
-            _spin_until(ex, smoother.done.done, deadline, "analysing the recording", stop)
-            run = smoother.last
-            if run is None or run.error:
-                raise PipelineError(f"analysis of {recording} failed: "
-                                    f"{run.error if run else 'no result'}")
-            result = dict(run.result)
+                "flight_start_s": flight_start, "publish_smoothed": False})
             result["bag"] = str(bag)  # the input, as flight-fdi analyze names it
             result["input"] = input_section
             result["source"] = spec.describe()
