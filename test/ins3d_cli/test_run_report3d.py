@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from flight_fdi.cli.main import main
 from flight_fdi.schema import validate_result
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_run_equals_analyze_and_reports(bag3d, tmp_path, capfd):
     out = tmp_path / "run"
     assert main(["analyze", str(bag3d), "--model", "ins3d", "--json"]) == 0

@@ -86,6 +86,8 @@ def harness():
     h.close()
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_node_outputs_equal_the_batch_filter(harness):
     from flight_fdi_msgs.msg import FilterState, Innovation, ModelInfo
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
