@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from test.harness import RosHarness, collect
+from harness import collect
 
 from flight_fdi.core.gate import GateConfig
 from flight_fdi.core.ins3d.filter import run_forward
@@ -79,33 +79,26 @@ def _replay(h, node, driver, msgs, chunk=200):
                      what="the node took the messages")
 
 
-@pytest.fixture
-def harness():
-    h = RosHarness()
-    yield h
-    h.close()
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(300)
-def test_node_outputs_equal_the_batch_filter(harness):
+def test_node_outputs_equal_the_batch_filter(ros):
     from flight_fdi_msgs.msg import FilterState, Innovation, ModelInfo
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     msgs = _as_received(topic_messages(flight(180.0)))
-    node = harness.node(FilterNode, {"model": "ins3d", "input_qos": "reliable",
+    node = ros.node(FilterNode, {"model": "ins3d", "input_qos": "reliable",
                                      "input_queue_depth": 5000})
-    driver = harness.node("driver")
-    states = collect(harness, driver, FilterState, "fdi/state", 100000)
-    innov = collect(harness, driver, Innovation, "fdi/innovation", 100000)
-    models = collect(harness, driver, ModelInfo, "fdi/model", QoSProfile(
+    driver = ros.node("driver")
+    states = collect(ros, driver, FilterState, "fdi/state", 100000)
+    innov = collect(ros, driver, Innovation, "fdi/innovation", 100000)
+    models = collect(ros, driver, ModelInfo, "fdi/model", QoSProfile(
         depth=1, reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    _replay(harness, node, driver, msgs)
+    _replay(ros, node, driver, msgs)
     node.ins3d.finish()
     inp = batch_input(msgs)
     n_steps, n_refs = len(inp.steps), inp.refs.t.size
-    harness.spin_until(lambda: len(states) >= n_steps + 1 + n_refs and len(innov) >= n_refs
+    ros.spin_until(lambda: len(states) >= n_steps + 1 + n_refs and len(innov) >= n_refs
                        and models, timeout=30, what="all outputs")
     model = node.model
     st = inp.steps
@@ -131,7 +124,7 @@ def test_node_outputs_equal_the_batch_filter(harness):
         statuses["filter_node: ins3d"].message
 
 
-def test_bad_messages_are_counted_not_fatal(harness):
+def test_bad_messages_are_counted_not_fatal(ros):
     msgs = _as_received(topic_messages(flight(180.0)))[:3000]
     bad = []
     for i, (ns, key, vals) in enumerate(msgs):
@@ -142,10 +135,10 @@ def test_bad_messages_are_counted_not_fatal(harness):
     ns, key, vals = bad[refs[0]]
     bad[refs[0]] = (ns, key, (vals[0], np.zeros(3)))        # zero covariance
     bad.insert(refs[1] + 1, bad[refs[1]])                    # a duplicate stamp
-    node = harness.node(FilterNode, {"model": "ins3d", "input_qos": "reliable",
+    node = ros.node(FilterNode, {"model": "ins3d", "input_qos": "reliable",
                                      "input_queue_depth": 5000})
-    driver = harness.node("driver")
-    _replay(harness, node, driver, bad)
+    driver = ros.node("driver")
+    _replay(ros, node, driver, bad)
     c = node.counters
     key1000 = bad[1000][1]
     assert c[f"dropped_{key1000}_non_finite"] == 1
@@ -164,9 +157,9 @@ def test_bad_messages_are_counted_not_fatal(harness):
     ({"imu_topic": "/my/imu"}, "applies only to model ins3d"),
     ({"model": "ins3d", "channels": ["x"]}, "'channels'"),
 ])
-def test_parameters_are_validated_at_start(harness, params, needle):
+def test_parameters_are_validated_at_start(ros, params, needle):
     with pytest.raises(ParameterError, match=needle):
-        harness.node(FilterNode, params)
+        ros.node(FilterNode, params)
 
 
 def test_model_from_parameters_matches_the_cli_analysis():

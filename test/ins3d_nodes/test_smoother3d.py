@@ -4,25 +4,18 @@ from __future__ import annotations
 
 import pytest
 
-from test.harness import RosHarness
+import harness  # noqa: F401  (private ROS domain)
 
 from flight_fdi.nodes.smoother_node import SmootherNode
 from flight_fdi.schema import validate_result
 
 
-@pytest.fixture
-def harness():
-    h = RosHarness()
-    yield h
-    h.close()
-
-
 @pytest.mark.parametrize("bag,needle", [("does/not/exist", "does not exist"),
                                         ("bags/nominal", "no topic /fdi/model")])
-def test_unusable_bag_gives_an_error_result(harness, bag, needle):
-    node = harness.node(SmootherNode, {"bag": bag, "channel": "ins3d",
+def test_unusable_bag_gives_an_error_result(ros, bag, needle):
+    node = ros.node(SmootherNode, {"bag": bag, "channel": "ins3d",
                                        "publish_smoothed": False})
-    harness.spin_until(node.done, timeout=20, what="the analysis")
+    ros.spin_until(node.done, timeout=20, what="the analysis")
     res = node.last.result
     validate_result(res)
     assert res["model"] == "ins3d" and res["post_flight"]["verdict"] == "insufficient_data"
