@@ -17,7 +17,6 @@ from pathlib import Path
 
 from flight_fdi.cli.errors import CliError
 
-GRADES = ("navigation", "tactical", "mems")
 #: the single-axis input options that mean nothing to the 3-D model
 SINGLE_AXIS_ONLY = (("channel", "--channel"), ("nav_frame", "--nav-frame"),
                     ("odometry_twist_frame", "--odometry-twist-frame"),
@@ -25,8 +24,10 @@ SINGLE_AXIS_ONLY = (("channel", "--channel"), ("nav_frame", "--nav-frame"),
 
 
 def add_ins3d_options(p: argparse.ArgumentParser) -> None:
+    from flight_fdi.core.ins3d.grades import GRADES
+
     g = p.add_argument_group("3-D model (--model ins3d; docs/ins3d.md)")
-    g.add_argument("--grade", default=None, choices=GRADES,
+    g.add_argument("--grade", default=None, choices=[k for k in GRADES if k != "perfect"],
                    help="IMU grade preset of the bias models (default navigation)")
     g.add_argument("--rows", type=int, default=None, choices=(2, 3),
                    help="reference rows: 2 (east, north) or 3 (with up) (default 2)")
