@@ -46,8 +46,6 @@ def is_ins3d(args: argparse.Namespace) -> bool:
                 raise CliError(f"{opt} applies to the single-axis models, not to --model ins3d")
         if args.reference_topic and len(args.reference_topic) > 1:
             raise CliError("--model ins3d takes one --reference-topic")
-        if getattr(args, "jobs", None) == 2 and "--jobs" in sys.argv[1:]:
-            raise CliError("--jobs applies to the single-axis models")
     else:
         for opt in ("grade", "rows", "imu_topic", "fix_topic"):
             if getattr(args, opt, None) is not None:
