@@ -5,7 +5,7 @@ Two parts, both pure logic (no rclpy):
 * :class:`Ins3dStream` -- the filter itself: ``predict`` takes one propagation step and
   ``update`` one reference row, calling the same compiled kernels as the batch
   ``filter.run_forward`` (``model.fill_F``, ``model.discretize``, ``filter._scale``,
-  ``filter._update``) on the same scaled state, so its states, innovations and gates equal the
+  ``filter.predict``, ``filter._update``) on the same scaled state, so its states, innovations and gates equal the
   batch filter's bit for bit (test/ins3d_nodes/test_stream.py).
 * :class:`Ins3dAssembler` -- the contract topics (/ins/imu, /ins/velocity, /ins/fix,
   /reference/velocity) turned into those steps and rows as ``bagio.ins3d_input.build_input``
@@ -33,20 +33,18 @@ from numba import njit
 
 from ..gate import AlarmLogic, GateConfig
 from .data import NavSteps, nav_steps
-from .filter import _scale, _update, white_variance
+from .filter import _scale, _update, predict, white_variance
 from .model import Ins3dModel, discretize, fill_F
 
 
 @njit(cache=True)
-def _predict(x, P, C, f_n, v, lat, h, dt, bias, qc, s, F, Phi, Qd):
-    """One propagation step on the scaled state, exactly as the batch kernel's loop body."""
+def _predict(x, P, C, f_n, v, lat, h, dt, bias, qc, s, F, Phi, Qd, T, xt):
+    """One propagation step on the scaled state (in place), exactly as the batch kernel's loop
+    body."""
     fill_F(F, C, f_n, v, lat, h, bias)
     discretize(F, dt, qc, Phi, Qd)
     _scale(Phi, Qd, s)
-    x = Phi @ x
-    P = Phi @ P @ Phi.T + Qd
-    P = 0.5 * (P + P.T)
-    return x, P
+    predict(x, P, Phi, Qd, T, xt)
 
 
 @dataclass
@@ -78,6 +76,7 @@ class Ins3dStream:
         self._P = P0 / (self.s[:, None] * self.s[None, :])
         self._bias, self._qc = model.kernel_params(), model.qc()
         self._F, self._Phi, self._Qd = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+        self._T, self._xt = np.empty((n, n)), np.empty(n)
         self.threshold, self.threshold_row = gate.threshold(model.rows), gate.threshold(1)
         self._alarm = AlarmLogic(gate.alarm_m, gate.alarm_n)
         rows = model.rows
@@ -86,9 +85,9 @@ class Ins3dStream:
 
     def predict(self, steps: NavSteps, k: int = 0) -> None:
         """Propagate over step ``k`` of ``steps``."""
-        self._x, self._P = _predict(self._x, self._P, steps.C[k], steps.f_n[k], steps.v[k],
-                                    steps.lat[k], steps.h[k], steps.dt[k], self._bias, self._qc,
-                                    self.s, self._F, self._Phi, self._Qd)
+        _predict(self._x, self._P, steps.C[k], steps.f_n[k], steps.v[k], steps.lat[k],
+                 steps.h[k], steps.dt[k], self._bias, self._qc, self.s, self._F, self._Phi,
+                 self._Qd, self._T, self._xt)
 
     def update(self, z: np.ndarray, r: np.ndarray, a: np.ndarray) -> Ins3dUpdate:
         """Fuse one reference row: z (3,) = v_INS - v_ref, r (3,) its published variances,
