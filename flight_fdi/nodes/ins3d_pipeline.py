@@ -24,7 +24,7 @@ from flight_fdi.bagio.errors import BagError
 
 from .errors import ParameterError
 from .pipeline import (PipelineError, PipelineRun, Progress, _private_context, _spin_until,
-                       smoother_result)
+                       smoother_result, teardown)
 from .runner import StopSignals, make_executor
 
 ACK_WINDOW = 60
@@ -146,13 +146,7 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                                messages_played=n_played, recorded=recorded, replay_s=replay_s,
                                analysis_s=time.monotonic() - t_analysis, ack_timeouts=acks)
         finally:
-            for node in list(nodes):
-                try:
-                    ex.remove_node(node)
-                except Exception:
-                    pass
-                node.destroy_node()
-            ex.shutdown()
+            teardown(ex, nodes)
 
 
 __all__ = ["ACK_WINDOW", "filter_parameters3d", "run_pipeline3d"]

@@ -180,6 +180,17 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
         executor.spin_once(timeout_sec=min(0.05, left))
 
 
+def teardown(ex: Any, nodes: list) -> None:
+    """Remove and destroy the nodes still in the graph, then shut the executor down."""
+    for node in list(nodes):
+        try:
+            ex.remove_node(node)
+        except Exception:
+            pass
+        node.destroy_node()
+    ex.shutdown()
+
+
 def smoother_result(build: Any, ex: Any, deadline: float, stop: StopSignals, config: Any,
                     params: dict[str, Any]) -> dict:
     """Build the smoother node (``build(cls, params, config=...)``), spin until its analysis of
@@ -314,13 +325,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                                analysis_s=time.monotonic() - t_analysis,
                                ack_timeouts=ack_timeouts)
         finally:
-            for node in nodes:
-                try:
-                    ex.remove_node(node)
-                except Exception:
-                    pass
-                node.destroy_node()
-            ex.shutdown()
+            teardown(ex, nodes)
 
 
 def run_pipeline(bag: str | Path, out_dir: str | Path, channel: str = "x", **kwargs: Any) -> dict:
