@@ -10,7 +10,9 @@ isolation rates with the smallest fault each method isolates in 95 % of the runs
 The flights run on Dask: a local cluster of --jobs worker processes (default one per core;
 1: in this process), or an existing cluster with --scheduler tcp://HOST:PORT. The result depends
 only on the options (--seed included), not on where or on how many workers it ran. --records
-streams every flight's record to a JSON-lines file as it arrives (for very large studies).
+streams every flight's record to a JSON-lines file as it arrives (for very large studies); run
+the same command again after an interruption and it resumes: the flights already in the file
+are not run again, and the result is that of an uninterrupted run.
 """
 from __future__ import annotations
 
@@ -74,7 +76,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also write the full result (settings, metrics, every flight) as JSON")
     p.add_argument("--records", default=None, metavar="FILE.jsonl",
                    help="stream every flight's record to this file as it arrives (JSON lines, "
-                        "completion order)")
+                        "completion order); when FILE already holds records of the same study, "
+                        "resume: only the flights not in it run")
+    p.add_argument("--restart", action="store_true",
+                   help="with --records: start FILE anew instead of resuming from it")
     p.add_argument("--json", action="store_true",
                    help="print the settings and metrics as one JSON object instead of tables")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -103,25 +108,15 @@ def _writable(path: str | None, option: str) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from flight_fdi.campaign.engine import default_workers
     from flight_fdi.eval.montecarlo import format_metrics, run_study
 
     config = study_config(args)
     spec = engine_spec(args)
     out = _writable(args.out, "--out")
-    records = _writable(args.records, "--records")
-    with contextlib.ExitStack() as stack:
-        on_record = None
-        if records is not None:
-            stream = stack.enter_context(records.open("w", encoding="utf-8"))
-
-            def on_record(rec: dict) -> None:
-                stream.write(json.dumps(rec, allow_nan=False) + "\n")
-                stream.flush()
-
-        result = run_study(config, jobs=spec.workers or default_workers(),
-                           progress=not args.no_progress, on_record=on_record,
-                           scheduler=spec.scheduler)
+    with open_records(args, config.describe()) as records:
+        result = run_study(config, jobs=jobs_of(spec), progress=not args.no_progress,
+                           on_record=records.write if records else None,
+                           scheduler=spec.scheduler, done=records.done if records else None)
     if out is not None:
         out.write_text(json.dumps(result.to_dict(with_records=True), indent=1) + "\n")
     if args.json:
@@ -131,6 +126,25 @@ def run(args: argparse.Namespace) -> int:
         print(format_metrics(result.metrics))
         print(f"\n{len(result.records)} flights of {config.duration_s:g} s in "
               f"{result.elapsed_s:.1f} s on {result.engine}"
+              + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
               + (f"; full result in {out}" if out else "")
-              + (f"; records in {records}" if records else ""))
+              + (f"; records in {args.records}" if args.records else ""))
     return 0
+
+
+def jobs_of(spec) -> int:
+    """The ``jobs`` of :func:`~flight_fdi.eval.parallel.parallel_map` for an engine spec."""
+    from flight_fdi.campaign.engine import default_workers
+
+    return spec.workers or default_workers()
+
+
+def open_records(args: argparse.Namespace, study: dict):
+    """The ``--records`` file of a study (a context manager; ``None`` inside without
+    ``--records``): resumes from it unless ``--restart``. Any study's CLI can use it."""
+    from flight_fdi.eval.records import RecordsFile
+
+    path = _writable(args.records, "--records")
+    if path is None:
+        return contextlib.nullcontext(None)
+    return RecordsFile(path, study, restart=args.restart)

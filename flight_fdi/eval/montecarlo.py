@@ -35,38 +35,37 @@ class equals the true element; GLR *names* it when it is isolated or among the c
 an ambiguous result (:func:`onset_errors` reports onset errors over the named faults).
 
 Everything here is pure (numpy, no rclpy); :func:`run_study` runs the flights on the campaign
-engine (:mod:`flight_fdi.campaign.engine`: this process, a local Dask cluster or an existing
-one). The result depends only on the study's configuration and seed, never on where it ran.
+engine (:func:`flight_fdi.eval.parallel.parallel_map`: this process, a local Dask cluster or an
+existing one) and resumes a study from its records file (:mod:`flight_fdi.eval.records`). The
+result depends only on the study's configuration and seed, never on where it ran or whether it
+was interrupted. The decisions are in :mod:`.decisions`, the metrics in :mod:`.study_metrics`,
+their text in :mod:`.study_report` (all re-exported here).
 """
 from __future__ import annotations
 
 import math
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
 from flight_fdi.core.analysis import AnalysisConfig, run_analysis
-from flight_fdi.core.models import DEG_PER_HOUR, G0
 from flight_fdi.sim import FaultSpec, SimConfig, simulate
 
+from .decisions import (AMBIGUOUS, DETECTORS, FAULT_KINDS, ISOLATION_LEVEL,  # noqa: F401
+                        KINDS, LEVEL_UNITS, METHODS, SEED_DECLARED, TRUE_ELEMENT, _num, _pct,
+                        _stats, declared, glr_class, isolated, predicted_class)
 from .errors import EvalError
+from .parallel import parallel_map
+from .study_metrics import (by_level, confusion_matrix, error_rates,  # noqa: F401
+                            smallest_isolated, summarize, type_errors)
+from .study_report import format_metrics  # noqa: F401
 
-KINDS = ("nominal", "accel", "gyro")
-FAULT_KINDS = ("accel", "gyro")
-#: the model state each fault kind acts on (the true class of the confusion matrices)
-TRUE_ELEMENT = {"nominal": "none", "accel": "accel_bias", "gyro": "gyro_drift"}
-#: display unit of the levels: name and SI value of one unit
-LEVEL_UNITS = {"accel": ("mg", 1e-3 * G0), "gyro": ("deg/h", DEG_PER_HOUR)}
-DETECTORS = ("in_flight", "seed", "glr")
-METHODS = ("seed", "glr")
-SEED_DECLARED = ("glitch", "failure", "ambiguous")
 #: magnitude levels of the default study (display units); they bracket where GLR starts to
 #: isolate (~0.2 mg, ~0.3 deg/h on a 600-s flight) and reach where the in-flight gate alarms
 DEFAULT_ACCEL_LEVELS_MG = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0, 2.0, 5.0, 10.0)
 DEFAULT_GYRO_LEVELS_DEG_H = (0.05, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
-ISOLATION_LEVEL = 0.95
 
 
 def _positive(name: str, value: Any, integer: bool = False, allow_zero: bool = False) -> None:
@@ -209,21 +208,6 @@ def plan_study(config: StudyConfig) -> list[FlightCase]:
 
 # --------------------------------------------------------------------------- one flight
 
-def glr_class(hypothesis: str) -> str:
-    """The class a GLR hypothesis isolates: the stepped state for ``<state>_step`` /
-    ``step:<state>``, the hypothesis name itself otherwise (``none``, ``accel_bias_ramp``,
-    ``reference_jump``...)."""
-    if hypothesis.startswith("step:"):
-        return hypothesis[5:]
-    if hypothesis.endswith("_step"):
-        return hypothesis[:-5]
-    return hypothesis
-
-
-#: the class GLR gives a flight whose best hypothesis is not a confident single explanation
-AMBIGUOUS = "ambiguous"
-
-
 def run_case(case: FlightCase, config: StudyConfig) -> dict:
     """Simulate and analyse one flight; a small JSON-able record (times in s from the start)."""
     fault = case.fault()
@@ -273,223 +257,6 @@ def _run_indexed(args: tuple[FlightCase, StudyConfig]) -> dict:
     return run_case(*args)
 
 
-# --------------------------------------------------------------------------- decisions
-
-def declared(record: dict, detector: str) -> bool:
-    """Whether ``detector`` declared a fault on this flight. For ``in_flight`` on a faulty flight
-    only an alarm raised at or after the onset counts (an earlier one is a false alarm)."""
-    if detector == "in_flight":
-        if record["onset_s"] is None:
-            return bool(record["alarms"])
-        return record["first_alarm_after_onset_s"] is not None
-    if detector == "seed":
-        return record["seed"]["verdict"] in SEED_DECLARED
-    if detector == "glr":
-        return record["glr"]["hypothesis"] != "none"
-    raise EvalError(f"unknown detector {detector!r}; choose one of {', '.join(DETECTORS)}")
-
-
-def predicted_class(record: dict, method: str) -> str:
-    """The class ``method`` isolated on this flight ("none" when it declared no fault)."""
-    if not declared(record, method):
-        return "none"
-    if method == "seed":
-        return record["seed"]["element"] or "none"
-    if method == "glr":
-        if record["glr"].get("isolation", "single") != "single":
-            return AMBIGUOUS
-        return glr_class(record["glr"]["hypothesis"])
-    raise EvalError(f"unknown isolation method {method!r}; choose one of {', '.join(METHODS)}")
-
-
-def isolated(record: dict, method: str) -> bool:
-    """Declared a fault and named the true element (faulty flights only)."""
-    return record["kind"] != "nominal" and predicted_class(record, method) == record["true_element"]
-
-
-# --------------------------------------------------------------------------- metrics
-
-def type_errors(nominal_declared: Sequence[bool], faulty_declared: Sequence[bool]) -> dict:
-    """Type I and type II error rates of a detector from its decisions (seed 003, table 4.1):
-    H0 = "healthy". Type I: H0 true but rejected (a fault declared on a nominal flight);
-    type II: H0 false but accepted (no fault declared on a faulty flight). A rate is None when
-    there are no flights of its kind."""
-    nom = [bool(d) for d in nominal_declared]
-    fau = [bool(d) for d in faulty_declared]
-    fa = sum(nom)
-    missed = sum(not d for d in fau)
-    return {"nominal": len(nom), "false_alarms": fa, "type_I": fa / len(nom) if nom else None,
-            "faulty": len(fau), "missed": missed,
-            "type_II": missed / len(fau) if fau else None}
-
-
-def error_rates(records: Sequence[dict], detector: str) -> dict:
-    """Type I and type II errors of ``detector`` (seed 003, table 4.1; H0 = healthy).
-
-    type_I = false alarms / nominal flights (H0 true, rejected);
-    type_II = missed / faulty flights (H0 false, accepted). A rate is None without flights.
-    ``wrong_isolation`` (methods only): declared on a faulty flight and confidently named
-    another element; ``ambiguous`` (GLR): declared but reported as ambiguous / unexplained.
-    """
-    nominal = [r for r in records if r["kind"] == "nominal"]
-    faulty = [r for r in records if r["kind"] != "nominal"]
-    out = type_errors([declared(r, detector) for r in nominal],
-                      [declared(r, detector) for r in faulty])
-    if detector in METHODS:
-        amb = [declared(r, detector) and predicted_class(r, detector) == AMBIGUOUS
-               for r in faulty]
-        wrong = sum(declared(r, detector) and not isolated(r, detector) and not a
-                    for r, a in zip(faulty, amb))
-        out["wrong_isolation"] = wrong
-        out["wrong_isolation_rate"] = wrong / len(faulty) if faulty else None
-        out["ambiguous"] = sum(amb)
-        out["ambiguous_rate"] = sum(amb) / len(faulty) if faulty else None
-    return out
-
-
-def confusion_matrix(records: Sequence[dict], method: str) -> dict:
-    """Counts of (true class, isolated class) for ``method``.
-
-    Rows: the true classes present (none, accel_bias, gyro_drift); columns: "none", the true
-    classes, then any other class the method produced (e.g. velocity_error, tilt,
-    reference_jump), in first-seen order.
-    """
-    rows = [c for c in ("none", "accel_bias", "gyro_drift")
-            if any(r["true_element"] == c for r in records)]
-    cols = ["none"] + [c for c in ("accel_bias", "gyro_drift") if c in rows]
-    pred = [predicted_class(r, method) for r in records]
-    for p in pred:
-        if p not in cols:
-            cols.append(p)
-    counts = np.zeros((len(rows), len(cols)), dtype=int)
-    for r, p in zip(records, pred):
-        counts[rows.index(r["true_element"]), cols.index(p)] += 1
-    return {"true": rows, "predicted": cols, "counts": counts.tolist()}
-
-
-def _stats(values: Iterable[float]) -> dict:
-    v = np.asarray([x for x in values if x is not None], dtype=float)
-    if v.size == 0:
-        return {"n": 0, "mean": None, "std": None, "median": None, "p05": None, "p95": None,
-                "min": None, "max": None}
-    return {"n": int(v.size), "mean": float(v.mean()), "std": float(v.std()),
-            "median": float(np.median(v)), "p05": float(np.percentile(v, 5)),
-            "p95": float(np.percentile(v, 95)), "min": float(v.min()), "max": float(v.max())}
-
-
-def _diff(a: float | None, b: float | None) -> float | None:
-    return None if a is None or b is None else a - b
-
-
-def _rate(num: int, den: int) -> float | None:
-    return num / den if den else None
-
-
-def by_level(records: Sequence[dict], kind: str) -> list[dict]:
-    """Per magnitude level of ``kind``: detection and isolation rates, delays, errors."""
-    unit = LEVEL_UNITS[kind][0]
-    out = []
-    levels = sorted({r["level"] for r in records if r["kind"] == kind})
-    for level in levels:
-        rs = [r for r in records if r["kind"] == kind and r["level"] == level]
-        n = len(rs)
-        row: dict[str, Any] = {"level": level, "unit": unit, "n": n}
-        for det in DETECTORS:
-            row[f"{det}_detected"] = _rate(sum(declared(r, det) for r in rs), n)
-        for m in METHODS:
-            row[f"{m}_isolated"] = _rate(sum(isolated(r, m) for r in rs), n)
-        delays = [r["first_alarm_after_onset_s"] - r["onset_s"] for r in rs
-                  if r["first_alarm_after_onset_s"] is not None]
-        row["delay_median_s"] = _stats(delays)["median"]
-        ok = [r for r in rs if isolated(r, "glr")]
-        row["glr_onset_error_median_s"] = _stats(
-            abs(r["glr"]["onset_s"] - r["onset_s"]) for r in ok)["median"]
-        row["glr_magnitude_error_median"] = _stats(
-            abs(r["glr"]["magnitude"] / r["magnitude"] - 1.0) for r in ok)["median"]
-        out.append(row)
-    return out
-
-
-def smallest_isolated(rows: Sequence[dict], method: str,
-                      level: float = ISOLATION_LEVEL) -> float | None:
-    """The smallest magnitude level from which ``method`` isolates the fault in at least
-    ``level`` of the runs at that level *and at every larger level* (None: no such level)."""
-    best = None
-    for row in sorted(rows, key=lambda r: r["level"], reverse=True):
-        rate = row[f"{method}_isolated"]
-        if rate is None or rate < level:
-            break
-        best = row["level"]
-    return best
-
-
-def _onset_errors(records: Sequence[dict]) -> dict:
-    from .onset import onset_errors  # (that module builds on this one)
-
-    return onset_errors(records)
-
-
-def _format_onset_errors(table: dict) -> str:
-    from .onset import format_onset_errors
-
-    return format_onset_errors(table)
-
-
-def summarize(records: Sequence[dict]) -> dict:
-    """All metrics of a study from its per-flight records (see the module docstring)."""
-    records = sorted(records, key=lambda r: r["index"])
-    nominal = [r for r in records if r["kind"] == "nominal"]
-    faulty = [r for r in records if r["kind"] != "nominal"]
-    kinds = [k for k in FAULT_KINDS if any(r["kind"] == k for r in records)]
-    n_samples = sum(r["samples"] for r in nominal)
-    n_valid = sum(r["seed"]["J_valid"] for r in nominal)
-    out: dict[str, Any] = {
-        "flights": {k: sum(r["kind"] == k for r in records) for k in KINDS},
-        "false_alarms": {
-            "in_flight": {
-                "per_sample_exceed_rate": _rate(sum(r["exceeded"] for r in nominal), n_samples),
-                "per_flight_rate": _rate(sum(bool(r["alarms"]) for r in nominal), len(nominal)),
-                "flights_with_alarm": sum(bool(r["alarms"]) for r in nominal),
-                "faulty_flights_alarm_before_onset": sum(r["false_alarms"] > 0 for r in faulty),
-            },
-            "seed": {
-                "per_sample_J_exceed_rate": _rate(sum(r["seed"]["J_exceeded"] for r in nominal),
-                                                  n_valid),
-                "per_flight_rate": _rate(sum(declared(r, "seed") for r in nominal),
-                                         len(nominal)),
-            },
-            "glr": {"per_flight_rate": _rate(sum(declared(r, "glr") for r in nominal),
-                                             len(nominal))},
-        },
-        "error_rates": {det: error_rates(records, det) for det in DETECTORS},
-        "missed_detections": {det: {k: sum(not declared(r, det) for r in faulty
-                                           if r["kind"] == k) for k in kinds}
-                              for det in DETECTORS},
-        "detection_delay_s": {k: _stats(r["first_alarm_after_onset_s"] - r["onset_s"]
-                                        for r in faulty if r["kind"] == k
-                                        and r["first_alarm_after_onset_s"] is not None)
-                              for k in kinds},
-        "confusion": {m: confusion_matrix(records, m) for m in METHODS},
-        "onset_error_s": {m: {k: _stats(_diff(r[m]["onset_s"], r["onset_s"]) for r in faulty
-                                        if r["kind"] == k and isolated(r, m))
-                              for k in kinds} for m in METHODS},
-        "onset_error_detected_s": {m: {k: _stats(_diff(r[m]["onset_s"], r["onset_s"])
-                                                 for r in faulty
-                                                 if r["kind"] == k and declared(r, m))
-                                       for k in kinds} for m in METHODS},
-        "magnitude_error_relative": {"glr": {k: _stats(r["glr"]["magnitude"] / r["magnitude"]
-                                                       - 1.0 for r in faulty
-                                                       if r["kind"] == k and isolated(r, "glr"))
-                                             for k in kinds}},
-        "by_level": {k: by_level(records, k) for k in kinds},
-        "onset_error_glr": _onset_errors(records),
-    }
-    out["smallest_isolated_95"] = {
-        m: {k: {"level": smallest_isolated(out["by_level"][k], m), "unit": LEVEL_UNITS[k][0]}
-            for k in kinds} for m in METHODS}
-    return out
-
-
 # --------------------------------------------------------------------------- a study
 
 @dataclass
@@ -500,149 +267,50 @@ class StudyResult:
     elapsed_s: float
     jobs: int  # workers the flights ran on
     engine: str = ""  # where they ran (campaign engine)
+    resumed: int = 0  # records taken from an earlier, interrupted run (not run again)
 
     def to_dict(self, with_records: bool = True) -> dict:
         d = {"config": self.config.describe(), "jobs": self.jobs, "engine": self.engine,
-             "elapsed_s": self.elapsed_s, "metrics": self.metrics}
+             "elapsed_s": self.elapsed_s, "resumed": self.resumed, "metrics": self.metrics}
         if with_records:
             d["flights"] = self.records
         return d
 
 
-def parallel_map(fn: Callable[[Any], dict], items: Sequence[Any], jobs: int = 1,
-                 progress: bool = False, desc: str = "montecarlo",
-                 on_result: Callable[[dict], None] | None = None, scheduler: str | None = None,
-                 info: dict | None = None) -> list[dict]:
-    """``[fn(item) for item in items]`` on the campaign engine (results in completion order),
-    with an optional tqdm progress bar on stderr: in this process when ``jobs`` is 1, else on a
-    local Dask cluster of ``jobs`` worker processes, or on the existing cluster at
-    ``scheduler`` (tcp://HOST:PORT). ``fn`` must be a module-level function and each item carry
-    its own seed: the results do not depend on where they ran. The first item that raises stops
-    the map (the others are cancelled) and its exception is raised here. ``info``, when given,
-    receives ``engine`` (where it ran) and ``workers``."""
-    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
-        raise EvalError(f"jobs must be an integer >= 1, got {jobs!r}")
-    from flight_fdi.campaign.engine import Engine, EngineError, EngineSpec
-
-    try:
-        spec = EngineSpec(workers=max(1, min(int(jobs), len(items))), scheduler=scheduler)
-    except EngineError as exc:
-        raise EvalError(str(exc)) from None
-    out: list[dict] = []
-
-    def arrived(_i: int, rec: dict, err: BaseException | None) -> None:
-        if err is not None:
-            raise err
-        out.append(rec)
-        if on_result is not None:
-            on_result(rec)
-
-    with Engine(spec) as engine:
-        if scheduler is not None:
-            engine.wait_for_workers(1)
-        if info is not None:
-            info.update(engine=engine.describe(), workers=engine.worker_count())
-        engine.run(fn, items, progress=progress, desc=desc, unit="flight", on_outcome=arrived)
-    return out
-
-
 def run_study(config: StudyConfig, jobs: int = 1, progress: bool = False,
               on_record: Callable[[dict], None] | None = None,
-              scheduler: str | None = None) -> StudyResult:
+              scheduler: str | None = None, done: Mapping[int, dict] | None = None) -> StudyResult:
     """Run every flight of the study on the campaign engine (:func:`parallel_map`: ``jobs``
     local worker processes, or the Dask cluster at ``scheduler``) and summarise.
 
-    progress: show a tqdm progress bar on stderr. on_record: called with each record as it
-    arrives (any order; e.g. to stream the records to disk). The records are returned in
-    flight order.
+    progress: show a tqdm progress bar on stderr. on_record: called with each new record as it
+    arrives (any order; e.g. to stream the records to disk). done: records of this study
+    already made, by flight index (a resumed study, :class:`~flight_fdi.eval.records.RecordsFile`):
+    those flights are not run again. The records are returned in flight order.
     """
     if not isinstance(config, StudyConfig):
         raise EvalError(f"run_study: config must be a StudyConfig, got {type(config).__name__}")
     cases = plan_study(config)
+    kept = _recorded(cases, done or {})
     start = time.perf_counter()
     info: dict = {}
-    records = parallel_map(_run_indexed, [(c, config) for c in cases], jobs, progress,
-                           on_result=on_record, scheduler=scheduler, info=info)
-    records.sort(key=lambda r: r["index"])
+    todo = [(c, config) for c in cases if c.index not in kept]
+    records = parallel_map(_run_indexed, todo, jobs, progress, on_result=on_record,
+                           scheduler=scheduler, info=info)
+    records = sorted(records + list(kept.values()), key=lambda r: r["index"])
     return StudyResult(config=config, records=records, metrics=summarize(records),
                        elapsed_s=time.perf_counter() - start, jobs=info["workers"],
-                       engine=info["engine"])
+                       engine=info["engine"], resumed=len(kept))
 
 
-# --------------------------------------------------------------------------- text output
-
-def _pct(x: float | None) -> str:
-    return "-" if x is None else f"{100 * x:.1f}%"
-
-
-def _num(x: float | None, spec: str = ".3g") -> str:
-    return "-" if x is None else format(x, spec)
-
-
-def format_metrics(metrics: dict) -> str:
-    """A human-readable report of :func:`summarize`'s metrics (plain text / Markdown tables)."""
-    fl = metrics["flights"]
-    fa = metrics["false_alarms"]
-    lines = [f"flights: {fl['nominal']} nominal, {fl['accel']} accelerometer, {fl['gyro']} gyro",
-             "",
-             "false alarms on nominal flights:",
-             "  in-flight gate: per sample "
-             f"{_num(fa['in_flight']['per_sample_exceed_rate'], '.2e')}"
-             f" (beta^2 > gate), per flight {_pct(fa['in_flight']['per_flight_rate'])} "
-             f"(M-of-N alarm)",
-             f"  seed method: per sample {_num(fa['seed']['per_sample_J_exceed_rate'], '.2e')}"
-             f" (J > gamma^2), per flight {_pct(fa['seed']['per_flight_rate'])}",
-             f"  GLR: per flight {_pct(fa['glr']['per_flight_rate'])}",
-             "",
-             "| detector | type I (false alarm) | type II (missed) | confidently wrong element "
-             "| ambiguous |",
-             "|---|---|---|---|---|"]
-    for det, e in metrics["error_rates"].items():
-        wrong = _pct(e.get("wrong_isolation_rate")) if "wrong_isolation_rate" in e else "n/a"
-        amb = _pct(e.get("ambiguous_rate")) if "ambiguous_rate" in e else "n/a"
-        lines.append(f"| {det} | {_pct(e['type_I'])} ({e['false_alarms']}/{e['nominal']}) | "
-                     f"{_pct(e['type_II'])} ({e['missed']}/{e['faulty']}) | {wrong} | {amb} |")
-    for m, cm in metrics["confusion"].items():
-        lines += ["", f"confusion matrix, {m} (rows: true, columns: isolated)",
-                  "| true \\ isolated | " + " | ".join(cm["predicted"]) + " |",
-                  "|---" * (len(cm["predicted"]) + 1) + "|"]
-        for name, row in zip(cm["true"], cm["counts"]):
-            lines.append(f"| {name} | " + " | ".join(str(c) for c in row) + " |")
-    for kind, d in metrics["detection_delay_s"].items():
-        lines += ["", f"in-flight detection delay, {kind}: n {d['n']}, median "
-                  f"{_num(d['median'], '.1f')} s, 5-95% {_num(d['p05'], '.1f')} .. "
-                  f"{_num(d['p95'], '.1f')} s"]
-    lines.append("")
-    for m in METHODS:
-        for which, label in (("onset_error_s", "isolated"), ("onset_error_detected_s",
-                                                             "detected")):
-            for kind, d in metrics[which][m].items():
-                lines.append(f"onset error {m}, {kind} ({label}): n {d['n']}, median "
-                             f"{_num(d['median'], '.2f')} s, 5-95% {_num(d['p05'], '.2f')} .. "
-                             f"{_num(d['p95'], '.2f')} s")
-    for kind, d in metrics["magnitude_error_relative"]["glr"].items():
-        lines.append(f"magnitude error glr, {kind} (relative, isolated): n {d['n']}, median "
-                     f"{_pct(d['median'])}, 5-95% {_pct(d['p05'])} .. {_pct(d['p95'])}")
-    for kind, rows in metrics["by_level"].items():
-        lines += ["", f"{kind} faults by magnitude:",
-                  "| level | n | in-flight detected | median delay s | seed detected | "
-                  "seed isolated | GLR detected | GLR isolated | GLR onset err s | "
-                  "GLR magnitude err |", "|---" * 10 + "|"]
-        for r in rows:
-            lines.append(
-                f"| {r['level']:g} {r['unit']} | {r['n']} | {_pct(r['in_flight_detected'])} | "
-                f"{_num(r['delay_median_s'], '.1f')} | {_pct(r['seed_detected'])} | "
-                f"{_pct(r['seed_isolated'])} | {_pct(r['glr_detected'])} | "
-                f"{_pct(r['glr_isolated'])} | {_num(r['glr_onset_error_median_s'], '.1f')} | "
-                f"{_pct(r['glr_magnitude_error_median'])} |")
-    lines += ["", f"smallest fault isolated in >= {100 * ISOLATION_LEVEL:.0f}% of runs "
-              "(at that level and every larger one):"]
-    for m, per in metrics["smallest_isolated_95"].items():
-        parts = [f"{k}: " + ("not reached" if v["level"] is None else f"{v['level']:g} {v['unit']}")
-                 for k, v in per.items()]
-        lines.append(f"  {m}: " + ", ".join(parts))
-    if metrics.get("onset_error_glr"):
-        lines += ["", "GLR onset error where GLR names the true fault (isolated, or among the "
-                      "candidates of an ambiguous result):", "",
-                  _format_onset_errors(metrics["onset_error_glr"])]
-    return "\n".join(lines)
+def _recorded(cases: list[FlightCase], done: Mapping[int, dict]) -> dict[int, dict]:
+    """The records of ``done`` that belong to this study's flights (same index, kind and
+    simulator seed); anything else means the records are of another study."""
+    kept = {}
+    for i, rec in done.items():
+        case = cases[i] if isinstance(i, int) and 0 <= i < len(cases) else None
+        if case is None or rec.get("sim_seed") != case.sim_seed or rec.get("kind") != case.kind:
+            raise EvalError(f"recorded flight {i!r} is not a flight of this study (another "
+                            "seed or plan)")
+        kept[i] = rec
+    return kept

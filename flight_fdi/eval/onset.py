@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-from .montecarlo import (FAULT_KINDS, LEVEL_UNITS, _num, _stats, declared, glr_class,
-                         isolated)
+from .decisions import (FAULT_KINDS, LEVEL_UNITS, _num, _stats, declared, glr_class,
+                        isolated)
 
 
 def named_onset(record: dict) -> float | None:

@@ -91,7 +91,8 @@ def test_batch_and_montecarlo_against_the_cluster(dask_processes, short_bags, tm
                 "--json", "--no-progress")
     assert r.returncode == 0, r.stderr[-2000:]
     assert json.loads(r.stdout)["jobs"] == 2
-    streamed = [json.loads(line) for line in records.read_text().splitlines()]
+    header, *streamed = [json.loads(line) for line in records.read_text().splitlines()]
+    assert header["records"] == "flight_fdi.study/1" and header["study"]["seed"] == 7
     stored = json.loads(full.read_text())["flights"]
     inline = run_study(StudyConfig(nominal=2, per_fault=2, accel_levels_mg=(5.0,),
                                    gyro_levels_deg_h=(10.0,), duration_s=100.0, seed=7), jobs=1)

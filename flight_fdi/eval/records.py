@@ -1,0 +1,132 @@
+"""A study's per-flight records on disk, as JSON lines, and resuming a study from them.
+
+The file (``flight-fdi montecarlo --records FILE``) holds a header line, then one record per
+line in the order the flights finished::
+
+    {"records": "flight_fdi.study/1", "study": {...the study's settings...}}
+    {"index": 17, "kind": "accel", "sim_seed": ..., ...}
+    ...
+
+A record is written and flushed as soon as its flight finishes, so an interrupted study (Ctrl-C,
+a lost machine, a killed job) keeps every finished flight. Opening the file again for the same
+study (the same settings, compared as JSON) *resumes* it: the recorded flights are returned and
+only the others need to run; a last line cut in the middle of writing is dropped. A file of
+another study is an error (never overwritten silently); ``restart=True`` starts it anew.
+Records are plain JSON (numbers round-trip exactly), so a resumed study's records equal those of
+an uninterrupted run.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from .errors import EvalError
+
+FORMAT = "flight_fdi.study/1"
+
+
+def _plain(doc: Any) -> Any:
+    """``doc`` as it reads back from JSON (tuples -> lists...)."""
+    return json.loads(json.dumps(doc, allow_nan=False))
+
+
+class RecordsFile:
+    """The JSON-lines records of one study (``study``: its settings as plain data; ``key``:
+    the record field that identifies a flight). Use as a context manager::
+
+        with RecordsFile(path, config.describe()) as rec:
+            done = rec.done            # {index: record} already on disk (resume)
+            ...                        # run the others, rec.write(record) for each
+    """
+
+    def __init__(self, path: str | Path, study: dict, key: str = "index",
+                 restart: bool = False) -> None:
+        self.path = Path(path)
+        self.study = _plain(study)
+        self.key = key
+        self.restart = restart
+        self.done: dict[Any, dict] = {}
+        self._stream = None
+
+    def __enter__(self) -> "RecordsFile":
+        self.open()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def open(self) -> dict[Any, dict]:
+        """Read what the file holds for this study (resume) and open it for appending; a new,
+        empty or restarted file gets the header. Returns :attr:`done`."""
+        if not self.path.parent.is_dir():
+            raise EvalError(f"cannot write {self.path}: directory '{self.path.parent}' does not "
+                            "exist")
+        good_end = 0
+        if not self.restart and self.path.is_file() and self.path.stat().st_size > 0:
+            good_end = self._read()
+        try:
+            if good_end:
+                self._stream = self.path.open("r+", encoding="utf-8")
+                self._stream.seek(good_end)
+                self._stream.truncate()  # a last line cut while it was written
+            else:
+                self._stream = self.path.open("w", encoding="utf-8")
+                self._write_line({"records": FORMAT, "study": self.study})
+        except OSError as exc:
+            raise EvalError(f"cannot write {self.path}: {exc.strerror}") from None
+        return self.done
+
+    def _read(self) -> int:
+        """Fill :attr:`done` from the file; the byte offset after its last complete record."""
+        try:
+            data = self.path.read_bytes()
+        except OSError as exc:
+            raise EvalError(f"cannot read {self.path}: {exc.strerror}") from None
+        lines = data.split(b"\n")
+        complete, tail = lines[:-1], lines[-1]  # tail: b"" or a line cut in the middle
+        head = self._parse(complete[0] if complete else tail, 1)
+        if not isinstance(head, dict) or head.get("records") != FORMAT:
+            raise EvalError(f"{self.path} is not a study records file of this version (no "
+                            f"'{FORMAT}' header line); use another file or restart it")
+        if head.get("study") != self.study:
+            changed = sorted(k for k in set(self.study) | set(head.get("study") or {})
+                             if self.study.get(k) != (head.get("study") or {}).get(k))
+            raise EvalError(f"{self.path} holds the records of another study (differs in "
+                            f"{', '.join(changed) or 'its settings'}); use another file or "
+                            "restart it")
+        if not complete:
+            return 0
+        offset = len(complete[0]) + 1
+        for n, line in enumerate(complete[1:], start=2):
+            rec = self._parse(line, n)
+            if not isinstance(rec, dict) or self.key not in rec:
+                raise EvalError(f"line {n} of {self.path} is not a record (no '{self.key}')")
+            self.done.setdefault(rec[self.key], rec)
+            offset += len(line) + 1
+        return offset
+
+    def _parse(self, line: bytes, n: int) -> Any:
+        try:
+            return json.loads(line)
+        except ValueError:
+            raise EvalError(f"line {n} of {self.path} is not JSON; the file is damaged "
+                            "(use another file or restart it)") from None
+
+    def write(self, record: dict) -> None:
+        """Append one record and flush it to the operating system."""
+        self._write_line(record)
+
+    def _write_line(self, doc: dict) -> None:
+        self._stream.write(json.dumps(doc, allow_nan=False) + "\n")
+        self._stream.flush()
+
+    def close(self) -> None:
+        if self._stream is not None:
+            try:
+                os.fsync(self._stream.fileno())
+            except OSError:  # pragma: no cover - e.g. a pipe
+                pass
+            self._stream.close()
+            self._stream = None
