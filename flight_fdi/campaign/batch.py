@@ -24,6 +24,7 @@ import hashlib
 import json
 import os
 import re
+import resource
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -126,17 +127,21 @@ class FlightTask:
 
 def analyze_task(task: FlightTask) -> dict:
     """Analyse one flight like ``flight-fdi analyze`` (runs on a worker): ``{"result": dict |
-    None, "error": str | None, "seconds": float}``; never raises for a bad bag."""
+    None, "error": str | None, "seconds": float, "cpu_s": float, "page_faults": int}`` (wall
+    and CPU time of the worker process, and its minor page faults, during the flight); never
+    raises for a bad bag."""
     from flight_fdi.cli.analyze import analyze_bag
 
-    start = time.perf_counter()
+    start, usage = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
     try:
-        result = analyze_bag(task.bag, task.args)
+        result, error = analyze_bag(task.bag, task.args), None
         json.dumps(result, allow_nan=False)  # what analyze --json would refuse
     except Exception as exc:  # a bad bag is a row with its error
-        return {"result": None, "error": error_text(exc),
-                "seconds": time.perf_counter() - start}
-    return {"result": result, "error": None, "seconds": time.perf_counter() - start}
+        result, error = None, error_text(exc)
+    end = resource.getrusage(resource.RUSAGE_SELF)
+    return {"result": result, "error": error, "seconds": time.perf_counter() - start,
+            "cpu_s": end.ru_utime + end.ru_stime - usage.ru_utime - usage.ru_stime,
+            "page_faults": end.ru_minflt - usage.ru_minflt}
 
 
 def error_text(exc: BaseException) -> str:
@@ -199,6 +204,8 @@ class BatchResult:
     elapsed_s: float = 0.0
     engine: str = ""
     seconds: list[float] = field(default_factory=list)  # per analysed flight, on its worker
+    cpu_s: list[float] = field(default_factory=list)  # the same flights' CPU on the worker
+    page_faults: list[int] = field(default_factory=list)  # ... and minor page faults
 
 
 class Batch:
@@ -280,6 +287,8 @@ class Batch:
                 _write_json(self.result_path(task.name), out["result"])
                 res.analysed += 1
                 res.seconds.append(out["seconds"])
+                res.cpu_s.append(out["cpu_s"])
+                res.page_faults.append(out["page_faults"])
             else:
                 res.failed += 1
             rows[task.name] = summary_row(task.name, out["result"], error=out["error"],

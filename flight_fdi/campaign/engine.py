@@ -33,14 +33,24 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 
+#: what the local cluster's nannies put in a worker's environment before it starts: Dask's
+#: default (one thread per BLAS pool: a worker is one core) *without* its
+#: ``MALLOC_TRIM_THRESHOLD_=65536``. That setting also freezes glibc's mmap threshold at 128 kB,
+#: so every array above it -- most of a flight's arrays -- is a fresh mmap whose pages fault in
+#: on first touch (:func:`.worker.restore_malloc` undoes it on workers started by
+#: ``dask worker``): measured ~27 000 page faults and ~0.05 s of system CPU per 1000-s flight
+#: (0.1 s of CPU in all), +37 % wall time per flight against a plain loop (docs/scaling.md)
+WORKER_ENVIRON = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
 #: settings of the local cluster's scheduler, nannies and workers (given to the worker processes
-#: they start): fewer event-loop wake-ups beside a task that holds the GIL for a whole flight --
-#: each one takes the GIL from the task, which costs most on a machine busy with other work
+#: they start): the environment above, and fewer event-loop wake-ups beside a task that holds
+#: the GIL for a whole flight -- each one takes the GIL from the task, which costs most on a
+#: machine busy with other work
 QUIET_WORKERS = {"distributed.worker.profile.enabled": False,  # samples stacks every 10 ms
                  "distributed.admin.tick.interval": "500ms",
                  "distributed.admin.system-monitor.interval": "2s",
                  "distributed.admin.system-monitor.gil.enabled": False,
-                 "distributed.worker.memory.monitor-interval": "1s"}
+                 "distributed.worker.memory.monitor-interval": "1s",
+                 "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}
 
 
 class EngineError(RuntimeError):
@@ -97,8 +107,10 @@ class Engine:
                 ...
     """
 
-    def __init__(self, spec: EngineSpec | None = None) -> None:
+    def __init__(self, spec: EngineSpec | None = None,
+                 warm: Callable[[], Any] | None = None) -> None:
         self.spec = spec or EngineSpec()
+        self.warm = warm  # run once on every worker when it joins (imports, compiled code)
         self.client = None
         self._stack = ExitStack()
         self._imported: set[str] = set()
@@ -132,6 +144,7 @@ class Engine:
             except OSError as exc:
                 raise EngineError(f"cannot reach the Dask scheduler at {self.spec.scheduler}: "
                                   f"{exc}") from None
+            self._setup_workers()
             return
         workers = self.spec.workers or default_workers()
         with warnings.catch_warnings(), dask.config.set(QUIET_WORKERS):
@@ -143,6 +156,21 @@ class Engine:
                 n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                 dashboard_address=None, silence_logs=logging.CRITICAL))
         self.client = self._stack.enter_context(Client(cluster))
+        self._setup_workers()
+
+    def _setup_workers(self) -> None:
+        """Every worker, now and joining later (a restarted one too), runs :class:`WorkerSetup`
+        before its first task."""
+        name = "flight-fdi-worker-setup"
+        if self.warm is not None:
+            name += f"-{self.warm.__module__}.{self.warm.__qualname__}"
+        from .worker import WorkerSetup
+
+        try:
+            self.client.register_plugin(WorkerSetup(self.warm), name=name)
+        except Exception as exc:
+            raise EngineError(f"cannot set up the Dask workers ({type(exc).__name__}: {exc}); "
+                              "start them in an environment with flight_fdi installed") from None
 
     # ------------------------------------------------------------------ facts
     @property

@@ -296,11 +296,17 @@ def run_study(config: StudyConfig, jobs: int = 1, progress: bool = False,
     info: dict = {}
     todo = [(c, config) for c in cases if c.index not in kept]
     records = parallel_map(_run_indexed, todo, jobs, progress, on_result=on_record,
-                           scheduler=scheduler, info=info)
+                           scheduler=scheduler, info=info, warm=_warm_worker)
     records = sorted(records + list(kept.values()), key=lambda r: r["index"])
     return StudyResult(config=config, records=records, metrics=summarize(records),
                        elapsed_s=time.perf_counter() - start, jobs=info["workers"],
                        engine=info["engine"], resumed=len(kept))
+
+
+def _warm_worker() -> None:
+    from flight_fdi.campaign.worker import warm_analysis
+
+    warm_analysis()
 
 
 def _recorded(cases: list[FlightCase], done: Mapping[int, dict]) -> dict[int, dict]:

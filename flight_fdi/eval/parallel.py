@@ -13,14 +13,15 @@ from .errors import EvalError
 def parallel_map(fn: Callable[[Any], dict], items: Sequence[Any], jobs: int = 1,
                  progress: bool = False, desc: str = "montecarlo",
                  on_result: Callable[[dict], None] | None = None, scheduler: str | None = None,
-                 info: dict | None = None) -> list[dict]:
+                 info: dict | None = None, warm: Callable[[], Any] | None = None) -> list[dict]:
     """``[fn(item) for item in items]`` on the campaign engine (results in completion order),
     with an optional tqdm progress bar on stderr: in this process when ``jobs`` is 1, else on a
     local Dask cluster of ``jobs`` worker processes, or on the existing cluster at
     ``scheduler`` (tcp://HOST:PORT). ``fn`` must be a module-level function and each item carry
     its own seed: the results do not depend on where they ran. The first item that raises stops
     the map (the others are cancelled) and its exception is raised here. ``info``, when given,
-    receives ``engine`` (where it ran) and ``workers``."""
+    receives ``engine`` (where it ran) and ``workers``. ``warm`` (a module-level function) runs
+    on every Dask worker as it joins, e.g. :func:`flight_fdi.campaign.worker.warm_analysis`."""
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
         raise EvalError(f"jobs must be an integer >= 1, got {jobs!r}")
     from flight_fdi.campaign.engine import Engine, EngineError, EngineSpec
@@ -38,7 +39,7 @@ def parallel_map(fn: Callable[[Any], dict], items: Sequence[Any], jobs: int = 1,
         if on_result is not None:
             on_result(rec)
 
-    with Engine(spec) as engine:
+    with Engine(spec, warm=warm) as engine:
         if scheduler is not None:
             engine.wait_for_workers(1)
         if info is not None:

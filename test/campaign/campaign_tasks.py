@@ -23,3 +23,29 @@ def from_a_module_the_workers_lack(x: int) -> int:
 
 # as if defined in a module that exists only where the batch is started
 from_a_module_the_workers_lack.__module__ = "flight_fdi_not_installed_on_workers"
+
+
+WARMED: list[int] = []
+
+
+def warm_here() -> None:
+    """A worker's ``warm``: records that it ran in this process."""
+    WARMED.append(os.getpid())
+
+
+def warmed(_x: int) -> list[int]:
+    return list(WARMED)
+
+
+def page_faults_of_big_arrays(_x: int = 0, n: int = 40) -> dict:
+    """Minor page faults of allocating, touching and freeing a 1 MB array ``n`` times (what a
+    flight's analysis does with its arrays), and the worker's malloc/BLAS environment."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(n):
+        a = np.ones(1 << 17)
+        del a
+    return {"faults": resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before,
+            "trim": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+            "blas": os.environ.get("OPENBLAS_NUM_THREADS")}
