@@ -19,10 +19,13 @@ Where the tasks run (:class:`EngineSpec`):
 A task whose worker dies is run again on another worker by the scheduler (up to Dask's
 ``distributed.scheduler.allowed-failures`` times, then its error is ``KilledWorker``), so a lost
 worker loses no task and each task yields once. Tasks are submitted in a sliding window
-(a few per worker), so a study of 10^5 flights holds only that many futures.
+(a few per worker), so a study of 10^5 flights holds only that many futures; a long list of
+tasks goes in chunks of consecutive tasks (up to 8 in one Dask task, :func:`auto_chunk`), which
+cuts the engine's cost per task (~5 ms of CPU) without changing any outcome.
 """
 from __future__ import annotations
 
+import itertools
 import logging
 import os
 import sys
@@ -30,7 +33,7 @@ import uuid
 import warnings
 from contextlib import ExitStack, closing
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence, Sized
 
 
 #: what the local cluster's nannies put in a worker's environment before it starts: Dask's
@@ -51,6 +54,12 @@ QUIET_WORKERS = {"distributed.worker.profile.enabled": False,  # samples stacks 
                  "distributed.admin.system-monitor.gil.enabled": False,
                  "distributed.worker.memory.monitor-interval": "1s",
                  "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}
+
+
+#: automatic chunks (:func:`auto_chunk`): at most this many tasks in one Dask task, and chunks
+#: only when each worker thread gets at least this many of them
+MAX_CHUNK = 8
+CHUNKS_PER_THREAD = 32
 
 
 class EngineError(RuntimeError):
@@ -207,15 +216,15 @@ class Engine:
     def run(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, progress: bool = False,
             desc: str = "tasks", unit: str = "task",
             on_outcome: Callable[[int, Any, BaseException | None], None] | None = None,
-            window: int | None = None) -> list[Outcome]:
+            window: int | None = None, chunk: int | None = None) -> list[Outcome]:
         """Run ``fn`` on every task; the outcomes in completion order (``on_outcome`` is called
         with each as it arrives, e.g. to write it to disk). A tqdm bar on stderr with
-        ``progress``."""
+        ``progress``. ``window`` and ``chunk``: see :meth:`iter`."""
         from tqdm import tqdm
 
         out: list[Outcome] = []
         errors = 0
-        outcomes = self.iter(fn, tasks, window=window)
+        outcomes = self.iter(fn, tasks, window=window, chunk=chunk)
         with closing(outcomes), tqdm(total=len(tasks), desc=desc, unit=unit,
                                      disable=not progress, file=sys.stderr,
                                      dynamic_ncols=True) as bar:
@@ -229,36 +238,46 @@ class Engine:
                 bar.update(1)
         return out
 
-    def iter(self, fn: Callable[[Any], Any], tasks: Iterable[Any],
-             window: int | None = None) -> Iterator[Outcome]:
-        """``(index, result, error)`` of ``fn(task)`` as each completes."""
+    def iter(self, fn: Callable[[Any], Any], tasks: Iterable[Any], window: int | None = None,
+             chunk: int | None = None) -> Iterator[Outcome]:
+        """``(index, result, error)`` of ``fn(task)`` as each completes. On Dask, ``chunk``
+        consecutive tasks make one Dask task (None: :func:`auto_chunk` of a list of tasks, 1
+        for an iterator) and at most ``window`` Dask tasks are submitted at a time (None: 4 per
+        worker thread, at least 8)."""
         if self.client is None:
             yield from _iter_inline(fn, tasks)
-        else:
-            yield from self._iter_dask(fn, tasks, window)
+            return
+        threads = self._threads()
+        if chunk is None:
+            chunk = auto_chunk(len(tasks), threads) if isinstance(tasks, Sized) else 1
+        if window is None:
+            window = max(8, 4 * threads)
+        yield from self._iter_dask(fn, tasks, window, chunk)
 
-    def _iter_dask(self, fn: Callable[[Any], Any], tasks: Iterable[Any],
-                   window: int | None) -> Iterator[Outcome]:
+    def _iter_dask(self, fn: Callable[[Any], Any], tasks: Iterable[Any], window: int,
+                   chunk: int) -> Iterator[Outcome]:
         from distributed import as_completed
 
         client = self.client
         self._check_import(fn)
         name = getattr(fn, "__name__", "task")
         prefix = f"{name}-{uuid.uuid4().hex[:12]}"
-        if window is None:
-            window = max(8, 4 * max(1, self._threads()))
-        todo = iter(enumerate(tasks))
-        index: dict[str, int] = {}
+        todo = _chunks(enumerate(tasks), chunk)
+        index: dict[str, list[int]] = {}
         live: dict[str, Any] = {}  # key -> future not yet yielded
         pending = as_completed()
 
         def submit_next() -> bool:
-            try:
-                i, task = next(todo)
-            except StopIteration:
+            part = next(todo, None)
+            if part is None:
                 return False
-            fut = client.submit(fn, task, key=f"{prefix}-{i}", pure=False)
-            index[fut.key] = i
+            first = part[0][0]
+            if chunk == 1:
+                fut = client.submit(fn, part[0][1], key=f"{prefix}-{first}", pure=False)
+            else:
+                fut = client.submit(_run_chunk, fn, [t for _, t in part],
+                                    key=f"{prefix}-{first}+{len(part)}", pure=False)
+            index[fut.key] = [i for i, _ in part]
             live[fut.key] = fut
             pending.add(fut)
             return True
@@ -268,18 +287,12 @@ class Engine:
                 if not submit_next():
                     break
             for fut in pending:
-                i = index.pop(fut.key)
+                indices = index.pop(fut.key)
                 live.pop(fut.key, None)
-                if fut.status == "finished":
-                    try:
-                        outcome: Outcome = (i, fut.result(), None)
-                    except Exception as exc:  # lost between the status and the fetch
-                        outcome = (i, None, exc)
-                else:
-                    outcome = (i, None, fut.exception())
+                outcomes = _outcomes_of(fut, indices, chunk)
                 fut.release()
                 submit_next()
-                yield outcome
+                yield from outcomes
         finally:
             if live:  # stopped early (an error or the caller's break): nothing left running
                 client.cancel(list(live.values()))
@@ -302,6 +315,47 @@ class Engine:
     def _threads(self) -> int:
         info = self.client.scheduler_info(n_workers=-1)["workers"]
         return sum(int(w.get("nthreads", 1)) for w in info.values()) or 1
+
+
+def auto_chunk(n: int, threads: int) -> int:
+    """Tasks per Dask task for ``n`` tasks on ``threads`` worker threads: 1 unless every thread
+    gets at least :data:`CHUNKS_PER_THREAD` Dask tasks of up to :data:`MAX_CHUNK` tasks (each
+    Dask task costs ~5 ms of CPU in the scheduler, the client and the worker's event loop, ~4 %
+    of a 1000-s flight; the last Dask tasks still end close together)."""
+    return max(1, min(MAX_CHUNK, n // (CHUNKS_PER_THREAD * max(1, threads))))
+
+
+def _chunks(items: Iterator[Any], size: int) -> Iterator[list[Any]]:
+    while True:
+        part = list(itertools.islice(items, size))
+        if not part:
+            return
+        yield part
+
+
+def _run_chunk(fn: Callable[[Any], Any], tasks: list[Any]) -> list[tuple[Any, Exception | None]]:
+    """On a worker: ``fn`` on each task of a chunk, each one's exception kept apart."""
+    out: list[tuple[Any, Exception | None]] = []
+    for task in tasks:
+        try:
+            out.append((fn(task), None))
+        except Exception as exc:
+            out.append((None, exc))
+    return out
+
+
+def _outcomes_of(fut: Any, indices: list[int], chunk: int) -> list[Outcome]:
+    """The outcomes of a finished (or failed) Dask task of ``indices``."""
+    if fut.status == "finished":
+        try:
+            value = fut.result()
+        except Exception as exc:  # lost between the status and the fetch
+            return [(i, None, exc) for i in indices]
+        if chunk == 1:
+            return [(indices[0], value, None)]
+        return [(i, res, err) for i, (res, err) in zip(indices, value)]
+    exc = fut.exception()  # fn raised (unchunked), or the task was lost (KilledWorker)
+    return [(i, None, exc) for i in indices]
 
 
 def _iter_inline(fn: Callable[[Any], Any], tasks: Iterable[Any]) -> Iterator[Outcome]:

@@ -131,3 +131,13 @@ def test_a_raising_callback_cancels_the_remaining_tasks(dask_cluster):
         while engine.client.run_on_scheduler(_scheduler_tasks) and time.monotonic() < deadline:
             engine.client.run_on_scheduler(_scheduler_tasks)  # spin on the scheduler's state
         assert engine.client.run_on_scheduler(_scheduler_tasks) == 0
+
+
+def test_chunks_of_tasks_give_the_same_outcomes_one_by_one(dask_cluster):
+    from flight_fdi.campaign.engine import auto_chunk
+
+    assert auto_chunk(50, 2) == 1 and auto_chunk(10_000, 2) == 8 and auto_chunk(200, 2) == 3
+    with Engine(EngineSpec(scheduler=dask_cluster)) as engine:
+        out = engine.run(square_or_fail, list(range(40)), chunk=3, window=3)
+    pids = check_outcomes(out, 40)  # errors stay per task inside a chunk
+    assert len(pids) == 2
