@@ -53,6 +53,9 @@ QUIET_WORKERS = {"distributed.worker.profile.enabled": False,  # samples stacks 
                  "distributed.admin.system-monitor.interval": "2s",
                  "distributed.admin.system-monitor.gil.enabled": False,
                  "distributed.worker.memory.monitor-interval": "1s",
+                 # tasks of about equal cost fed in a window: nothing to steal or to move
+                 "distributed.scheduler.work-stealing": False,
+                 "distributed.scheduler.active-memory-manager.start": False,
                  "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}
 
 
