@@ -20,7 +20,9 @@ class WorkerSetup(WorkerPlugin):
     """Run on each worker as it joins (a Dask worker plugin, registered by :class:`~.engine.Engine`):
     undo the malloc setting of Dask's nanny (:func:`restore_malloc`), then run ``warm``."""
 
-    idempotent = False
+    #: registered once per cluster and name: a later engine on the same cluster (the next
+    #: batch) does not set up and warm its workers again
+    idempotent = True
 
     def __init__(self, warm: Callable[[], Any] | None = None) -> None:
         self.warm = warm
