@@ -17,8 +17,9 @@ TRIM_THRESHOLD = 64 << 20
 
 
 class WorkerSetup(WorkerPlugin):
-    """Run on each worker as it joins (a Dask worker plugin, registered by :class:`~.engine.Engine`):
-    undo the malloc setting of Dask's nanny (:func:`restore_malloc`), then run ``warm``."""
+    """Run on each worker as it joins (a Dask worker plugin, registered by
+    :class:`~.engine.Engine`): undo the malloc setting of Dask's nanny (:func:`restore_malloc`),
+    then run ``warm``."""
 
     #: registered once per cluster and name: a later engine on the same cluster (the next
     #: batch) does not set up and warm its workers again

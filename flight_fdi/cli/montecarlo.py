@@ -108,13 +108,15 @@ def _writable(path: str | None, option: str) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from flight_fdi.campaign.engine import default_workers
     from flight_fdi.eval.montecarlo import format_metrics, run_study
 
     config = study_config(args)
     spec = engine_spec(args)
     out = _writable(args.out, "--out")
     with open_records(args, config.describe()) as records:
-        result = run_study(config, jobs=jobs_of(spec), progress=not args.no_progress,
+        result = run_study(config, jobs=spec.workers or default_workers(),
+                           progress=not args.no_progress,
                            on_record=records.write if records else None,
                            scheduler=spec.scheduler, done=records.done if records else None)
     if out is not None:
@@ -130,13 +132,6 @@ def run(args: argparse.Namespace) -> int:
               + (f"; full result in {out}" if out else "")
               + (f"; records in {args.records}" if args.records else ""))
     return 0
-
-
-def jobs_of(spec) -> int:
-    """The ``jobs`` of :func:`~flight_fdi.eval.parallel.parallel_map` for an engine spec."""
-    from flight_fdi.campaign.engine import default_workers
-
-    return spec.workers or default_workers()
 
 
 def open_records(args: argparse.Namespace, study: dict):
