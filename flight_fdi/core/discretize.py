@@ -98,6 +98,28 @@ class VanLoanSeries:
 
 
 @njit(cache=True)
+def _scaling(norm, dt):
+    """(s, h): the number of halvings s and h = dt / 2^s with ||A h||_1 <= THETA."""
+    s = 0
+    h = dt
+    while norm * h > THETA and s < 1100:
+        h *= 0.5
+        s += 1
+    return s, h
+
+
+@njit(cache=True)
+def expm_series(F, norm, dt, Phi, work):
+    """Phi = expm(A dt) alone, from the series F[j] = A^j / j! of :class:`VanLoanSeries` (norm =
+    ||A||_1): Horner at h = dt / 2^s, then s squarings Phi(2h) = Phi(h)^2. ``work``: (n, n)."""
+    s, h = _scaling(norm, dt)
+    _horner(F, h, _terms(norm * h), Phi)
+    for _ in range(s):
+        matmul(Phi, Phi, work)
+        Phi[:, :] = work
+
+
+@njit(cache=True)
 def _terms(a):
     """Number of series terms for ||A h||_1 = a <= THETA: the bound (2a)^j / (j+1)! of the
     first omitted term of the slowest series (Qd's) is below _EPS."""
@@ -132,11 +154,7 @@ def van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work):
         Phi(2h) = Phi(h)^2                       (Bd = Gamma B, Gamma = int_0^h expm(A s) ds)
     """
     n = Phi.shape[0]
-    s = 0
-    h = dt
-    while norm * h > THETA and s < 1100:
-        h *= 0.5
-        s += 1
+    s, h = _scaling(norm, dt)
     J = _terms(norm * h)
     _horner(F, h, J, Phi)
     _horner(C, h, J, Qd)

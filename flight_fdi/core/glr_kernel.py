@@ -1,0 +1,259 @@
+"""The GLR signature recursion and the onset search, compiled (numba); the math is in the
+:mod:`flight_fdi.core.glr` docstring ("Signature recursion"). Scaled coordinates throughout.
+
+The forward filter, for the step k -> k+1 (Phi_{k+1} of dt[k+1]; K_k = 0 where not fused)::
+
+    A_k = Phi_{k+1} (I - K_k H_k),   G_k = Phi_{k+1} K_k
+
+A fault hypothesis is a fault state f (q elements) with ``f_{k+1} = Psi_{k+1} f_k``
+(Psi = expm(A_bar dt) for a step or a ramp, 1 for a jump, 0 for an outlier) that shows in the
+measurement as ``D_k f`` with ``D_k = H_k E + R_sel`` (E: fault state -> state deviation, R_sel:
+fault state -> measurement row). With the filter's response d (= delta x_hat_{k|k-1})::
+
+    rho_k   = D_k f_k - H_k d_k                      the signature
+    d_{k+1} = A_k d_k + G_k D_k f_k                  (= Phi_{k+1} (d_k + K_k rho_k))
+
+i.e. s = [f; d], ``s_{k+1} = F_k s_k``, ``rho_k = C_k s_k`` with
+``F_k = [[Psi, 0], [G D, A]]`` and ``C_k = [D, -H]``. Every onset theta at once, backwards::
+
+    lambda_k = C_k^T w_k + F_k^T lambda_{k+1}          (w_k = S_k^-1 nu_k)
+    M_k      = C_k^T S_k^-1 C_k + F_k^T M_{k+1} F_k
+    num(theta) = lambda_theta[i0],  den(theta) = M_theta[i0, i0],
+    cross(theta) = (M_{theta+1} F_theta)[i0, i0] = <rho(theta), rho(theta+1)>_{S^-1}
+
+In blocks (M = [[M_ff, M_fd], [M_df, M_dd]], lambda = [lambda_f; lambda_d]) the d-blocks do
+not depend on the hypothesis (:func:`filter_information`, once per flight)::
+
+    M_dd     <- A^T M_dd A + H^T S^-1 H,        lambda_d <- A^T lambda_d - H^T w
+
+and each hypothesis adds its f-blocks (:func:`hypothesis_scan`), with GD = G D (the products
+with M_dd and lambda_d through G, shared by the hypotheses: M_dd G, G^T M_dd G, G^T lambda_d)::
+
+    M_ff     <- Psi^T M_ff Psi + Y + Y^T + GD^T M_dd GD + D^T S^-1 D,   Y = Psi^T M_fd GD
+    M_fd     <- (Psi^T M_fd + GD^T M_dd) A - D^T S^-1 H
+    lambda_f <- Psi^T lambda_f + GD^T lambda_d + D^T w
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .discretize import expm_series, matmul
+
+
+@njit(cache=True, nogil=True)
+def transitions(F, norm, dt, H, K, A, G):
+    """A_k = Phi_{k+1} (I - K_k H_k), G_k = Phi_{k+1} K_k for k < N-1 (zero at N-1: nothing
+    follows the last sample). F, norm: the filter model's series (Phi = expm(A dt) per new dt)."""
+    N, m, n = H.shape
+    Phi, work = np.zeros((n, n)), np.empty((n, n))
+    dt_held = np.nan
+    A[N - 1] = 0.0
+    G[N - 1] = 0.0
+    for k in range(N - 1):
+        if not dt[k + 1] == dt_held:
+            expm_series(F, norm, dt[k + 1], Phi, work)
+            dt_held = dt[k + 1]
+        matmul(Phi, K[k], G[k])
+        for r in range(n):
+            for c in range(n):
+                acc = Phi[r, c]
+                for i in range(m):
+                    acc -= G[k, r, i] * H[k, i, c]
+                A[k, r, c] = acc
+
+
+@njit(cache=True, nogil=True)
+def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
+    """The hypothesis-free d-blocks M_dd, lambda_d, backwards, as the products with G_k the
+    hypotheses need (at step k, of M_dd and lambda_d of step k+1; zero for k = N-1)::
+
+        MG_k = M_dd G_k,   GMG_k = G_k^T M_dd G_k,   Glam_k = G_k^T lambda_d
+
+    ``with_M`` False: Glam only (MG, GMG untouched)."""
+    N, m, n = H.shape
+    M, lam = np.zeros((n, n)), np.zeros(n)
+    MA, HtSinv = np.empty((n, n)), np.empty((n, m))
+    lam_new = np.empty(n)
+    for k in range(N - 1, -1, -1):
+        for i in range(m):
+            acc = 0.0
+            for r in range(n):
+                acc += G[k, r, i] * lam[r]
+            Glam[k, i] = acc
+        for r in range(n):                          # lambda_d <- A^T lambda_d - H^T w
+            acc = 0.0
+            for j in range(n):
+                acc += A[k, j, r] * lam[j]
+            for i in range(m):
+                acc -= H[k, i, r] * w[k, i]
+            lam_new[r] = acc
+        lam[:] = lam_new
+        if not with_M:
+            continue
+        matmul(M, G[k], MG[k])
+        matmul(G[k].T, MG[k], GMG[k])
+        matmul(M, A[k], MA)                         # M_dd <- A^T M_dd A + H^T S^-1 H
+        matmul(H[k].T, Sinv[k], HtSinv)
+        for r in range(n):
+            for c in range(r, n):
+                acc = 0.0
+                for j in range(n):
+                    acc += A[k, j, r] * MA[j, c]
+                for i in range(m):
+                    acc += HtSinv[r, i] * H[k, i, c]
+                M[r, c] = acc
+                M[c, r] = acc
+
+
+@njit(cache=True)
+def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
+    """Psi = expm(A_bar dt) of the fault state (its series Fpsi), or 0 for a one-sample fault."""
+    if persists:
+        expm_series(Fpsi, norm_psi, dt, Psi, work)
+    else:
+        Psi[:, :] = 0.0
+
+
+@njit(cache=True)
+def fault_rows(H_k, E, R_sel, D):
+    """D_k = H_k E + R_sel: how the fault state shows in the measurement."""
+    matmul(H_k, E, D)
+    for i in range(D.shape[0]):
+        for a in range(D.shape[1]):
+            D[i, a] += R_sel[i, a]
+
+
+@njit(cache=True, nogil=True)
+def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_psi, persists,
+                    i0, num, den, cross):
+    """num[h], den[h], cross[h] for every onset (module doc) of the faults that enter as
+    f = e_i0[h] (several hypotheses can share one fault state, e.g. a step and a ramp of the
+    same instrument: the step's states are part of the ramp's). A, G: :func:`transitions`; MG, GMG, Glam: :func:`filter_information` (so that
+    GD^T M_dd = D^T MG^T, GD^T M_dd GD = D^T GMG D, GD^T lambda_d = D^T Glam)."""
+    N, m, n = H.shape
+    q = E.shape[1]
+    Mff, Mfd, lam_f = np.zeros((q, q)), np.zeros((q, n)), np.zeros(q)
+    Psi, work = np.zeros((q, q)), np.empty((q, q))
+    D, GD, SD = np.empty((m, q)), np.empty((n, q)), np.empty((m, q))
+    MddGD, GMGD = np.empty((n, q)), np.empty((m, q))
+    PtMfd, PtMfdG, Y = np.empty((q, n)), np.empty((q, m)), np.empty((q, q))
+    PtMff, Mff_new = np.empty((q, q)), np.empty((q, q))
+    dt_held = np.nan
+    for k in range(N - 1, -1, -1):
+        if k < N - 1 and not dt[k + 1] == dt_held:
+            fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
+            dt_held = dt[k + 1]
+        fault_rows(H[k], E, R_sel, D)
+        matmul(G[k], D, GD)
+        matmul(Sinv[k], D, SD)
+        for h in range(i0.shape[0]):                # cross = (M_ff Psi + M_fd GD)[i0, i0]
+            e = i0[h]
+            acc = 0.0
+            for a in range(q):
+                acc += Mff[e, a] * Psi[a, e]
+            for b in range(n):
+                acc += Mfd[e, b] * GD[b, e]
+            cross[h, k] = acc
+        for a in range(q):                          # lambda_f
+            acc = 0.0
+            for b in range(q):
+                acc += Psi[b, a] * lam_f[b]
+            for i in range(m):
+                acc += D[i, a] * (Glam[k, i] + w[k, i])
+            work[0, a] = acc
+        lam_f[:] = work[0]
+        matmul(Psi.T, Mfd, PtMfd)
+        matmul(PtMfd, G[k], PtMfdG)
+        matmul(PtMfdG, D, Y)                        # Y = Psi^T M_fd GD
+        matmul(MG[k], D, MddGD)                     # M_dd GD
+        matmul(GMG[k], D, GMGD)
+        matmul(Psi.T, Mff, PtMff)
+        matmul(PtMff, Psi, Mff_new)
+        for a in range(q):                          # M_ff
+            for b in range(a, q):
+                acc = Mff_new[a, b] + Y[a, b] + Y[b, a]
+                for i in range(m):
+                    acc += D[i, a] * (GMGD[i, b] + SD[i, b])
+                Mff[a, b] = acc
+                Mff[b, a] = acc
+        for a in range(q):                          # M_fd = (Psi^T M_fd + GD^T M_dd) A - D^T S^-1 H
+            for b in range(n):
+                PtMfd[a, b] += MddGD[b, a]
+        matmul(PtMfd, A[k], Mfd)
+        for a in range(q):
+            for b in range(n):
+                acc = 0.0
+                for i in range(m):
+                    acc += SD[i, a] * H[k, i, b]
+                Mfd[a, b] -= acc
+        for h in range(i0.shape[0]):
+            num[h, k] = lam_f[i0[h]]
+            den[h, k] = Mff[i0[h], i0[h]]
+
+
+@njit(cache=True, nogil=True)
+def hypothesis_num(H, w, dt, Glam, E, R_sel, Fpsi, norm_psi, persists, i0, num):
+    """num(theta) = lambda_theta[i0] alone (the lambda recursion of :func:`hypothesis_scan`
+    without M): for the second pass, whose den and cross are the first pass's."""
+    N, m, n = H.shape
+    q = E.shape[1]
+    lam_f, lam_new = np.zeros(q), np.empty(q)
+    Psi, work = np.zeros((q, q)), np.empty((q, q))
+    D = np.empty((m, q))
+    dt_held = np.nan
+    for k in range(N - 1, -1, -1):
+        if k < N - 1 and not dt[k + 1] == dt_held:
+            fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
+            dt_held = dt[k + 1]
+        fault_rows(H[k], E, R_sel, D)
+        for a in range(q):
+            acc = 0.0
+            for b in range(q):
+                acc += Psi[b, a] * lam_f[b]
+            for i in range(m):
+                acc += D[i, a] * (Glam[k, i] + w[k, i])
+            lam_new[a] = acc
+        lam_f[:] = lam_new
+        for h in range(i0.shape[0]):
+            num[h, k] = lam_f[i0[h]]
+
+
+@njit(cache=True, nogil=True)
+def signature(A, G, H, dt, E, R_sel, Fpsi, norm_psi, persists, i0, k0, rho):
+    """rho_k of a unit fault starting at sample k0 (zero before), forwards:
+    rho_k = D_k f_k - H_k d_k, d_{k+1} = A_k d_k + G_k D_k f_k, f_{k+1} = Psi_{k+1} f_k."""
+    N, m, n = H.shape
+    q = E.shape[1]
+    f, d = np.zeros(q), np.zeros(n)
+    f_new, d_new, Df = np.empty(q), np.empty(n), np.empty(m)
+    Psi, work = np.zeros((q, q)), np.empty((q, q))
+    D = np.empty((m, q))
+    f[i0] = 1.0
+    rho[:k0] = 0.0
+    dt_held = np.nan
+    for k in range(k0, N):
+        fault_rows(H[k], E, R_sel, D)
+        for i in range(m):
+            acc = 0.0
+            for a in range(q):
+                acc += D[i, a] * f[a]
+            Df[i] = acc
+            for b in range(n):
+                acc -= H[k, i, b] * d[b]
+            rho[k, i] = acc
+        if k == N - 1:
+            break
+        if not dt[k + 1] == dt_held:
+            fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
+            dt_held = dt[k + 1]
+        for r in range(n):
+            acc = 0.0
+            for b in range(n):
+                acc += A[k, r, b] * d[b]
+            for i in range(m):
+                acc += G[k, r, i] * Df[i]
+            d_new[r] = acc
+        matmul(Psi, f.reshape(q, 1), f_new.reshape(q, 1))
+        f[:] = f_new
+        d[:] = d_new
