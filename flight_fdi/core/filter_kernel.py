@@ -32,9 +32,10 @@ S_NOT_POSITIVE = 1
 NOT_FINITE = 2      # the update overflowed float64: the measurement is not a plausible value
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior, work):
-    """x- = Phi x + Bd u,  P- = Phi P Phi^T + Qd (exactly symmetric). ``work``: (>= 1, n, n)."""
+    """x- = Phi x + Bd u,  P- = Phi P Phi^T + Qd (exactly symmetric: its upper triangle,
+    mirrored). ``work``: (>= 1, n, n)."""
     n = x.shape[0]
     for i in range(n):
         acc = 0.0
@@ -45,18 +46,25 @@ def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior, work):
         x_prior[i] = acc
     PhiP = work[0]
     matmul(Phi, P, PhiP)
-    matmul(PhiP, Phi.T, P_prior)
     for i in range(n):
         for j in range(i, n):
-            p = 0.5 * (P_prior[i, j] + P_prior[j, i]) + Qd[i, j]
-            P_prior[i, j] = p
-            P_prior[j, i] = p
+            acc = Qd[i, j]
+            for k in range(n):
+                acc += PhiP[i, k] * Phi[j, k]
+            P_prior[i, j] = acc
+            P_prior[j, i] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K, work):
     """The one-row update with the gate into x, P, K; returns (status, nu, S, beta2, exceeded,
-    fused). ``work``: (>= 2, n, n)."""
+    fused). ``work``: (>= 2, n, n).
+
+    The Joseph form P+ = (I - K h) P- (I - K h)^T + K r K^T is evaluated with the rank-one
+    structure of I - K h (one measurement row): (I - K h) P- = P- - K (h P-), then
+    [(I - K h) P-] (I - K h)^T = (I - K h) P- - v K^T with v = [(I - K h) P-] h^T; O(n^2), the
+    same products in another order (no algebraic simplification: the form keeps P+ positive
+    for any K)."""
     n = x_prior.shape[0]
     for i in range(n):                      # K <- P- h^T (divided by S below)
         acc = 0.0
@@ -81,21 +89,25 @@ def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K, work):
         K[:] = 0.0
         return OK, nu, S, beta2, True, False
     finite = True
+    hP = work[1, 0]                         # h P- (= (P- h^T)^T: P- is symmetric)
+    for j in range(n):
+        hP[j] = K[j]
     for i in range(n):
         K[i] = K[i] / S
         x[i] = x_prior[i] + K[i] * nu
         finite = finite and np.isfinite(x[i])
-    # Joseph form: P+ = A P- A^T + K r K^T with A = I - K h
-    A = work[0]
+    AP = work[0]                            # (I - K h) P-
+    v = work[1, 1]                          # (I - K h) P- h^T
     for i in range(n):
+        acc = 0.0
         for j in range(n):
-            A[i, j] = (1.0 if i == j else 0.0) - K[i] * h[j]
-    AP = work[1]
-    matmul(A, P_prior, AP)
-    matmul(AP, A.T, P)
-    for i in range(n):
+            a = P_prior[i, j] - K[i] * hP[j]
+            AP[i, j] = a
+            acc += a * h[j]
+        v[i] = acc
+    for i in range(n):                      # P+ = AP - v K^T + K r K^T, symmetrized
         for j in range(i, n):
-            p = 0.5 * (P[i, j] + P[j, i]) + K[i] * r * K[j]
+            p = 0.5 * ((AP[i, j] - v[i] * K[j]) + (AP[j, i] - v[j] * K[i])) + K[i] * r * K[j]
             P[i, j] = p
             P[j, i] = p
             finite = finite and np.isfinite(p)
@@ -104,7 +116,7 @@ def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K, work):
     return OK, nu, S, beta2, exceeded, True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def predict_over(F, G, C, norm, dt, u, x, P, dt_held, Phi, Qd, Bd, work, x_prior, P_prior):
     """x-, P- after ``dt`` seconds (none when dt == 0). F, G, C, norm: the model's Van Loan
     series; Phi, Qd, Bd: the discretization last computed, for the dt in dt_held[0] (NaN: none
@@ -119,7 +131,7 @@ def predict_over(F, G, C, norm, dt, u, x, P, dt_held, Phi, Qd, Bd, work, x_prior
         P_prior[:, :] = P
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step(F, G, C, norm, h, dt, u, z, r, threshold, reject, x, P, dt_held, Phi, Qd, Bd, work,
          x_prior, P_prior, x_post, P_post, K):
     """One step: predict over ``dt`` (:func:`predict_over`; the first sample of a record, dt = 0,

@@ -37,7 +37,7 @@ from .gate import (ALARM_ACTIVE, ALARM_CLEAR, ALARM_CLEARED, ALARM_RAISED, GATE_
                    GATE_RULES, AlarmLogic, GateConfig, alarm_states)
 from .models import LinearModel
 from .multirow import check_finite, overflow_error, update_failed_rows, update_rows
-from .records import ForwardResult, MeasurementRecord, measurement_record
+from .records import ForwardResult, MeasurementRecord, measurement_record, output_arrays
 from .redundancy import accuracy
 from .scaled import ScaledModel, scaled_model
 
@@ -372,9 +372,9 @@ def run_forward(model: LinearModel, t: Any, z: Any, R: Any = None, u: Any = None
     xs0, Ps0 = sm.to_scaled(x0v, P0m)
     thr = gate.threshold(m)
     ua = np.zeros((N, sm.p)) if record.u is None else np.ascontiguousarray(record.u)
-    out = {"x_prior": np.empty((N, n)), "P_prior": np.empty((N, n, n)), "x": np.empty((N, n)),
-           "P": np.empty((N, n, n)), "K": np.empty((N, n, m)), "nu": np.empty((N, m)),
-           "S": np.empty((N, m, m)), "beta2": np.empty(N), "fused": np.empty(N, dtype=bool)}
+    out = output_arrays({"x_prior": (N, n), "P_prior": (N, n, n), "x": (N, n), "P": (N, n, n),
+                         "K": (N, n, m), "nu": (N, m), "S": (N, m, m), "beta2": (N,)})
+    out["fused"] = np.empty(N, dtype=bool)
     args = (xs0, Ps0, record.dt, ua, record.z, record.R, thr, gate.action == "reject")
     if m == 1:
         _forward1(sm, *args, out)
@@ -392,18 +392,16 @@ def _forward1(sm: ScaledModel, x0: np.ndarray, P0: np.ndarray, dt: np.ndarray, u
     """The one-row record through the kernel's ``forward_pass`` (physical outputs into
     ``out``)."""
     N = dt.size
-    S, K = np.empty(N), np.empty((N, sm.n))
+    S, K = out["S"].reshape(N), out["K"].reshape(N, sm.n)   # (views: m = 1)
     bad, status = fk.forward_pass(
         *sm.series.args(), np.ascontiguousarray(sm.H[0]), x0, P0, dt, u,
         np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(R[:, 0, 0]), thr, reject, sm.s,
-        sm.SS, out["x_prior"], out["P_prior"], out["x"], out["P"], K, out["nu"][:, 0], S,
+        sm.SS, out["x_prior"], out["P_prior"], out["x"], out["P"], K, out["nu"].reshape(N), S,
         out["beta2"], out["fused"])
     if status == fk.S_NOT_POSITIVE:
         raise CoreError(f"step {bad}: innovation covariance S = {S[bad]:.3g} is not positive")
     if status == fk.NOT_FINITE:
         raise CoreError(f"step {bad}: {overflow_error(out['nu'][bad], out['beta2'][bad])}")
-    out["S"][:, 0, 0] = S
-    out["K"][:, :, 0] = K
 
 
 def _forward_rows(sm: ScaledModel, x: np.ndarray, P: np.ndarray, dt: np.ndarray, u: np.ndarray,

@@ -36,7 +36,7 @@ from . import information as kernel
 from .errors import CoreError
 from .ldl import DEFAULT_RANK_TOL, localization, seed_threshold
 from .models import LinearModel
-from .records import ForwardResult
+from .records import ForwardResult, output_arrays
 from .scaled import scaled_model
 
 __all__ = ["DEFAULT_RANK_TOL", "BackwardResult", "run_backward", "seed_threshold"]
@@ -140,8 +140,10 @@ def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] 
         raise CoreError(f"run_backward: the record has {fwd.x.shape[1]} states, the model {n}")
     sm, info, u, Y0, y0 = _inputs(model, fwd, prior)
     N = len(fwd.t)
-    Y, W, P_s = (np.empty((N, n, n)) for _ in range(3))
-    y, Wv, x_s, info_ratio, v_tilde, d, terms, normalized = (np.empty((N, n)) for _ in range(8))
+    o = output_arrays({"Y": (N, n, n), "W": (N, n, n), "P_s": (N, n, n), "y": (N, n),
+                       "Wv": (N, n), "x_s": (N, n), "info_ratio": (N, n), "v_tilde": (N, n),
+                       "d": (N, n), "terms": (N, n), "normalized": (N, n)})
+    Y, W, P_s, y, Wv, x_s, info_ratio, v_tilde, d, terms, normalized = o.values()
     informative = np.empty((N, n), dtype=bool)
     dof_k = np.empty((N, n), dtype=np.int64)
     bad, code = kernel.smooth_pass(
