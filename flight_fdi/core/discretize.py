@@ -41,7 +41,7 @@ TERMS = 20
 _EPS = 1e-16
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def matmul(A, B, out):
     """out = A B (small dense matrices; ``out`` must not alias A or B; ``matmul(A, B.T, out)``
     for A B^T)."""
@@ -55,7 +55,7 @@ def matmul(A, B, out):
             out[i, j] = acc
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _add_to(M, D):
     """M += D, element by element."""
     for i in range(M.shape[0]):
@@ -97,7 +97,7 @@ class VanLoanSeries:
         return self.F, self.G, self.C, self.norm
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _scaling(norm, dt):
     """(s, h): the number of halvings s and h = dt / 2^s with ||A h||_1 <= THETA."""
     s = 0
@@ -108,7 +108,7 @@ def _scaling(norm, dt):
     return s, h
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def expm_series(F, norm, dt, Phi, work):
     """Phi = expm(A dt) alone, from the series F[j] = A^j / j! of :class:`VanLoanSeries` (norm =
     ||A||_1): Horner at h = dt / 2^s, then s squarings Phi(2h) = Phi(h)^2. ``work``: (n, n)."""
@@ -119,7 +119,7 @@ def expm_series(F, norm, dt, Phi, work):
         Phi[:, :] = work
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _terms(a):
     """Number of series terms for ||A h||_1 = a <= THETA: the bound (2a)^j / (j+1)! of the
     first omitted term of the slowest series (Qd's) is below _EPS."""
@@ -133,7 +133,7 @@ def _terms(a):
     return j
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _horner(coef, h, J, out):
     """out = sum_{j < J} h^j coef[j] (Horner's scheme)."""
     out[:, :] = coef[J - 1]
@@ -143,7 +143,7 @@ def _horner(coef, h, J, out):
                 out[r, c] = out[r, c] * h + coef[j, r, c]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work):
     """Phi = expm(A dt), Qd, Bd for dt >= 0 into the given arrays (``work``: (3, n, n)).
 
@@ -185,7 +185,7 @@ def van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work):
             Qd[c, r] = q
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _gamma(F, h, J, out):
     """out = h sum_{j < J} h^j F[j] / (j+1) = int_0^h expm(A s) ds (Horner's scheme)."""
     out[:, :] = F[J - 1] / J
@@ -220,7 +220,7 @@ def discretize_all(series: VanLoanSeries, dt: np.ndarray
     return Phi, Qd, Bd
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _discretize_all(F, G, C, norm, dt, Phi, Qd, Bd):
     work = np.empty((3, Phi.shape[1], Phi.shape[1]))
     for k in range(dt.shape[0]):

@@ -32,7 +32,7 @@ S_NOT_POSITIVE = 1
 NOT_FINITE = 2      # the update overflowed float64: the measurement is not a plausible value
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior, work):
     """x- = Phi x + Bd u,  P- = Phi P Phi^T + Qd (exactly symmetric: its upper triangle,
     mirrored). ``work``: (>= 1, n, n)."""
@@ -55,7 +55,7 @@ def predict(x, P, Phi, Qd, Bd, u, x_prior, P_prior, work):
             P_prior[j, i] = acc
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K, work):
     """The one-row update with the gate into x, P, K; returns (status, nu, S, beta2, exceeded,
     fused). ``work``: (>= 2, n, n).
@@ -116,7 +116,7 @@ def update(x_prior, P_prior, h, r, z, threshold, reject, x, P, K, work):
     return OK, nu, S, beta2, exceeded, True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def predict_over(F, G, C, norm, dt, u, x, P, dt_held, Phi, Qd, Bd, work, x_prior, P_prior):
     """x-, P- after ``dt`` seconds (none when dt == 0). F, G, C, norm: the model's Van Loan
     series; Phi, Qd, Bd: the discretization last computed, for the dt in dt_held[0] (NaN: none
@@ -131,7 +131,7 @@ def predict_over(F, G, C, norm, dt, u, x, P, dt_held, Phi, Qd, Bd, work, x_prior
         P_prior[:, :] = P
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def step(F, G, C, norm, h, dt, u, z, r, threshold, reject, x, P, dt_held, Phi, Qd, Bd, work,
          x_prior, P_prior, x_post, P_post, K):
     """One step: predict over ``dt`` (:func:`predict_over`; the first sample of a record, dt = 0,
@@ -159,7 +159,7 @@ class Workspace:
         return self.dt_held, self.Phi, self.Qd, self.Bd, self.work
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def forward_pass(F, G, C, norm, h, x0, P0, dt, u, z, r, threshold, reject, s, SS,
                  x_prior, P_prior, x, P, K, nu, S, beta2, fused):
     """:func:`step` over a record (N steps; u is (N, p), p may be 0) on the scaled state,

@@ -41,7 +41,7 @@ from numba import njit
 from .discretize import expm_series, matmul
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def transitions(F, norm, dt, H, K, A, G):
     """A_k = Phi_{k+1} (I - K_k H_k), G_k = Phi_{k+1} K_k for k < N-1 (zero at N-1: nothing
     follows the last sample). F, norm: the filter model's series (Phi = expm(A dt) per new dt)."""
@@ -63,7 +63,7 @@ def transitions(F, norm, dt, H, K, A, G):
                 A[k, r, c] = acc
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
     """The hypothesis-free d-blocks M_dd, lambda_d, backwards, as the products with G_k the
     hypotheses need (at step k, of M_dd and lambda_d of step k+1; zero for k = N-1)::
@@ -106,7 +106,7 @@ def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
                 M[c, r] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
     """Psi = expm(A_bar dt) of the fault state (its series Fpsi), or 0 for a one-sample fault."""
     if persists:
@@ -115,7 +115,7 @@ def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
         Psi[:, :] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def fault_rows(H_k, E, R_sel, D):
     """D_k = H_k E + R_sel: how the fault state shows in the measurement."""
     matmul(H_k, E, D)
@@ -124,7 +124,7 @@ def fault_rows(H_k, E, R_sel, D):
             D[i, a] += R_sel[i, a]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_psi, persists,
                     i0, num, den, cross):
     """num[h], den[h], cross[h] for every onset (module doc) of the faults that enter as
@@ -192,7 +192,7 @@ def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_ps
             den[h, k] = Mff[i0[h], i0[h]]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def hypothesis_num(H, w, dt, Glam, E, R_sel, Fpsi, norm_psi, persists, i0, num):
     """num(theta) = lambda_theta[i0] alone (the lambda recursion of :func:`hypothesis_scan`
     without M): for the second pass, whose den and cross are the first pass's."""
@@ -219,7 +219,7 @@ def hypothesis_num(H, w, dt, Glam, E, R_sel, Fpsi, norm_psi, persists, i0, num):
             num[h, k] = lam_f[i0[h]]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def signature(A, G, H, dt, E, R_sel, Fpsi, norm_psi, persists, i0, k0, rho):
     """rho_k of a unit fault starting at sample k0 (zero before), forwards:
     rho_k = D_k f_k - H_k d_k, d_{k+1} = A_k d_k + G_k D_k f_k, f_{k+1} = Psi_{k+1} f_k."""

@@ -25,7 +25,7 @@ from .discretize import matmul, van_loan
 from .ldl import information_terms, ldl_factor, udu_factor
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def solve(A, n):
     """Gauss-Jordan elimination with partial pivoting on the augmented matrix A = [M | B]
     (M n x n): afterwards A[:, n:] = M^-1 B. False when M is singular."""
@@ -53,7 +53,7 @@ def solve(A, n):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def backward_step(Y, y, info_i, Phi, Qd, Bd, u_i, A, Bdu):
     """The backward information filter from step i to i-1, in place: the update with the
     measurement of step i (``info_i`` = [H^T R^-1 H | H^T R^-1 z], zero if not fused), then
@@ -104,7 +104,7 @@ def backward_step(Y, y, info_i, Phi, Qd, Bd, u_i, A, Bdu):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative, v_tilde, d,
                  terms, dof, normalized, A, work):
     """The two-filter combination of one step (see the module doc). ``A``: (n, 2n+1),
@@ -130,17 +130,18 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
     # x_s = x_f + P_f W v;  P_s = P_f - P_f W P_f
     PW = work[0]
     matmul(P_f, W, PW)
-    matmul(PW, P_f, P_s)
     for r in range(n):
         acc = x_f[r]
         for c in range(n):
             acc += P_f[r, c] * Wv[c]
         x_s[r] = acc
-    for r in range(n):
+    for r in range(n):                      # (symmetric: the upper triangle, mirrored)
         for c in range(r, n):
-            sym = 0.5 * ((P_f[r, c] - P_s[r, c]) + (P_f[c, r] - P_s[c, r]))
-            P_s[r, c] = sym
-            P_s[c, r] = sym
+            acc = P_f[r, c]
+            for j in range(n):
+                acc -= PW[r, j] * P_f[j, c]
+            P_s[r, c] = acc
+            P_s[c, r] = acc
     # reference pivots: the forward information P_f^-1 = U^-T D^-1 U^-1 has LDL^T pivots 1 / D
     U = work[1]
     if udu_factor(P_f, U, ref) >= 0:
@@ -153,7 +154,7 @@ def combine_step(Y, y, x_f, P_f, rank_tol, W, Wv, x_s, P_s, ref, Lam, informativ
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def smooth_pass(F, G, C, norm, dt, u, info, Y0, y0, x_f, P_f, s, rank_tol, Y_out, y_out, W, Wv,
                 x_s, P_s, info_ratio, informative, v_tilde, d, terms, dof, normalized):
     """The backward information filter and the two-filter combination in one backward sweep:

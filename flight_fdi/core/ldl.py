@@ -36,7 +36,7 @@ def seed_threshold(dof: Any) -> np.ndarray:
 
 # --------------------------------------------------------------------------- kernels
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def udu_factor(P, U, D):
     """P = U diag(D) U^T, bottom-up. Returns the first pivot index that is not > 0, or -1."""
     n = P.shape[0]
@@ -60,7 +60,7 @@ def udu_factor(P, U, D):
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def ldl_factor(W, ref, rank_tol, L, Lam, informative):
     """W = L diag(Lam) L^T, top-down; pivot j is zero (not informative) when it is at or below
     rank_tol * ref[j], and its column of L is then that of the identity."""
@@ -86,7 +86,7 @@ def ldl_factor(W, ref, rank_tol, L, Lam, informative):
                 L[i, j] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def information_terms(L, Lam, informative, Wv, q, v_tilde, d, terms, dof, normalized):
     """The element terms of J in information form: q = L^-1 (W v) (forward substitution),
     term_k = q_k^2 / Lam_k, v~_k = q_k / Lam_k, dD_k = 1 / Lam_k, normalized v~_k / sqrt(dD_k) =
@@ -113,7 +113,7 @@ def information_terms(L, Lam, informative, Wv, q, v_tilde, d, terms, dof, normal
         dof[k] = count
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _udu_stack(P, U, D):
     for i in range(P.shape[0]):
         bad = udu_factor(P[i], U[i], D[i])
@@ -122,13 +122,13 @@ def _udu_stack(P, U, D):
     return -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _ldl_stack(W, ref, rank_tol, L, Lam, informative):
     for i in range(W.shape[0]):
         ldl_factor(W[i], ref[i], rank_tol, L[i], Lam[i], informative[i])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _terms_stack(W, Wv, ref, rank_tol, L, Lam, informative, v_tilde, d, terms, dof, normalized):
     q = np.empty(W.shape[1])
     for i in range(W.shape[0]):
