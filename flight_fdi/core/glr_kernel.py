@@ -108,11 +108,14 @@ def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
 
 @njit(cache=True, error_model="numpy")
 def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
-    """Psi = expm(A_bar dt) of the fault state (its series Fpsi), or 0 for a one-sample fault."""
-    if persists:
-        expm_series(Fpsi, norm_psi, dt, Psi, work)
-    else:
-        Psi[:, :] = 0.0
+    """Psi = expm(A_bar dt) of the fault state (its series Fpsi), with the rows and columns of
+    the one-sample elements (an outlier: ``persists`` False) zeroed."""
+    expm_series(Fpsi, norm_psi, dt, Psi, work)
+    for a in range(Psi.shape[0]):
+        if not persists[a]:
+            for b in range(Psi.shape[0]):
+                Psi[a, b] = 0.0
+                Psi[b, a] = 0.0
 
 
 @njit(cache=True, error_model="numpy")

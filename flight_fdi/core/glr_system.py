@@ -201,7 +201,8 @@ class System:
     beta' = A_bar beta (A with row j zeroed), beta(theta) = e_j; a ramp adds its rate r
     (beta_j' = r, r' = 0, r(theta) = 1). Only the states the fault reaches are kept, and a step
     shares the system of the ramp of the same state (its states are part of the ramp's, with the
-    same dynamics). A jump or an outlier: one element, in row r of z."""
+    same dynamics). A jump or an outlier: one element in row r of z (the jumps and outliers of
+    one row share a System, one element each)."""
 
     def __init__(self, model: LinearModel, hyps: list) -> None:
         n, m = model.n, model.m
@@ -223,15 +224,16 @@ class System:
                     E[i, a] = 1.0
             self.E, self.R_sel = E, np.zeros((m, len(keep)))
             Ar = Abar[np.ix_(keep, keep)]
-            self.persists = True
+            self.persists = np.ones(len(keep), dtype=bool)
             self.i0 = np.array([keep.index(n if h.kind == "ramp" else j) for h in self.hyps])
-        else:
-            self.E = np.zeros((n, 1))
-            self.R_sel = np.zeros((m, 1))
-            self.R_sel[main.index, 0] = 1.0
-            Ar = np.zeros((1, 1))  # the offset persists (Psi = 1); an outlier is gone (Psi = 0)
-            self.persists = main.kind == "jump"
-            self.i0 = np.zeros(1, dtype=np.int64)
+        else:  # jumps and outliers of one measurement row: one element each
+            q = len(self.hyps)
+            self.E = np.zeros((n, q))
+            self.R_sel = np.zeros((m, q))
+            self.R_sel[main.index, :] = 1.0
+            Ar = np.zeros((q, q))  # an offset persists (Psi = 1); an outlier is gone (Psi = 0)
+            self.persists = np.array([h.kind == "jump" for h in self.hyps])
+            self.i0 = np.arange(q)
         self.i0 = self.i0.astype(np.int64)
         series = VanLoanSeries(Ar, np.zeros_like(Ar), None)
         self.Fpsi, self.norm_psi = series.F, series.norm
@@ -263,11 +265,13 @@ class System:
 
 def systems(model: LinearModel, hyps: list) -> dict:
     """{hypothesis name: its System}: one System per hypothesis, except that a step shares the
-    System of the ramp of the same state when both are tested."""
+    System of the ramp of the same state when both are tested, and the jumps and outliers of one
+    measurement row share one System."""
     ramps = {h.index: h for h in hyps if h.kind == "ramp"}
     groups: dict = {}
     for h in hyps:
-        key = ("ramp", h.index) if h.kind in ("step", "ramp") and h.index in ramps else h.name
+        key = (("ramp", h.index) if h.kind in ("step", "ramp") and h.index in ramps else
+               ("row", h.index) if h.kind in ("jump", "outlier") else h.name)
         groups.setdefault(key, []).append(h)
     out = {}
     for members in groups.values():
