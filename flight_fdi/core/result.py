@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .glr import GlrResult, kind_of, sensor_of
+from .glr import GlrResult, kind_of, rank_hypotheses, sensor_of
 
 SCHEMA_ID = "flight-fdi/result/v1"
 
@@ -60,8 +60,9 @@ def fault_record(glr: GlrResult, hypothesis: str, t0: float, axis: str,
     onset = None if h["onset_t"] is None else h["onset_t"] - t0
     interval = h.get("onset_interval")
     if runner_up is None:
-        runner_up = next((o for o in sorted(glr.per_hypothesis, key=lambda o: -glr.per_hypothesis[
-            o]["statistic"]) if o != hypothesis), None)
+        # (ties -- same signature, statistics equal to rounding -- keep the declared order)
+        runner_up = next((o for o in rank_hypotheses(glr.per_hypothesis) if o != hypothesis),
+                         None)
     count = h.get("count")
     if kind == "outliers" and h.get("times"):  # first to last outlier above the threshold
         onset, end_s = min(h["times"]) - t0, max(h["times"]) - t0
