@@ -43,11 +43,26 @@ def warm() -> None:
         kf.update(np.zeros(1), np.eye(1), model.H[:1])
         model.discretize(0.1)
     KalmanFilter(ins).step1(0.1, 0.0, 0.01)
+    warm_glr(ins, run_forward(ins, t, rng.normal(0, 0.1, N)))
     P = np.eye(4) + 0.1
     udu(P)
     ldl(P)
     localize(np.ones(4), dP=P)
     localize(np.ones(4), W=P)
+
+
+def warm_glr(model, fwd) -> None:
+    """Every GLR kernel, the second pass's included (``isolate`` runs it only when one
+    hypothesis explains a fault)."""
+    from .glr import GlrConfig, isolate
+    from .glr_system import prepare, resolve, systems
+
+    isolate(model, fwd)
+    flt = prepare(model, fwd)
+    hyps = [resolve(model, h) for h in GlrConfig().hypotheses]
+    for system in {id(s): s for s in systems(model, hyps).values()}.values():
+        system.num(flt.with_innovations(flt.w))
+        system.signature(flt, 5, system.hyps[0].name)
 
 
 def main() -> int:
