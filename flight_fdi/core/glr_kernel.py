@@ -106,7 +106,7 @@ def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
                 M[c, r] = acc
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
     """Psi = expm(A_bar dt) of the fault state (its series Fpsi), with the rows and columns of
     the one-sample elements (an outlier: ``persists`` False) zeroed."""
@@ -118,7 +118,7 @@ def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
                 Psi[b, a] = 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def fault_rows(H_k, E, R_sel, D):
     """D_k = H_k E + R_sel: how the fault state shows in the measurement."""
     matmul(H_k, E, D)
