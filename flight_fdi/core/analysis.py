@@ -264,10 +264,9 @@ def analyze_forward(model: LinearModel, fwd: ForwardResult,
     if not math.isfinite(origin):
         raise CoreError(f"analyze_forward: t0 must be finite, got {t0!r}")
     # GLR needs only the forward pass: it runs in a second thread while this one does the
-    # backward pass (GLR is block-vectorised numpy and the backward kernels are compiled, both
-    # release the GIL), so the two use both cores of a small machine. On very long records the
-    # working memory of the two together is too much (GLR ~1 kB per step, the backward pass as
-    # much again): GLR then runs first, alone (10-hour flight at 10 Hz: peak under 1 GB).
+    # backward pass (both are compiled kernels that release the GIL), so the two use both cores
+    # of a small machine. On very long records the working memory of the two together is too
+    # much (GLR ~0.5 kB per step, the backward pass ~1 kB): GLR then runs first, alone.
     if len(fwd.t) > GLR_CONCURRENT_MAX_STEPS:
         glr = isolate(model, fwd, config.glr_config())
         bwd = run_backward(model, fwd, rank_tol=config.rank_tol)

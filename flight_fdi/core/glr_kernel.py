@@ -127,6 +127,31 @@ def fault_rows(H_k, E, R_sel, D):
             D[i, a] += R_sel[i, a]
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work):
+    """Psi_{k+1} (recomputed only for a new dt; none after the last sample) and D_k; returns
+    the dt Psi is held for."""
+    if k < dt.shape[0] - 1 and not dt[k + 1] == dt_held:
+        fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
+        dt_held = dt[k + 1]
+    fault_rows(H[k], E, R_sel, D)
+    return dt_held
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def lambda_f_step(Psi, D, Glam_k, w_k, lam_f, lam_new):
+    """lambda_f <- Psi^T lambda_f + GD^T lambda_d + D^T w = Psi^T lambda_f + D^T (Glam + w)."""
+    q = lam_f.shape[0]
+    for a in range(q):
+        acc = 0.0
+        for b in range(q):
+            acc += Psi[b, a] * lam_f[b]
+        for i in range(D.shape[0]):
+            acc += D[i, a] * (Glam_k[i] + w_k[i])
+        lam_new[a] = acc
+    lam_f[:] = lam_new
+
+
 @njit(cache=True, error_model="numpy", nogil=True)
 def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_psi, persists,
                     i0, num, den, cross):
@@ -141,13 +166,10 @@ def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_ps
     D, GD, SD = np.empty((m, q)), np.empty((n, q)), np.empty((m, q))
     MddGD, GMGD = np.empty((n, q)), np.empty((m, q))
     PtMfd, PtMfdG, Y = np.empty((q, n)), np.empty((q, m)), np.empty((q, q))
-    PtMff, Mff_new = np.empty((q, q)), np.empty((q, q))
+    PtMff, Mff_new, lam_new = np.empty((q, q)), np.empty((q, q)), np.empty(q)
     dt_held = np.nan
     for k in range(N - 1, -1, -1):
-        if k < N - 1 and not dt[k + 1] == dt_held:
-            fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
-            dt_held = dt[k + 1]
-        fault_rows(H[k], E, R_sel, D)
+        dt_held = fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work)
         matmul(G[k], D, GD)
         matmul(Sinv[k], D, SD)
         for h in range(i0.shape[0]):                # cross = (M_ff Psi + M_fd GD)[i0, i0]
@@ -158,14 +180,7 @@ def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_ps
             for b in range(n):
                 acc += Mfd[e, b] * GD[b, e]
             cross[h, k] = acc
-        for a in range(q):                          # lambda_f
-            acc = 0.0
-            for b in range(q):
-                acc += Psi[b, a] * lam_f[b]
-            for i in range(m):
-                acc += D[i, a] * (Glam[k, i] + w[k, i])
-            work[0, a] = acc
-        lam_f[:] = work[0]
+        lambda_f_step(Psi, D, Glam[k], w[k], lam_f, lam_new)
         matmul(Psi.T, Mfd, PtMfd)
         matmul(PtMfd, G[k], PtMfdG)
         matmul(PtMfdG, D, Y)                        # Y = Psi^T M_fd GD
@@ -206,18 +221,8 @@ def hypothesis_num(H, w, dt, Glam, E, R_sel, Fpsi, norm_psi, persists, i0, num):
     D = np.empty((m, q))
     dt_held = np.nan
     for k in range(N - 1, -1, -1):
-        if k < N - 1 and not dt[k + 1] == dt_held:
-            fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
-            dt_held = dt[k + 1]
-        fault_rows(H[k], E, R_sel, D)
-        for a in range(q):
-            acc = 0.0
-            for b in range(q):
-                acc += Psi[b, a] * lam_f[b]
-            for i in range(m):
-                acc += D[i, a] * (Glam[k, i] + w[k, i])
-            lam_new[a] = acc
-        lam_f[:] = lam_new
+        dt_held = fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work)
+        lambda_f_step(Psi, D, Glam[k], w[k], lam_f, lam_new)
         for h in range(i0.shape[0]):
             num[h, k] = lam_f[i0[h]]
 
@@ -236,7 +241,7 @@ def signature(A, G, H, dt, E, R_sel, Fpsi, norm_psi, persists, i0, k0, rho):
     rho[:k0] = 0.0
     dt_held = np.nan
     for k in range(k0, N):
-        fault_rows(H[k], E, R_sel, D)
+        dt_held = fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work)
         for i in range(m):
             acc = 0.0
             for a in range(q):
@@ -247,9 +252,6 @@ def signature(A, G, H, dt, E, R_sel, Fpsi, norm_psi, persists, i0, k0, rho):
             rho[k, i] = acc
         if k == N - 1:
             break
-        if not dt[k + 1] == dt_held:
-            fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
-            dt_held = dt[k + 1]
         for r in range(n):
             acc = 0.0
             for b in range(n):
