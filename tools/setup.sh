@@ -105,6 +105,9 @@ fi
 KERNEL_HASH=$( (echo "$REQ_HASH"; cat flight_fdi/core/*.py) | sha256sum | cut -c1-16)
 if [ "$(cat "$VENV/.flight_fdi-kernels" 2>/dev/null)" != "$KERNEL_HASH" ]; then
     say "compiling the estimation kernels (numba cache)"
+    # numba keys a cached kernel on its own file only, and the kernels inline helpers of other
+    # modules (discretize, ldl): a changed core recompiles everything
+    rm -f flight_fdi/core/__pycache__/*.nbi flight_fdi/core/__pycache__/*.nbc
     "$VPY" -m flight_fdi.core.warmup || die "compiling the estimation kernels failed (see above)"
     echo "$KERNEL_HASH" > "$VENV/.flight_fdi-kernels"
 fi
