@@ -100,15 +100,18 @@ EOF
 fi
 # --- 4. the compiled estimation kernels -------------------------------------------------------
 # numba compiles each kernel on first use (about 2 minutes for all of them on a loaded 2-core machine) and keeps the machine code in
-# flight_fdi/core/__pycache__ (cache=True); compiling here means a user's first analyze only loads
-# it. numba itself recompiles a kernel whose source file changed.
-KERNEL_HASH=$( (echo "$REQ_HASH"; cat flight_fdi/core/*.py) | sha256sum | cut -c1-16)
+# the __pycache__ folders beside them (cache=True); compiling here means a user's first analyze
+# (either model), simulate or node start only loads it. numba itself recompiles a kernel whose
+# source file changed.
+KERNEL_HASH=$( (echo "$REQ_HASH"; cat flight_fdi/core/*.py flight_fdi/core/ins3d/*.py \
+               flight_fdi/sim/*.py flight_fdi/warmup.py) | sha256sum | cut -c1-16)
 if [ "$(cat "$VENV/.flight_fdi-kernels" 2>/dev/null)" != "$KERNEL_HASH" ]; then
     say "compiling the estimation kernels (numba cache)"
     # numba keys a cached kernel on its own file only, and the kernels inline helpers of other
     # modules (discretize, ldl): a changed core recompiles everything
-    rm -f flight_fdi/core/__pycache__/*.nbi flight_fdi/core/__pycache__/*.nbc
-    "$VPY" -m flight_fdi.core.warmup || die "compiling the estimation kernels failed (see above)"
+    rm -f flight_fdi/core/__pycache__/*.nb[ic] flight_fdi/core/ins3d/__pycache__/*.nb[ic] \
+          flight_fdi/sim/__pycache__/*.nb[ic]
+    "$VPY" -m flight_fdi.warmup || die "compiling the estimation kernels failed (see above)"
     echo "$KERNEL_HASH" > "$VENV/.flight_fdi-kernels"
 fi
 say "ready: .venv/bin/flight-fdi, .venv/bin/python (rclpy, flight_fdi, flight_fdi_msgs)"
