@@ -94,11 +94,9 @@ def analyse_run_folder(folder: Path, args: argparse.Namespace):
                                        "analysed again."]
         raise CliError(f"{folder}: no recording/ and the input bag named in result.json "
                        f"({doc.get('bag')!r}) does not exist")
-    try:
-        from flight_fdi.nodes.smoother_node import analyze_recording, read_recording
-    except ImportError as exc:
-        raise CliError(f"reading a recording needs the ROS 2 environment ({exc}); give the input "
-                       "bag instead") from None
+    from flight_fdi.bagio.recording import read_recording
+    from flight_fdi.core.recording import analyze_recording
+
     flight = None
     if input_bag is not None and _is_bag(input_bag):
         from flight_fdi.bagio import read_flight

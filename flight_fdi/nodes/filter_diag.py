@@ -29,7 +29,7 @@ def statuses(node: Any) -> list:
     stalled = node.diagnostics.clock_stalled_s()
     problems = node.inputs.problems(stalled)
     values = node.inputs.key_values() + node.counters.key_values()
-    values.append(("waiting_reference_samples", str(len(node._pending))))
+    values.append(("waiting_reference_samples", str(len(node.sync.pending))))
     # samples held while a jump of their stamps waits for confirmation (time_jump_confirm)
     values.append(("held_ins_samples", str(node._ins_line.pending)))
     values.append(("held_reference_samples", str(sum(r.line.pending for r in node.refs))))

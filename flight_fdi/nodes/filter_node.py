@@ -131,7 +131,6 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections import deque
 from typing import Any
 
 import numpy as np
@@ -141,15 +140,15 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.validate_topic_name import validate_topic_name
 
 from ..core.actuator import MEASUREMENTS, ActuatorConfig
-from ..core.align import StreamingAligner
 from ..core.errors import CoreError
 from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
+from ..core.refsync import ReferenceSync
 from ..core.references import ReferenceConfig
 from ..core.timeline import ACCEPT, DUPLICATE, HELD, NEW_LINE, OUT_OF_ORDER, OUTLIER, StampLine
 from . import attitude_mode, convert, filter_diag, ins3d_mode
 from .convert import VELOCITY_TYPES
-from .filter_parts import Channel as _Channel, Epoch as _Epoch, Reference as _Reference
+from .filter_parts import Channel as _Channel, Reference as _Reference
 from .qos import INPUT_QOS_CHOICES, InputSubscriptions, input_profile, output_qos
 from . import diagnostics as diag
 from .clockutil import ClockReader
@@ -465,11 +464,6 @@ class FilterNode(Node):
         self._axes_list = self._axes.tolist()
         self._h = np.asarray(self.model.H, dtype=float)
         self._h_list = self._h.reshape(-1).tolist()
-        self._new_aligner()
-        self._pending: deque[_Epoch] = deque()
-        self._last_ref_t: float | None = None     # newest reference stamp (any topic)
-        self._last_epoch_t: float | None = None   # stamp of the last update processed
-        self._last_ins_t: float | None = None
         # published: filter steps published (one Innovation and one FilterState each)
         self.counters = diag.Counters(("received_ins", "received_reference", "published",
                                        "time_jump_resets"))
@@ -483,6 +477,11 @@ class FilterNode(Node):
         if len(set(ref_names)) != len(ref_names):
             fail(ref_key, p[ref_key], f"distinct topics (they resolve to {ref_names})")
         self.refs = [_Reference(k, nm) for k, nm in enumerate(ref_names)]
+        # grouping of the reference samples into updates, INS interpolation (core.refsync)
+        self.sync = ReferenceSync(len(self.refs), p["reference_sync_tolerance_s"],
+                                  p["reference_sync_wait_s"], p["max_gap_s"], p["buffer_s"],
+                                  on_drop=lambda reason, detail, n: self._drop(reason, detail,
+                                                                               n=n))
         self._ins_line = self._stamp_line()
         self._frame = p["frame_id"]
         for ref in self.refs:
@@ -552,9 +551,6 @@ class FilterNode(Node):
     def _stamp_line(self) -> StampLine:
         p = self.p
         return StampLine(p["time_jump_reset_s"], p["time_jump_confirm"], p["reset_after_gap_s"])
-
-    def _new_aligner(self) -> None:
-        self.aligner = StreamingAligner(max_gap_s=self.p["max_gap_s"], buffer_s=self.p["buffer_s"])
 
     def _now(self) -> float:
         """The node's clock (ROS or simulated time) in seconds."""
@@ -633,12 +629,11 @@ class FilterNode(Node):
 
     def _add_ins(self, t: float, v: Any) -> None:
         try:
-            self.aligner.add_ins(t, v)
+            updates = self.sync.add_ins(t, v)
         except CoreError as exc:
             self._drop("ins_core_error", f"INS sample at t={t:.3f} s: {exc}")
             return
-        self._last_ins_t = t
-        self._drain()
+        self._process(updates)
 
     def _stamp_drop(self, what: str, kind: str, t: float, ref: Any = None) -> None:
         """A sample dropped by its time line (duplicate, out of order, outlier)."""
@@ -659,15 +654,7 @@ class FilterNode(Node):
         self.get_logger().warning(
             f"INS time jumped from {last:.3f} s to {t:.3f} s (confirmed by "
             f"{self.p['time_jump_confirm']} samples): INS buffer reset")
-        self._new_aligner()
-        self._last_ins_t = None
-        limit = t + self.p["time_jump_reset_s"]
-        keep = deque(e for e in self._pending if e.t <= limit)
-        stale = sum(len(e.samples) for e in self._pending) - sum(len(e.samples) for e in keep)
-        if stale:
-            self._pending = keep
-            self._drop("time_jump", f"{stale} reference samples waiting across a time jump",
-                       n=stale)
+        self.sync.ins_time_jump(t, self.p["time_jump_reset_s"])
 
     # ------------------------------------------------------------------ reference input
     def _on_reference(self, k: int, data: bytes) -> None:
@@ -712,57 +699,15 @@ class FilterNode(Node):
 
     def _accept_reference(self, k: int, t: float, lin: Any, var: Any) -> None:
         ref = self.refs[k]
-        ref.last_t = t
         ref.counters.inc("samples")
-        if self._last_ref_t is None or t > self._last_ref_t:
-            self._last_ref_t = t
-        if self._last_epoch_t is not None and t <= self._last_epoch_t:
+        updates = self.sync.add_reference(k, t, lin, var)
+        if updates is None:
             # its stamp has been processed (without it): an update is never redone
             ref.counters.inc("dropped_late")
             self._drop("reference_late", f"reference sample on {ref.name} at t={t:.3f} s: "
-                       f"arrived after the update at {self._last_epoch_t:.3f} s")
+                       f"arrived after the update at {self.sync.last_epoch_t:.3f} s")
             return
-        self._add_sample(k, t, lin, var)
-        # a sample that waited longer than the INS buffer for its INS data will not get it
-        newest = self._last_ref_t
-        while self._pending and self._pending[0].t < newest - self.p["buffer_s"]:
-            old = self._pending.popleft()
-            self._drop("ins_timeout", f"reference sample at t={old.t:.3f} s: no INS data "
-                       f"after it within {self.p['buffer_s']} s", n=len(old.samples))
-        self._drain()
-
-    def _add_sample(self, k: int, t: float, v: np.ndarray, var: np.ndarray) -> None:
-        """Put a reference sample into the waiting update within the sync tolerance of its
-        stamp (the nearest one still without this reference), or into a new one, in stamp
-        order."""
-        tol = self.p["reference_sync_tolerance_s"] if self.redundant else 0.0
-        best = None
-        for e in self._pending:
-            if k not in e.samples and abs(e.t - t) <= tol and \
-                    (best is None or abs(e.t - t) < abs(best.t - t)):
-                best = e
-        if best is None:
-            best = _Epoch(t)
-            pos = len(self._pending)
-            while pos > 0 and self._pending[pos - 1].t > t:
-                pos -= 1
-            self._pending.insert(pos, best)
-        best.samples[k] = (t, v, var)
-
-    def _closed(self, e: _Epoch) -> bool:
-        """The update at ``e.t`` waits for no more references (see the module docstring)."""
-        if len(e.samples) == len(self.refs):
-            return True
-        tol, wait = self.p["reference_sync_tolerance_s"], self.p["reference_sync_wait_s"]
-        if self._last_ref_t is not None and self._last_ref_t > e.t + wait:
-            return True
-        for ref in self.refs:
-            if ref.index in e.samples:
-                continue
-            last = ref.last_t
-            if last is None or e.t - wait <= last <= e.t + tol:
-                return False  # may still come
-        return True
+        self._process(updates)
 
     def _reference_time_jump(self, last: float, t: float) -> None:
         self.counters.inc("time_jump_resets")
@@ -771,56 +716,18 @@ class FilterNode(Node):
         self.get_logger().warning(f"{reason}: filter reset")
         for ch in self.channels:
             self._reset_channel(ch, reason)
-        waiting = sum(len(e.samples) for e in self._pending)
-        if waiting:
-            self._drop("time_jump", f"{waiting} reference samples waiting across a time jump",
-                       n=waiting)
-            self._pending.clear()
-        for ref in self.refs:  # every reference starts on the new time line
-            ref.last_t = None
-        self._last_ref_t = None
-        self._last_epoch_t = None
-        if self._last_ins_t is not None and self._last_ins_t > t + self.p["time_jump_reset_s"]:
-            self._new_aligner()  # the INS buffer is still on the old time line
-            self._last_ins_t = None
+        self.sync.reference_time_jump(t, self.p["time_jump_reset_s"])
 
-    def _drain(self) -> None:
-        """Step the filter for every waiting update that is complete (or has waited long enough)
-        and whose INS values are available, in stamp order."""
-        while self._pending:
-            e = self._pending[0]
-            if not self._closed(e):
-                return
-            newest = self.aligner.newest_t
-            if newest is None or e.latest > newest:
-                # wait for the INS sample after t, even when t is more than max_gap_s ahead of
-                # the newest one: INS messages may simply be delivered later than references
-                # (a real INS dropout ends as a "gap", or the sample expires after buffer_s)
-                return
-            self._pending.popleft()
-            self._last_epoch_t = e.t
-            rows = []
-            for k in sorted(e.samples):
-                t_k, v_ref, var = e.samples[k]
-                v_ins = self.aligner.at(t_k)
-                if v_ins is None:
-                    reason = self.aligner.last_reason
-                    self._drop(f"ins_{reason}", f"reference sample at t={t_k:.3f} s: no INS "
-                               f"value ({reason}; max_gap_s {self.p['max_gap_s']} s, buffer_s "
-                               f"{self.p['buffer_s']} s)")
-                    continue
-                rows.append((k, np.asarray(v_ins, dtype=float).reshape(-1), v_ref, var))
-            if not rows:
-                continue
+    def _process(self, updates: list) -> None:
+        """Step the filter for the updates released by the synchronisation, in stamp order."""
+        for u in updates:
             if self.redundant:
-                present = {k for k, *_ in rows}
-                for ref in self.refs:
-                    if ref.index not in present:
-                        ref.counters.inc("missing")
-                self._step_redundant(e.t, rows)
+                for k in u.missing:
+                    self.refs[k].counters.inc("missing")
+                self._step_redundant(u.t, u.rows)
             else:
-                _, v_ins, v_ref, var = rows[0]
-                self._step(e.t, v_ins, v_ref, var)
+                _, v_ins, v_ref, var = u.rows[0]
+                self._step(u.t, v_ins, v_ref, var)
 
     # ------------------------------------------------------------------ the filter step
     def _row(self, ch: _Channel, t: float, v_ins: np.ndarray, v_ref: np.ndarray,

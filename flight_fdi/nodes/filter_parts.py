@@ -1,8 +1,6 @@
 """The per-channel, per-reference and per-update state of filter_node (INS velocity mode)."""
 from __future__ import annotations
 
-import numpy as np
-
 from ..core.kalman import GateConfig, KalmanFilter
 from ..core.models import LinearModel
 from ..core.references import ReferenceConfig, RedundantFilter
@@ -48,26 +46,11 @@ class Channel:
 
 
 class Reference:
-    """One reference input: its resolved topic name, the stamp of its last sample, its counts."""
+    """One reference input: its resolved topic name, its time line and its counts."""
 
     def __init__(self, index: int, name: str) -> None:
         self.index = index
         self.name = name
-        self.last_t: float | None = None
         self.line: StampLine | None = None  # its time line (set by the node)
         self.counters = diag.Counters(("samples", "missing", "dropped_late"))
 
-
-class Epoch:
-    """Reference samples waiting to be fused as one update at stamp ``t``:
-    ``samples[reference index] = (stamp, velocity (3,), variance (3,))``."""
-
-    __slots__ = ("t", "samples")
-
-    def __init__(self, t: float) -> None:
-        self.t = t
-        self.samples: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
-
-    @property
-    def latest(self) -> float:
-        return max(s[0] for s in self.samples.values())
