@@ -4,7 +4,8 @@
 decoded iteration), ``open_writer`` (writing), ``get_typestore`` (Jazzy + flight_fdi_msgs).
 """
 from .errors import BagError
-from .reader import FlightData, bag_topics, read_flight, read_messages
+from .flight import FlightData, read_flight
+from .reader import bag_topics, read_messages
 from .typestore import get_typestore, msg_definition
 from .writer import BagWriter, open_writer
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import BagError
-from .reader import _merge_files, _open_reader, _read_raw, _topic_list
+from .reader import read_topics_raw, topic_list
 
 IMU_MSG = "sensor_msgs/msg/Imu"
 _NS = 1_000_000_000
@@ -71,53 +71,16 @@ def decode_imu(payloads, what: str) -> tuple[np.ndarray, np.ndarray]:
 def _check_topics(p: Path, available: dict[str, str], topics) -> None:
     for t in topics:
         if t not in available:
-            raise BagError(f"bag '{p}': no topic {t} (topics: {_topic_list(available)})")
+            raise BagError(f"bag '{p}': no topic {t} (topics: {topic_list(available)})")
         if available[t] != IMU_MSG:
             raise BagError(f"bag '{p}': {t} holds {available[t]}, not {IMU_MSG}")
-
-
-def _fast_raw(p: Path, topics) -> dict | None:
-    """Raw messages of an uncompressed-mode mcap bag directory without rosbags' reader (whose
-    YAML parsing of metadata.yaml alone takes ~0.3 s); None: use the generic path."""
-    import yaml
-
-    from . import mcapscan
-
-    meta = p / "metadata.yaml"
-    if not (p.is_dir() and meta.is_file()):
-        return None
-    try:
-        info = yaml.load(meta.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
-        info = info["rosbag2_bagfile_information"]
-        if info.get("storage_identifier") != "mcap" or info.get("compression_mode"):
-            return None
-        files = [p / f for f in info["relative_file_paths"]]
-        available = {x["topic_metadata"]["name"]: x["topic_metadata"]["type"]
-                     for x in info["topics_with_message_count"]}
-    except (yaml.YAMLError, KeyError, TypeError, OSError, UnicodeDecodeError):
-        return None
-    if not files or not all(f.is_file() for f in files):
-        return None
-    _check_topics(p, available, topics)
-    try:
-        return _merge_files([mcapscan.scan(str(f), set(topics), str(p)) for f in files],
-                            set(topics))
-    except mcapscan.Unsupported:
-        return None
 
 
 def read_imu_triples(path: str | Path, topics=("/imu1/data", "/imu2/data", "/imu3/data"),
                      match_tolerance_ns: int = 2_000_000) -> ImuTriples:
     """The matched triples of a bag (see the module docstring); BagError names the problem."""
     p = Path(path)
-    raw = _fast_raw(p, topics)
-    if raw is None:
-        reader = _open_reader(p)
-        try:
-            _check_topics(p, {c.topic: c.msgtype for c in reader.connections}, topics)
-            raw = _read_raw(reader, p, set(topics))
-        finally:
-            reader.close()
+    raw = read_topics_raw(p, topics, check=lambda available: _check_topics(p, available, topics))
     streams, dropped, received = [], {}, []
     first_ns = min((int(raw[t].log_ns.min()) for t in topics if raw[t].log_ns.size),
                    default=0)

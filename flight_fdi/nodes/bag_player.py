@@ -48,13 +48,13 @@ import struct
 import sys
 import time
 from collections import deque
-from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from rclpy.node import Node
 from rclpy.task import Future
 
 from flight_fdi.bagio.errors import BagError
+from flight_fdi.bagio.reader import BagStream
 
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters, fail
@@ -124,65 +124,6 @@ def _has_header(msgtype: str, store: Any) -> bool:
     return name == "header" and ref == "std_msgs/msg/Header"
 
 
-class BagSource:
-    """The messages of ``topics`` of a bag, in receive-time order, as raw CDR (no rclpy).
-
-    ``BagSource(path, topics)``: ``types`` {topic: msgtype}, ``latched`` (topics whose recorded
-    publishers were all transient local), ``count`` (from the bag's metadata) and
-    ``messages()`` yielding (topic, t_ns, bytes). BagError for a missing or unreadable bag or
-    unknown topics.
-    """
-
-    def __init__(self, path: str | Path, topics: list[str]) -> None:
-        from rosbags.interfaces import QosDurability
-        from rosbags.rosbag2 import Reader
-
-        self.path = Path(path)
-        if not self.path.exists():
-            raise BagError(f"bag '{self.path}' does not exist")
-        try:
-            self._reader = Reader(self.path)
-            self._reader.open()
-        except Exception as exc:  # rosbags raises several types
-            raise BagError(f"bag '{self.path}' cannot be opened: {_reason(exc)}") from None
-        conns = self._reader.connections
-        available = {c.topic: c.msgtype for c in conns}
-        missing = [t for t in topics if t not in available]
-        if missing:
-            self.close()
-            raise BagError(f"bag '{self.path}' has no topic {', '.join(missing)} (topics: "
-                           f"{', '.join(sorted(available)) or 'none'})")
-        self._conns = [c for c in conns if c.topic in topics]
-        self.types = {t: available[t] for t in topics}
-        self.latched: set[str] = set()
-        for t in topics:
-            offered = [q for c in self._conns if c.topic == t
-                       for q in (getattr(c.ext, "offered_qos_profiles", None) or [])]
-            if offered and all(q.durability == QosDurability.TRANSIENT_LOCAL for q in offered):
-                self.latched.add(t)
-        self.count = sum(c.msgcount for c in self._conns)
-
-    def messages(self) -> Iterator[tuple[str, int, bytes]]:
-        try:
-            for conn, t_ns, data in self._reader.messages(connections=self._conns):
-                yield conn.topic, t_ns, bytes(data)
-        except BagError:
-            raise
-        except Exception as exc:
-            raise BagError(f"bag '{self.path}' is corrupt: {_reason(exc)}") from None
-
-    def close(self) -> None:
-        try:
-            self._reader.close()
-        except Exception:
-            pass
-
-
-def _reason(exc: BaseException) -> str:
-    text = str(exc).strip().rstrip(".") or type(exc).__name__
-    return text.splitlines()[0]
-
-
 def _validate(values: dict) -> None:
     if not values["bag"]:
         fail("bag", values["bag"], "the path of a rosbag2 bag (required)")
@@ -200,7 +141,7 @@ class BagPlayer(Node):
         self.params = p = declare_parameters(self, PLAYER_PARAMS, validator=_validate)
         topics = [self.resolve_topic_name(t) for t in p["topics"]]
         try:
-            self.source = BagSource(p["bag"], topics)
+            self.source = BagStream(p["bag"], topics)
         except BagError as exc:
             self.destroy_node()
             fail("bag", p["bag"], f"a readable bag with the played topics ({exc})")

@@ -65,17 +65,17 @@ def test_glr_before_the_backward_pass_gives_the_same_analysis(monkeypatch):
 
 
 def test_single_buffer_mcap_scan_equals_the_generic_reader(tmp_path):
-    from flight_fdi.bagio import reader
+    from flight_fdi.bagio import flight, reader
     from flight_fdi.cli.main import main
 
     bag = tmp_path / "bag"
     assert main(["simulate", str(bag), "--duration", "60", "--compression", "zstd",
                  "--fault", "ref:outliers:t=10,end=50,mag=3,freq=0.2"]) == 0
-    r = reader._open_reader(bag)
+    r = reader.open_bag(bag)
     try:
-        topics = {reader.INS_TOPIC, reader.REF_TOPIC, reader.TRUTH_TOPIC}
-        fast = reader._read_raw(r, bag, topics)
-        generic = reader._read_raw_generic(r, bag, topics)
+        topics = {flight.INS_TOPIC, flight.REF_TOPIC, flight.TRUTH_TOPIC}
+        fast = reader.read_raw(r, bag, topics)
+        generic = reader.read_raw_generic(r, bag, topics)
     finally:
         r.close()
     for t in topics:
