@@ -164,7 +164,7 @@ def read_topics_raw(path: str | Path, topics: Iterable[str],
     ~0.3 s)."""
     p = Path(path)
     topics = list(topics)
-    check = check or (lambda available: _require_topics(p, available, topics))
+    check = check or (lambda available: require_topics(p, available, topics))
     listed = _mcap_files(p)
     if listed is not None:
         files, available = listed
@@ -180,7 +180,8 @@ def read_topics_raw(path: str | Path, topics: Iterable[str],
         reader.close()
 
 
-def _require_topics(path: Path, available: dict[str, str], topics: list[str]) -> None:
+def require_topics(path: Path, available: dict[str, str], topics: list[str]) -> None:
+    """BagError naming the bag's topics unless every one of ``topics`` is ``available``."""
     missing = [t for t in topics if t not in available]
     if missing:
         raise BagError(f"bag '{path}': no topic {', '.join(missing)} "

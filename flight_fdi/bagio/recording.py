@@ -12,7 +12,12 @@ from typing import Any
 
 import numpy as np
 
+from . import cdr
 from .errors import BagError
+from .reader import reason
+
+MODEL_INFO = "flight_fdi_msgs/msg/ModelInfo"
+_NS = 1_000_000_000
 
 
 @dataclass
@@ -61,33 +66,92 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
     (``problems['no_measurement']``). Where the filter was reset, the longest segment is kept
     (``problems['segments']`` = how many there were).
     """
-    from ..core.recording import bridge_gaps, measurement_of, model_from_info
-    from .reader import read_messages
+    from ..core.recording import bridge_gaps, model_from_info
 
     p = Path(path)
-    info_msg = None
-    rows: list[Any] = []
-    for topic, _, _, msg in read_messages(p, topics=[model_topic, state_topic]):
-        if msg.channel != channel:
-            continue
-        if topic == model_topic:
-            info_msg = msg  # the last description of the channel wins
-        else:
-            rows.append(msg)
-    if info_msg is None:
-        raise BagError(f"bag '{p}': no ModelInfo for channel {channel!r} on {model_topic}")
-    if not rows:
-        raise BagError(f"bag '{p}': no FilterState for channel {channel!r} on {state_topic}")
+    info_msg, rows = _load(p, channel, state_topic, model_topic)
     model, gate = model_from_info(info_msg)
     n, m = model.n, model.m
+    seg, meas, problems = _longest_segment(p, channel, rows, model)
+    N = len(seg)
+    stamps = np.array([s.stamp_ns for s in seg], dtype=np.int64)
+    sec, nsec = np.divmod(stamps, _NS)
+    t = sec + nsec * 1e-9  # as sec + nanosec * 1e-9 of the header (the filter's own time)
+    dt = np.array([s.dt for s in seg])
+    dt[0] = 0.0  # the first step of a segment is an update on the prior
+    try:
+        dt, gaps = bridge_gaps(dt, np.diff(stamps) * 1e-9, t, f"bag '{p}': channel {channel!r}")
+    except ValueError as exc:
+        raise BagError(str(exc)) from None
+    pdim = model.B.shape[1] if model.B is not None else 0
+    u = None
+    if pdim:
+        u = np.zeros((N, pdim))
+        for i, s in enumerate(seg):
+            if s.u.size == pdim:
+                u[i] = s.u
+    return Recording(
+        path=str(p), channel=channel, model=model, gate=gate, t=t, dt=dt,
+        z=np.array([mz[0] for mz in meas]).reshape(N, m),
+        R=np.array([mz[1] for mz in meas]).reshape(N, m, m),
+        H=np.array([mz[2] for mz in meas]).reshape(N, m, n),
+        u=u,
+        x=np.array([s.x for s in seg]).reshape(N, n),
+        P=np.array([s.p for s in seg]).reshape(N, n, n),
+        fused=np.array([s.fused and s.z.size > 0 for s in seg]),
+        gated=np.array([s.gated for s in seg]),
+        first_stamp_s=float(rows[0].stamp_ns // _NS + (rows[0].stamp_ns % _NS) * 1e-9),
+        closed_cleanly=_closed_cleanly(p), problems=problems, gaps=gaps,
+        frame_id=seg[0].frame_id)
+
+
+def _load(p: Path, channel: str, state_topic: str, model_topic: str
+          ) -> tuple[Any, list[cdr.FilterStateRecord]]:
+    """(the channel's last ModelInfo, its FilterStates in bag order) of a recording."""
+    from .reader import open_bag, read_raw, require_topics
+    from .typestore import get_typestore
+
+    reader = open_bag(p)  # (rosbags checks the files: a damaged one is named "cannot be opened")
+    try:
+        require_topics(p, {c.topic: c.msgtype for c in reader.connections},
+                       [model_topic, state_topic])
+        raw = read_raw(reader, p, {model_topic, state_topic})
+    finally:
+        reader.close()
+    store = get_typestore()
+    info_msg = None
+    for i in range(len(raw[model_topic].payloads)):
+        try:
+            msg = store.deserialize_cdr(raw[model_topic].payloads[i], MODEL_INFO)
+        except Exception as exc:
+            raise BagError(f"bag '{p}': {model_topic} message #{i} is not a valid {MODEL_INFO}: "
+                           f"{reason(exc)}") from None
+        if msg.channel == channel:
+            info_msg = msg  # the last description of the channel wins
+    if info_msg is None:
+        raise BagError(f"bag '{p}': no ModelInfo for channel {channel!r} on {model_topic}")
+    rows = [s for s in cdr.decode_filter_states(raw[state_topic].payloads,
+                                                what=f"bag '{p}': {state_topic} message")
+            if s.channel == channel]
+    if not rows:
+        raise BagError(f"bag '{p}': no FilterState for channel {channel!r} on {state_topic}")
+    return info_msg, rows
+
+
+def _longest_segment(p: Path, channel: str, rows: list[cdr.FilterStateRecord], model: Any
+                     ) -> tuple[list[cdr.FilterStateRecord], list[tuple], dict[str, int]]:
+    """The longest run of usable states between filter resets, their (z, R, H) and the counts
+    of what was left out (read_recording)."""
+    from ..core.recording import measurement_of
+
+    n, m = model.n, model.m
     problems = {"out_of_order_state": 0, "no_measurement": 0, "segments": 0}
-    first_stamp = rows[0].header.stamp.sec + rows[0].header.stamp.nanosec * 1e-9
-    segments: list[list[Any]] = []
+    segments: list[list[tuple]] = []
     last_ns = None
     for msg in rows:
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if len(msg.x) != n or len(msg.p) != n * n:
-            raise BagError(f"bag '{p}': a FilterState of channel {channel!r} has {len(msg.x)} "
+        stamp_ns = msg.stamp_ns
+        if msg.x.size != n or msg.p.size != n * n:
+            raise BagError(f"bag '{p}': a FilterState of channel {channel!r} has {msg.x.size} "
                            f"states; the model has {n}")
         if msg.reset or not segments:
             segments.append([])
@@ -103,9 +167,9 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
         if meas is None:
             problems["no_measurement"] += 1
             continue
-        if not len(msg.z):
+        if not msg.z.size:
             problems["prediction_only"] = problems.get("prediction_only", 0) + 1
-        elif len(msg.z) != m:
+        elif msg.z.size != m:
             problems["merged_rows"] = problems.get("merged_rows", 0) + 1
         segments[-1].append((msg, meas))
         last_ns = stamp_ns
@@ -113,34 +177,4 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
     seg = max(segments, key=len)
     if not seg:
         raise BagError(f"bag '{p}': no usable FilterState for channel {channel!r}")
-    N = len(seg)
-    meas = [mz for _, mz in seg]
-    seg = [msg for msg, _ in seg]
-    t = np.array([s.header.stamp.sec + s.header.stamp.nanosec * 1e-9 for s in seg])
-    stamps = np.array([s.header.stamp.sec * 1_000_000_000 + s.header.stamp.nanosec
-                       for s in seg], dtype=np.int64)
-    dt = np.array([float(s.dt) for s in seg])
-    dt[0] = 0.0  # the first step of a segment is an update on the prior
-    try:
-        dt, gaps = bridge_gaps(dt, np.diff(stamps) * 1e-9, t, f"bag '{p}': channel {channel!r}")
-    except ValueError as exc:
-        raise BagError(str(exc)) from None
-    pdim = model.B.shape[1] if model.B is not None else 0
-    u = None
-    if pdim:
-        u = np.zeros((N, pdim))
-        for i, s in enumerate(seg):
-            if len(s.u) == pdim:
-                u[i] = np.asarray(s.u, dtype=float)
-    return Recording(
-        path=str(p), channel=channel, model=model, gate=gate, t=t, dt=dt,
-        z=np.array([mz[0] for mz in meas]).reshape(N, m),
-        R=np.array([mz[1] for mz in meas]).reshape(N, m, m),
-        H=np.array([mz[2] for mz in meas]).reshape(N, m, n),
-        u=u,
-        x=np.array([np.asarray(s.x, dtype=float) for s in seg]).reshape(N, n),
-        P=np.array([np.asarray(s.p, dtype=float) for s in seg]).reshape(N, n, n),
-        fused=np.array([bool(s.fused) and len(s.z) > 0 for s in seg]),
-        gated=np.array([bool(s.gated) for s in seg]),
-        first_stamp_s=first_stamp, closed_cleanly=_closed_cleanly(p), problems=problems,
-        gaps=gaps, frame_id=str(seg[0].header.frame_id))
+    return [msg for msg, _ in seg], [mz for _, mz in seg], problems

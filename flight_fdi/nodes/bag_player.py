@@ -44,7 +44,6 @@ the replay with an ERROR diagnostic and ``error`` set (the node stays alive).
 """
 from __future__ import annotations
 
-import struct
 import sys
 import time
 from collections import deque
@@ -53,6 +52,7 @@ from typing import Any
 from rclpy.node import Node
 from rclpy.task import Future
 
+from flight_fdi.bagio.cdr import header_stamp_ns
 from flight_fdi.bagio.errors import BagError
 from flight_fdi.bagio.reader import BagStream
 
@@ -103,16 +103,6 @@ PLAYER_PARAMS = (
 )
 
 _NS = 1_000_000_000
-_STAMP = struct.Struct("<iI")
-_STAMP_BE = struct.Struct(">iI")
-
-
-def header_stamp_ns(data: bytes) -> int | None:
-    """Header stamp (ns) of a CDR message that starts with std_msgs/Header (None if too short)."""
-    if len(data) < 12:
-        return None
-    sec, nsec = (_STAMP if data[1] & 1 else _STAMP_BE).unpack_from(data, 4)
-    return sec * _NS + nsec
 
 
 def _has_header(msgtype: str, store: Any) -> bool:

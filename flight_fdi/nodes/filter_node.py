@@ -139,6 +139,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.validate_topic_name import validate_topic_name
 
+from ..bagio.cdr import WireError
 from ..core.actuator import MEASUREMENTS, ActuatorConfig
 from ..core.errors import CoreError
 from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig
@@ -153,7 +154,6 @@ from .qos import INPUT_QOS_CHOICES, InputSubscriptions, input_profile, output_qo
 from . import diagnostics as diag
 from .clockutil import ClockReader
 from .errors import ParameterError
-from .wire import WireError
 from .params import ParamSpec, declare_parameters, fail
 
 NODE_NAME = "filter_node"

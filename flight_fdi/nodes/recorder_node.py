@@ -24,12 +24,12 @@ readers of an unindexed (crash-recovered) mcap need them in order.
 from __future__ import annotations
 
 import datetime as _dt
-import struct
 import sys
 from typing import Any
 
 from rclpy.node import Node
 
+from flight_fdi.bagio.cdr import header_bytes
 from flight_fdi.bagio.errors import BagError
 from flight_fdi.bagio.writer import (  # noqa: F401 (re-exported: the recorder's bag)
     COMPRESSIONS, STORAGES, RecordingBag, qos_dict)
@@ -106,16 +106,6 @@ def offered_qos(profile: Any) -> dict:
                     liveliness=profile.liveliness.name.lower(),
                     lease_ns=ns(profile.liveliness_lease_duration),
                     avoid_ros_namespace_conventions=profile.avoid_ros_namespace_conventions)
-
-
-def header_bytes(data: bytes) -> bytes | None:
-    """The std_msgs/Header (CDR) a serialized stamped message starts with: the encapsulation,
-    stamp and frame_id are the first fields of both (None when ``data`` is too short)."""
-    if len(data) < 16:
-        return None
-    fmt = "<I" if data[1] & 1 else ">I"
-    end = 16 + struct.unpack_from(fmt, data, 12)[0]
-    return bytes(data[:end]) if end <= len(data) else None
 
 
 def default_output_name(now: _dt.datetime | None = None) -> str:

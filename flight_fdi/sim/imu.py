@@ -565,68 +565,24 @@ def nominal_window_means(config: ImuSimConfig, n_flights: int, window: int,
 
 # --------------------------------------------------------------------------- bag output
 
-def _imu_template(frame_id: str) -> tuple[bytes, int, dict[str, int]]:
-    """A serialized Imu (rosbags) and the byte offsets of the fields written per message.
-
-    Sentinel values locate the fields, so the layout comes from rosbags' own serializer."""
-    from flight_fdi.bagio.typestore import get_typestore
-
-    store = get_typestore()
-    T = store.types
-    sentinels = {name: float(1e300 * (k + 1) / 7.0) for k, name in enumerate(
-        ("wx", "wy", "wz", "ax", "ay", "az", "cw", "ca"))}
-    cov_o = np.zeros(9)
-    cov_o[0] = -1.0
-    cov_w = np.zeros(9)
-    cov_w[0] = cov_w[4] = cov_w[8] = sentinels["cw"]
-    cov_a = np.zeros(9)
-    cov_a[0] = cov_a[4] = cov_a[8] = sentinels["ca"]
-    msg = T[IMU_MSG](
-        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0x1234567,
-                                                                                 nanosec=0),
-                                        frame_id=frame_id),
-        orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-        orientation_covariance=cov_o,
-        angular_velocity=T["geometry_msgs/msg/Vector3"](x=sentinels["wx"], y=sentinels["wy"],
-                                                        z=sentinels["wz"]),
-        angular_velocity_covariance=cov_w,
-        linear_acceleration=T["geometry_msgs/msg/Vector3"](x=sentinels["ax"], y=sentinels["ay"],
-                                                           z=sentinels["az"]),
-        linear_acceleration_covariance=cov_a)
-    data = bytes(store.serialize_cdr(msg, IMU_MSG))
-    if data[:2] != b"\x00\x01":
-        raise SimError("the Imu template is not little-endian CDR")
-    offsets = {}
-    for name, val in sentinels.items():
-        pos = [m.start() for m in re.finditer(re.escape(np.float64(val).tobytes()), data)]
-        if not pos:
-            raise SimError(f"cannot locate {name} in the serialized Imu message")
-        offsets[name] = pos[0] if name not in ("cw", "ca") else pos  # type: ignore[assignment]
-    stamp = data.find(np.int32(0x1234567).tobytes())
-    if stamp != 4:
-        raise SimError("unexpected Imu header layout")
-    return data, stamp, offsets
-
-
 def encode_imu(stamp_ns: np.ndarray, output: np.ndarray, frame_id: str,
                noise_var: np.ndarray) -> list[bytes]:
-    """Serialize a series of sensor_msgs/Imu (vectorised): ``output`` (T, 6) = gyro x/y/z,
-    accel x/y/z; ``noise_var`` (6,) the covariance diagonals."""
-    data, stamp_off, off = _imu_template(frame_id)
-    n, size = stamp_ns.size, len(data)
-    buf = np.tile(np.frombuffer(data, dtype=np.uint8), (n, 1))
-    sec, nsec = np.divmod(np.asarray(stamp_ns, dtype=np.int64), _NS)
-    buf[:, stamp_off:stamp_off + 4] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-    buf[:, stamp_off + 4:stamp_off + 8] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
-    out = np.ascontiguousarray(output, dtype="<f8")
-    for k, name in enumerate(("wx", "wy", "wz", "ax", "ay", "az")):
-        o = off[name]
-        buf[:, o:o + 8] = np.ascontiguousarray(out[:, k]).view(np.uint8).reshape(n, 8)
-    for key, var in (("cw", noise_var[0]), ("ca", noise_var[3])):
-        for o in off[key]:  # type: ignore[union-attr]
-            buf[:, o:o + 8] = np.frombuffer(np.float64(var).astype("<f8").tobytes(), np.uint8)
-    flat = buf.tobytes()
-    return [flat[i:i + size] for i in range(0, n * size, size)]
+    """Serialize a series of sensor_msgs/Imu (vectorised, :func:`flight_fdi.bagio.cdr.encode_doubles`):
+    ``output`` (T, 6) = gyro x/y/z, accel x/y/z; ``noise_var`` (6,) the covariance diagonals.
+    Orientation (0, 0, 0, 1) with orientation_covariance[0] = -1 (no orientation estimate, per
+    the message definition)."""
+    from flight_fdi.bagio import cdr
+
+    out = np.asarray(output, dtype=float)
+    n = out.shape[0]
+    values = np.zeros((n, 37))  # orientation 4, its covariance 9, gyro 3 + 9, accel 3 + 9
+    values[:, 3] = 1.0
+    values[:, 4] = -1.0
+    values[:, 13:16] = out[:, :3]
+    values[:, [16, 20, 24]] = noise_var[0]
+    values[:, 25:28] = out[:, 3:]
+    values[:, [28, 32, 36]] = noise_var[3]
+    return cdr.encode_doubles(cdr.IMU, stamp_ns, frame_id, values)
 
 
 def write_imu_bag(flight: ImuFlight, path: str, storage: str = "mcap",

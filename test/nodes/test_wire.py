@@ -1,4 +1,4 @@
-"""The filter node's hand-written CDR (nodes/wire.py) against rclpy's serialization.
+"""The filter node's hand-written CDR (flight_fdi/bagio/cdr/message.py) against rclpy's serialization.
 
 rclpy.serialization.serialize_message leaves the alignment padding uninitialised and may report
 spare bytes after the end of the message (its buffer length is a size estimate), so the encoders
@@ -21,7 +21,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Header
 
 from flight_fdi.bagio import get_typestore
-from flight_fdi.nodes import wire
+from flight_fdi.bagio.cdr import message as wire
 from flight_fdi_msgs.msg import FilterState, Innovation
 
 NAN_PAYLOAD = struct.unpack("<d", struct.pack("<Q", 0x7FF8_0000_DEAD_BEEF))[0]

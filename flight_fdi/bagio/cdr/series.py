@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import BagError
+from ..errors import BagError
 
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 TWIST_COV_STAMPED = "geometry_msgs/msg/TwistWithCovarianceStamped"
@@ -46,7 +46,7 @@ def supported(msgtype: str) -> bool:
     return msgtype in _DOUBLES
 
 
-def _align8(n: np.ndarray | int):
+def align8(n: np.ndarray | int):
     return (n + 7) & ~7
 
 
@@ -118,7 +118,7 @@ def encode_doubles(msgtype: str, stamp_ns: np.ndarray, frame_id: str,
     if values.shape != (n, ndouble):
         raise BagError(f"encode {msgtype}: values must have shape ({n}, {ndouble}), "
                        f"got {values.shape}")
-    off = _align8(12 + len(frame_id.encode("utf-8")) + 1)
+    off = align8(12 + len(frame_id.encode("utf-8")) + 1)
     buf, _ = _header_rows(stamp_ns, frame_id, 4 + off + 8 * ndouble)
     buf[:, 4 + off:] = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).reshape(n, -1)
     return rows(buf)
@@ -137,7 +137,7 @@ def encode_navsatfix(stamp_ns: np.ndarray, frame_id: str, status: int, service: 
         raise BagError(f"encode {NAVSATFIX}: llh must have shape ({n}, 3), got {llh.shape}")
     p = 12 + len(frame_id.encode("utf-8")) + 1      # status (int8) at p
     ps = (p + 1 + 1) & ~1                           # service (uint16), 2-aligned
-    pd = _align8(ps + 2)                            # 12 doubles, 8-aligned
+    pd = align8(ps + 2)                            # 12 doubles, 8-aligned
     buf, _ = _header_rows(stamp_ns, frame_id, 4 + pd + 96 + 1)
     buf[:, 4 + p] = np.uint8(np.int8(status).view(np.uint8))
     buf[:, 4 + ps:4 + ps + 2] = np.frombuffer(np.uint16(service).astype("<u2").tobytes(),
@@ -250,7 +250,7 @@ def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np
     words = np.ascontiguousarray(head[:, 4:16]).view("<u4").reshape(n, 3).astype(np.int64)
     sec = np.where(words[:, 0] >= 2**31, words[:, 0] - 2**32, words[:, 0])
     nsec, strlen = words[:, 1], words[:, 2]
-    off = 4 + _align8(12 + strlen)
+    off = 4 + align8(12 + strlen)
     short = off + 8 * ndouble > lengths
     if np.any(short):
         bad = int(np.flatnonzero(short)[0])
@@ -262,196 +262,3 @@ def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np
         raw[~little] = raw[~little][:, :, ::-1]
     values = np.ascontiguousarray(raw).view("<f8").reshape(n, len(cols))
     return sec * _NS + nsec, values
-
-
-FILTER_STATE = "flight_fdi_msgs/msg/FilterState"
-STRING = "std_msgs/msg/String"
-
-
-def decode_string(payload: bytes | memoryview, what: str = "message") -> str:
-    """The text of one std_msgs/String message (a CDR string: u32 length with its NUL, the
-    bytes, the NUL), without loading a type store."""
-    data = bytes(payload)
-    if len(data) < 9 or data[0] != 0 or data[1] > 1:
-        raise BagError(f"{what}: not a CDR message")
-    (n,) = np.frombuffer(data, dtype="<u4" if data[1] == 1 else ">u4", count=1, offset=4)
-    n = int(n)
-    if n < 1 or 8 + n > len(data) or data[8 + n - 1] != 0:
-        raise BagError(f"{what}: not a valid {STRING} (string length {n}, "
-                       f"{len(data) - 8} bytes after the header)")
-    try:
-        return data[8:8 + n - 1].decode("utf-8")
-    except UnicodeDecodeError:
-        raise BagError(f"{what}: {STRING} is not UTF-8") from None
-
-
-def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",
-                          what: str = "message"
-                          ) -> tuple[np.ndarray, list[str], list[tuple[str, ...]],
-                                     list[np.ndarray]]:
-    """The leading fields of flight_fdi_msgs/FilterState messages, without full deserialization.
-
-    Returns (stamp_ns (N,), channel per message, state_names per message, x per message). The
-    layout is walked field by field (header, channel, state_names, x) with CDR alignment, which
-    is ~10x faster than rosbags' generic deserializer for the many truth messages of a long flight.
-    """
-    import struct
-
-    if not isinstance(payloads, Payloads):
-        payloads = Payloads.from_list(payloads)
-    raw = payloads.buf.tobytes() if payloads.buf.size else b""
-    n = len(payloads)
-    stamps = np.zeros(n, dtype=np.int64)
-    channels: list[str] = []
-    names: list[tuple[str, ...]] = []
-    xs: list[np.ndarray] = []
-    # everything from frame_id up to x is identical within one stream: remember those prefixes
-    known: list[tuple[bytes, str, tuple[str, tuple[str, ...], int, int]]] = []
-    for i, (start, length) in enumerate(zip(payloads.starts.tolist(), payloads.lengths.tolist())):
-        data = raw[start:start + length]
-        try:
-            if len(data) < 16 or data[0] != 0 or data[1] > 1:
-                raise ValueError("not a CDR message")
-            e = "<" if data[1] == 1 else ">"
-            sec, nsec = struct.unpack_from(e + "iI", data, 4)
-            hit = next((h for pref, ee, h in known if ee == e and data.startswith(pref, 12)),
-                       None)
-            if hit is None:
-                (flen,) = struct.unpack_from(e + "I", data, 12)
-                p = 12 + flen  # payload-relative position after frame_id
-                p = (p + 3) & ~3
-                (clen,) = struct.unpack_from(e + "I", data, 4 + p)
-                channel = data[4 + p + 4:4 + p + 4 + clen - 1].decode("utf-8")
-                p += 4 + clen
-                p = (p + 3) & ~3
-                (count,) = struct.unpack_from(e + "I", data, 4 + p)
-                p += 4
-                state_names = []
-                for _ in range(count):
-                    p = (p + 3) & ~3
-                    (slen,) = struct.unpack_from(e + "I", data, 4 + p)
-                    state_names.append(data[4 + p + 4:4 + p + 4 + slen - 1].decode("utf-8"))
-                    p += 4 + slen
-                p = (p + 3) & ~3
-                (nx,) = struct.unpack_from(e + "I", data, 4 + p)
-                p += 4
-                p = (p + 7) & ~7
-                hit = (channel, tuple(state_names), p, nx)
-                if len(known) < 64:
-                    known.append((data[12:4 + p], e, hit))
-            channel, state_names_t, p, nx = hit
-            if 4 + p + 8 * nx > len(data):
-                raise ValueError("message too short")
-            x = np.frombuffer(data, dtype=e + "f8", count=nx, offset=4 + p).astype(float)
-        except (ValueError, struct.error, UnicodeDecodeError) as exc:
-            raise BagError(f"{what} #{i}: not a valid {FILTER_STATE} ({exc})") from None
-        stamps[i] = sec * _NS + nsec
-        channels.append(channel)
-        names.append(state_names_t)
-        xs.append(x)
-    return stamps, channels, names, xs
-
-
-# --------------------------------------------------------------------------- nav_msgs/Odometry
-
-ODOMETRY = "nav_msgs/msg/Odometry"
-#: doubles after child_frame_id: pose.pose (position 3, orientation 4), pose.covariance (36),
-#: twist.twist (linear 3, angular 3), twist.covariance (36)
-_ODOM_ORIENTATION, _ODOM_TWIST, _ODOM_TWIST_COV, _ODOM_DOUBLES = 3, 43, 49, 85
-#: covariance entries of the linear velocity block (rows/columns 0..2 of the 6x6)
-LINEAR_COV = (0, 1, 2, 6, 7, 8, 12, 13, 14)
-
-
-def _strings_at(buf: np.ndarray, starts: np.ndarray, at: np.ndarray, lengths: np.ndarray,
-                what: str, name: str) -> str:
-    """The one string (without its NUL) that every message holds at payload offset ``at`` with
-    length ``lengths`` (incl. NUL); BagError when the messages disagree."""
-    if lengths.size == 0:
-        return ""
-    if np.any(lengths != lengths[0]):
-        raise BagError(f"{what}: {name} changes within the topic")
-    n = int(lengths[0])
-    if n == 0:
-        return ""
-    raw = buf[(starts + 4 + at)[:, None] + np.arange(n)[None, :]]
-    if np.any(raw != raw[0]):
-        raise BagError(f"{what}: {name} changes within the topic")
-    return bytes(raw[0, :-1]).decode("utf-8", "replace")
-
-
-def decode_odometry(payloads: "Payloads | Sequence[bytes | memoryview]", what: str = "message"
-                    ) -> tuple[np.ndarray, np.ndarray, str, str]:
-    """nav_msgs/msg/Odometry series (little-endian CDR; vectorised like :func:`decode`):
-    (stamp_ns (N,), values (N, 16) = orientation x, y, z, w, twist.linear x, y, z, the 9
-    entries of the linear block of twist.covariance (row-major), header.frame_id,
-    child_frame_id). Both strings must be the same in every message.
-
-    Layout after the encapsulation: sec, nanosec, frame_id (u32 length + bytes), then
-    child_frame_id at align4, then 85 doubles at align8 (pose 7, pose covariance 36, twist 6,
-    twist covariance 36)."""
-    if not isinstance(payloads, Payloads):
-        payloads = Payloads.from_list(payloads)
-    n = len(payloads)
-    buf, starts, lengths = payloads.buf, payloads.starts, payloads.lengths
-    if n == 0:
-        return np.zeros(0, np.int64), np.zeros((0, 16)), "", ""
-    if lengths.min() < 20:
-        bad = int(np.argmin(lengths))
-        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {ODOMETRY}")
-    head = buf[starts[:, None] + np.arange(16)]
-    if np.any(head[:, 0] != 0) or np.any(head[:, 1] != 1):
-        raise BagError(f"{what}: {ODOMETRY} in big-endian or unknown CDR encapsulation is not "
-                       "supported")
-    words = np.ascontiguousarray(head[:, 4:16]).view("<u4").reshape(n, 3).astype(np.int64)
-    sec = np.where(words[:, 0] >= 2**31, words[:, 0] - 2**32, words[:, 0])
-    nsec, len1 = words[:, 1], words[:, 2]
-    c = (12 + len1 + 3) & ~3
-    if np.any(4 + c + 4 > lengths):
-        raise BagError(f"{what}: too short for {ODOMETRY} with its frame_id")
-    len2 = np.ascontiguousarray(buf[(starts + 4 + c)[:, None] + np.arange(4)]).view(
-        "<u4").reshape(n).astype(np.int64)
-    d = _align8(c + 4 + len2)
-    short = 4 + d + 8 * _ODOM_DOUBLES > lengths
-    if np.any(short):
-        bad = int(np.flatnonzero(short)[0])
-        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {ODOMETRY}")
-    cols = [_ODOM_ORIENTATION + i for i in range(4)] + [_ODOM_TWIST + i for i in range(3)] \
-        + [_ODOM_TWIST_COV + i for i in LINEAR_COV]
-    raw = buf[(starts + 4 + d)[:, None, None] + (8 * np.asarray(cols))[None, :, None]
-              + np.arange(8)[None, None, :]]
-    values = np.ascontiguousarray(raw).view("<f8").reshape(n, len(cols))
-    frame = _strings_at(buf, starts, np.full(n, 12), len1, what, "header.frame_id")
-    child = _strings_at(buf, starts, c + 4, len2, what, "child_frame_id")
-    return sec * _NS + nsec, values, frame, child
-
-
-def encode_odometry(stamp_ns: np.ndarray, frame_id: str, child_frame_id: str,
-                    orientation: np.ndarray, linear: np.ndarray,
-                    linear_covariance: np.ndarray | None = None) -> list[bytes]:
-    """Serialize nav_msgs/Odometry (little endian; position and angular rates zero) -- for
-    tests and sample bags. orientation (N, 4) x, y, z, w; linear (N, 3); linear_covariance
-    (3, 3) or (N, 3, 3) of twist.linear (the rest of both covariances zero)."""
-    stamp_ns = np.asarray(stamp_ns, dtype=np.int64).reshape(-1)
-    n = stamp_ns.size
-    out = []
-    f = frame_id.encode() + b"\x00"
-    ch = child_frame_id.encode() + b"\x00"
-    cov = np.zeros((n, 3, 3)) if linear_covariance is None else np.broadcast_to(
-        np.asarray(linear_covariance, dtype=float), (n, 3, 3))
-    import struct
-
-    for k in range(n):
-        sec, nsec = divmod(int(stamp_ns[k]), _NS)
-        b = bytearray(b"\x00\x01\x00\x00")
-        b += struct.pack("<iII", sec, nsec, len(f)) + f
-        b += bytes(-(len(b) - 4) % 4) + struct.pack("<I", len(ch)) + ch
-        b += bytes(-(len(b) - 4) % 8)
-        doubles = np.zeros(_ODOM_DOUBLES)
-        doubles[_ODOM_ORIENTATION:_ODOM_ORIENTATION + 4] = orientation[k]
-        doubles[_ODOM_TWIST:_ODOM_TWIST + 3] = linear[k]
-        tc = np.zeros((6, 6))
-        tc[:3, :3] = cov[k]
-        doubles[_ODOM_TWIST_COV:] = tc.reshape(-1)
-        b += doubles.astype("<f8").tobytes()
-        out.append(bytes(b))
-    return out

@@ -1,26 +1,12 @@
-"""Hand-written CDR for the filter node's per-message path: it subscribes with ``raw=True`` and
+"""Per-message CDR for the nodes' hot paths: the filter node subscribes with ``raw=True`` and
 publishes pre-serialized ``bytes``, reading the few input fields it needs and writing its two
 outputs without building rclpy message objects (~40 us per message each way in rclpy, ~1-4 us
-here).
+here); the bag player and the recorder read a message's header stamp or header bytes.
 
-The format is XCDR1 as ROS 2 / Fast DDS put it on the wire:
-
-* a 4-byte encapsulation header: ``00 01 00 00`` (CDR_LE, always written) or ``00 00 00 00``
-  (CDR_BE, also read). The last two bytes (options) are not interpreted when reading;
-* then the fields in declaration order, each aligned to its own size (int32 / uint32 to 4,
-  float64 to 8, bool / uint8 not at all) counted from the first byte *after* the
-  encapsulation header; the padding is zero bytes;
-* a string is a uint32 length that includes the trailing NUL, the UTF-8 bytes, then the NUL;
-* a sequence (``T[]``) is a uint32 element count, then the elements, the first one aligned to
-  the element size (nothing is aligned for an empty sequence); a fixed array (``T[N]``) has no
-  count; a bool is one byte (0 or 1);
-* std_msgs/Header is builtin_interfaces/Time (int32 sec, uint32 nanosec) then string frame_id,
-  so every stamped message starts with sec at byte 4, nanosec at 8 and the frame_id length at 12.
-
-Everything from frame_id through the name list of an output (frame_id, channel, the row or state
-names) is the same for every message of one channel: its encoding is cached, and so is the
-``struct.Struct`` that packs a whole message for one prefix length and set of sequence lengths,
-so that encoding is a single ``pack`` call.
+The wire rules are in :mod:`flight_fdi.bagio.cdr`. Everything from frame_id through the name
+list of an output (frame_id, channel, the row or state names) is the same for every message of
+one channel: its encoding is cached, and so is the ``struct.Struct`` that packs a whole message
+for one prefix length and set of sequence lengths, so that encoding is a single ``pack`` call.
 
 The output equals ``rclpy.serialization.serialize_message`` byte for byte except where that
 leaves bytes uninitialised: its alignment padding, and the spare bytes (up to 24 seen) it may
@@ -31,6 +17,8 @@ from __future__ import annotations
 
 import struct
 from typing import Sequence
+
+from . import variable
 
 _LITTLE = (struct.Struct("<iII"), struct.Struct("<3d"), struct.Struct("<3d24xd48xd48xd"))
 _BIG = (struct.Struct(">iII"), struct.Struct(">3d"), struct.Struct(">3d24xd48xd48xd"))
@@ -98,7 +86,8 @@ _ODOM_LITTLE = struct.Struct("<4d")  # pose.pose.orientation x, y, z, w
 #: twist.linear, then the linear block of twist.covariance (entries 0-2, 6-8, 12-14)
 _ODOM_TWIST = struct.Struct("<3d24x3d24x3d24x3d")
 #: offsets (from the 8-aligned start of the doubles) of orientation and twist
-_ODOM_ORIENTATION_AT, _ODOM_TWIST_AT, _ODOM_SIZE = 3 * 8, 43 * 8, 85 * 8
+_ODOM_ORIENTATION_AT, _ODOM_TWIST_AT, _ODOM_SIZE = (
+    8 * variable.ODOM_ORIENTATION, 8 * variable.ODOM_TWIST, 8 * variable.ODOM_DOUBLES)
 _ODOM_BIG = (struct.Struct(">4d"), struct.Struct(">3d24x3d24x3d24x3d"))
 
 
@@ -147,6 +136,28 @@ def decode_odometry(data: bytes, rotate: bool = True
     pz = a * (a * c00 + b * c01 + d * c02) + b * (a * c10 + b * c11 + d * c12) \
         + d * (a * c20 + b * c21 + d * c22)
     return sec, nanosec, vx, vy, vz, px, py, pz
+
+
+_STAMP = (struct.Struct(">iI"), struct.Struct("<iI"))
+_NS = 1_000_000_000
+
+
+def header_stamp_ns(data: bytes) -> int | None:
+    """Header stamp (ns) of a CDR message that starts with std_msgs/Header (None if too short)."""
+    if len(data) < 12:
+        return None
+    sec, nsec = _STAMP[data[1] & 1].unpack_from(data, 4)
+    return sec * _NS + nsec
+
+
+def header_bytes(data: bytes) -> bytes | None:
+    """The std_msgs/Header (CDR) a serialized stamped message starts with: the encapsulation,
+    stamp and frame_id are the first fields of both (None when ``data`` is too short)."""
+    if len(data) < 16:
+        return None
+    fmt = "<I" if data[1] & 1 else ">I"
+    end = 16 + struct.unpack_from(fmt, data, 12)[0]
+    return bytes(data[:end]) if end <= len(data) else None
 
 
 # --- encoding ----------------------------------------------------------------------------------
