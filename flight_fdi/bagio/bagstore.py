@@ -29,10 +29,10 @@ if sys.version_info >= (3, 14):  # pragma: no cover
 else:
     from backports import zstd
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-_OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 1, 2, 3, 4, 5, 6
-_OP_MESSAGE_INDEX, _OP_CHUNK_INDEX, _OP_STATISTICS, _OP_METADATA = 7, 8, 0x0B, 0x0C
-_OP_METADATA_INDEX, _OP_SUMMARY_OFFSET, _OP_DATA_END = 0x0D, 0x0E, 0x0F
+from .mcapscan import (MAGIC, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER,
+                       OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX,
+                       OP_SCHEMA, OP_STATISTICS, OP_SUMMARY_OFFSET)
+
 _CHUNK_TARGET = 1 << 20  # bytes of messages per chunk (as rosbag2 and rosbags)
 
 
@@ -80,7 +80,7 @@ class McapStorage:
         self._stats: dict[int, int] = {}
         self._start = 2**63 - 1
         self._end_t = 0
-        header = MCAP_MAGIC + _rec(_OP_HEADER, _str("ros2") + _str("flight_fdi recorder_node"))
+        header = MAGIC + _rec(OP_HEADER, _str("ros2") + _str("flight_fdi recorder_node"))
         self._end = len(header)  # file offset where the data section continues
         self._pwrite(header + self._tail(), 0)
 
@@ -88,12 +88,12 @@ class McapStorage:
                        qos_yaml: str) -> None:
         if msgtype not in self._schemas:
             sid = len(self._schemas) + 1
-            rec = _rec(_OP_SCHEMA, struct.pack("<H", sid) + _str(msgtype) + _str("ros2msg")
+            rec = _rec(OP_SCHEMA, struct.pack("<H", sid) + _str(msgtype) + _str("ros2msg")
                        + _str(msgdef))
             self._schemas[msgtype] = (sid, rec)
             self._pending.append(rec)
         sid = self._schemas[msgtype][0]
-        rec = _rec(_OP_CHANNEL, struct.pack("<HH", cid, sid) + _str(topic) + _str("cdr")
+        rec = _rec(OP_CHANNEL, struct.pack("<HH", cid, sid) + _str(topic) + _str("cdr")
                    + _strmap({"offered_qos_profiles": qos_yaml}))
         self._channels.append(rec)
         self._pending.append(rec)
@@ -110,19 +110,19 @@ class McapStorage:
             self._seq[cid] = seq + 1
             self._stats[cid] += 1
             index.setdefault(cid, []).append((t_ns, len(body)))
-            body += _rec(_OP_MESSAGE, struct.pack("<HIQQ", cid, seq & 0xFFFFFFFF, t_ns, pub_ns)
+            body += _rec(OP_MESSAGE, struct.pack("<HIQQ", cid, seq & 0xFFFFFFFF, t_ns, pub_ns)
                          + data)
             start, end = min(start, t_ns), max(end, t_ns)
         raw = bytes(body)
         packed = zstd.compress(raw) if self.compression else raw
-        chunk = _rec(_OP_CHUNK, struct.pack("<QQQI", start, end, len(raw), zlib.crc32(raw))
+        chunk = _rec(OP_CHUNK, struct.pack("<QQQI", start, end, len(raw), zlib.crc32(raw))
                      + _str(self.compression) + struct.pack("<Q", len(packed)) + packed)
         out = bytearray(chunk)
         offsets: dict[int, int] = {}
         for cid, entries in index.items():
             offsets[cid] = offset + len(out)
             pairs = b"".join(struct.pack("<QQ", t, o) for t, o in entries)
-            out += _rec(_OP_MESSAGE_INDEX, struct.pack("<HI", cid, len(pairs)) + pairs)
+            out += _rec(OP_MESSAGE_INDEX, struct.pack("<HI", cid, len(pairs)) + pairs)
         self._chunks.append(_ChunkInfo(start, end, offset, len(chunk), offsets,
                                        len(out) - len(chunk), len(packed), len(raw)))
         self._start, self._end_t = min(self._start, start), max(self._end_t, end)
@@ -144,9 +144,9 @@ class McapStorage:
 
     @staticmethod
     def _tail(summary_start: int = 0, summary_offset_start: int = 0) -> bytes:
-        return (_rec(_OP_DATA_END, struct.pack("<I", 0))
-                + _rec(_OP_FOOTER, struct.pack("<QQI", summary_start, summary_offset_start, 0))
-                + MCAP_MAGIC)
+        return (_rec(OP_DATA_END, struct.pack("<I", 0))
+                + _rec(OP_FOOTER, struct.pack("<QQI", summary_start, summary_offset_start, 0))
+                + MAGIC)
 
     def _pwrite(self, blob: bytes, offset: int) -> None:
         view = memoryview(blob)
@@ -164,9 +164,9 @@ class McapStorage:
     def close(self, messages: Sequence[tuple[int, int, int, bytes]], metadata_yaml: str) -> None:
         data = bytearray(self._data(messages))
         meta_offset = self._end + len(data)
-        meta = _rec(_OP_METADATA, _str("rosbag2") + _strmap({"serialized_metadata": metadata_yaml}))
+        meta = _rec(OP_METADATA, _str("rosbag2") + _strmap({"serialized_metadata": metadata_yaml}))
         data += meta
-        data += _rec(_OP_DATA_END, struct.pack("<I", 0))
+        data += _rec(OP_DATA_END, struct.pack("<I", 0))
         summary_start = self._end + len(data)
         groups: list[tuple[int, int, int]] = []
         summary = bytearray()
@@ -176,10 +176,10 @@ class McapStorage:
                 groups.append((op, summary_start + len(summary), sum(map(len, records))))
                 summary.extend(b"".join(records))
 
-        group(_OP_SCHEMA, [rec for _, rec in self._schemas.values()])
-        group(_OP_CHANNEL, self._channels)
-        group(_OP_CHUNK_INDEX, [
-            _rec(_OP_CHUNK_INDEX, struct.pack("<QQQQ", c.start_ns, c.end_ns, c.offset, c.length)
+        group(OP_SCHEMA, [rec for _, rec in self._schemas.values()])
+        group(OP_CHANNEL, self._channels)
+        group(OP_CHUNK_INDEX, [
+            _rec(OP_CHUNK_INDEX, struct.pack("<QQQQ", c.start_ns, c.end_ns, c.offset, c.length)
                  + struct.pack("<I", 10 * len(c.index_offsets))
                  + b"".join(struct.pack("<HQ", k, v) for k, v in c.index_offsets.items())
                  + struct.pack("<Q", c.index_length) + _str(self.compression)
@@ -187,19 +187,19 @@ class McapStorage:
             for c in self._chunks])
         count = sum(self._stats.values())
         stats = sorted(self._stats.items())
-        group(_OP_STATISTICS, [_rec(_OP_STATISTICS, struct.pack(
+        group(OP_STATISTICS, [_rec(OP_STATISTICS, struct.pack(
             "<QHIIII", count, len(self._schemas), len(self._channels), 0, 1, len(self._chunks))
             + struct.pack("<QQ", self._start if count else 0, self._end_t)
             + struct.pack("<I", 10 * len(stats))
             + b"".join(struct.pack("<HQ", k, v) for k, v in stats))])
-        group(_OP_METADATA_INDEX, [_rec(_OP_METADATA_INDEX, struct.pack(
+        group(OP_METADATA_INDEX, [_rec(OP_METADATA_INDEX, struct.pack(
             "<QQ", meta_offset, len(meta)) + _str("rosbag2"))])
         data += summary
         summary_offset_start = self._end + len(data)
         for op, start, length in groups:
-            data += _rec(_OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, start, length))
-        data += _rec(_OP_FOOTER, struct.pack("<QQI", summary_start, summary_offset_start, 0))
-        data += MCAP_MAGIC
+            data += _rec(OP_SUMMARY_OFFSET, struct.pack("<BQQ", op, start, length))
+        data += _rec(OP_FOOTER, struct.pack("<QQI", summary_start, summary_offset_start, 0))
+        data += MAGIC
         self._pwrite(bytes(data), self._end)
         self._end += len(data)
         os.ftruncate(self._fd, self._end)  # nothing follows the footer

@@ -1,4 +1,5 @@
-"""Fast extraction of the raw messages of chosen channels from an MCAP file.
+"""Fast extraction of the raw messages of chosen channels from an MCAP file: the numpy
+back-end of the bag reader (``reader.read_raw`` / ``reader.scan_mcap``; not called elsewhere).
 
 rosbags yields one message at a time through Python generators (several microseconds each), too
 slow for a 3-hour flight. This scanner walks the top-level records of the MCAP data section,
@@ -7,7 +8,7 @@ Message Index records (numpy, no per-message Python work). Chunks without messag
 scanned record by record. Format: https://mcap.dev/spec (magic, then records of
 ``opcode u8, length u64, content``; little endian).
 
-Only what read_flight needs is supported: uncompressed or zstd chunks, no nested chunks.
+Only what the reader needs is supported: uncompressed or zstd chunks, no nested chunks.
 Anything else raises ``Unsupported`` and the caller falls back to rosbags' reader.
 """
 from __future__ import annotations
@@ -26,9 +27,11 @@ if sys.version_info >= (3, 14):  # pragma: no cover
 else:
     from backports import zstd
 
+#: the MCAP magic and record opcodes (https://mcap.dev/spec; the writer, bagstore, uses them too)
 MAGIC = b"\x89MCAP0\r\n"
-OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX, OP_DATA_END = (
-    0x03, 0x04, 0x05, 0x06, 0x07, 0x0F)
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA = 0x07, 0x08, 0x0B, 0x0C
+OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 0x0D, 0x0E, 0x0F
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
@@ -61,6 +64,13 @@ def _channel_topic(content: bytes) -> tuple[int, str]:
     return cid, topic
 
 
+#: per chunk: ((compression, offset of its data in the file, compressed size, uncompressed
+#: size), its message-index records (channel id, index bytes))
+_Piece = tuple[tuple[str, int, int, int], list[tuple[int, bytes]]]
+#: a message outside any chunk: (channel id, log time, data)
+_Loose = tuple[int, int, bytes]
+
+
 def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
     """Messages of ``topics`` in ``path`` (an .mcap file), per topic in receive-time order."""
     try:
@@ -70,15 +80,53 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
         raise BagError(f"bag '{what}': cannot read {path}: {exc.strerror}") from None
     if data[:8] != MAGIC:
         raise BagError(f"bag '{what}': {path} is not an MCAP file")
+    channels, pieces, loose = _top_level(data, path, what)
+    # the chunks are decompressed into ONE buffer, so that the records are never held twice (a
+    # 10-hour flight is several hundred MB of them)
+    buf, bases = _decompress(data, pieces, loose, path, what)
+    del data
+    chunk_views = [memoryview(buf[int(bases[k]):int(bases[k + 1])]) for k in range(len(pieces))]
+    # channel records may also sit inside chunks (rosbags and rosbag2 put them there)
+    for raw in chunk_views:
+        _collect_channels(raw, channels, what, path, leading_only=True)
+    if not set(topics) <= set(channels.values()):
+        for raw in chunk_views:  # rare: a channel record after messages in a chunk
+            _collect_channels(raw, channels, what, path, leading_only=False)
+    wanted = {cid: t for cid, t in channels.items() if t in topics}
+    per_topic: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {
+        t: [] for t in topics}
+    for k, ((_, indexes), raw) in enumerate(zip(pieces, chunk_views)):
+        base = int(bases[k])
+        if indexes:
+            found = _from_index(buf[base:int(bases[k + 1])], indexes, wanted, what, path)
+        else:
+            found = _from_records(raw, wanted, what, path)
+        for cid, (log, offs, lens) in found.items():
+            order = np.stack([np.full(offs.size, k, dtype=np.int64), offs], axis=1)
+            per_topic[wanted[cid]].append((log, offs + base, lens, order))
+    if loose:  # after the chunks in the buffer, in file order
+        k, at = len(pieces), int(bases[-1])
+        for j, (cid, log, d) in enumerate(loose):
+            buf[at:at + len(d)] = np.frombuffer(d, dtype=np.uint8)
+            if cid in wanted:
+                per_topic[wanted[cid]].append((np.array([log], np.int64),
+                                               np.array([at], np.int64),
+                                               np.array([len(d)], np.int64),
+                                               np.array([[k, j]], np.int64)))
+            at += len(d)
+    return {topic: _in_time_order(parts, buf) for topic, parts in per_topic.items()}
+
+
+def _top_level(data: bytes, path: str, what: str
+               ) -> tuple[dict[int, str], list[_Piece], list[_Loose]]:
+    """The channels, chunks (with their message indexes) and loose messages of the data
+    section (the summary section after Data End repeats the schemas and channels)."""
     total = len(data)
     channels: dict[int, str] = {}
-    # per chunk: ((compression, offset of its data in the file, compressed size, uncompressed
-    # size), its message-index records); the chunks are decompressed afterwards into ONE buffer,
-    # so that the records are never held twice (a 10-hour flight is several hundred MB of them)
-    pieces: list[tuple[tuple[str, int, int, int], list[tuple[int, bytes]]]] = []
-    loose: list[tuple[int, int, bytes]] = []  # messages outside chunks: (channel, log, data)
+    pieces: list[_Piece] = []
+    loose: list[_Loose] = []
     pos = 8
-    in_data = True  # the summary section after Data End repeats the schemas and channels
+    in_data = True
     try:
         while pos + 9 <= total:
             op = data[pos]
@@ -93,18 +141,7 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
                 cid, topic = _channel_topic(data[start:end])
                 channels[cid] = topic
             elif op == OP_CHUNK and in_data:
-                (usize,) = _U64.unpack_from(data, start + 16)
-                comp, p = _string(data, start + 28)
-                (clen,) = _U64.unpack_from(data, p)
-                if p + 8 + clen > end:
-                    raise BagError(f"bag '{what}': {path} has a chunk larger than its record")
-                if comp not in ("", "zstd"):
-                    raise Unsupported(f"chunk compression {comp!r}")
-                declared = clen if comp == "" else _zstd_size(data[p + 8:p + 8 + clen])
-                if declared is not None and declared != usize:
-                    raise BagError(f"bag '{what}': {path} has a chunk of {declared} bytes, "
-                                   f"expected {usize}")
-                pieces.append(((comp, p + 8, clen, usize), []))
+                pieces.append((_chunk_info(data, start, end, path, what), []))
             elif op == OP_MESSAGE_INDEX and in_data:
                 if not pieces:
                     raise BagError(f"bag '{what}': {path} has a message index before any chunk")
@@ -117,8 +154,31 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
             pos = end
     except (struct.error, UnicodeDecodeError):
         raise BagError(f"bag '{what}': {path} is truncated or corrupt") from None
+    return channels, pieces, loose
 
-    # every chunk's records, back to back in one buffer (then the loose messages' data)
+
+def _chunk_info(data: bytes, start: int, end: int, path: str, what: str
+                ) -> tuple[str, int, int, int]:
+    """(compression, offset of the chunk's data, compressed size, uncompressed size) of the
+    chunk record whose content is ``data[start:end]``."""
+    (usize,) = _U64.unpack_from(data, start + 16)
+    comp, p = _string(data, start + 28)
+    (clen,) = _U64.unpack_from(data, p)
+    if p + 8 + clen > end:
+        raise BagError(f"bag '{what}': {path} has a chunk larger than its record")
+    if comp not in ("", "zstd"):
+        raise Unsupported(f"chunk compression {comp!r}")
+    declared = clen if comp == "" else _zstd_size(data[p + 8:p + 8 + clen])
+    if declared is not None and declared != usize:
+        raise BagError(f"bag '{what}': {path} has a chunk of {declared} bytes, "
+                       f"expected {usize}")
+    return comp, p + 8, clen, usize
+
+
+def _decompress(data: bytes, pieces: list[_Piece], loose: list[_Loose], path: str, what: str
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(one buffer holding every chunk's records back to back, with room for the loose
+    messages after them; the start of chunk k in it, bases[k], and the end bases[-1])."""
     sizes = [d[3] for d, _ in pieces]
     bases = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)]).astype(np.int64) \
         if pieces else np.zeros(1, np.int64)
@@ -143,52 +203,21 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
             del out
         else:
             buf[b0:b0 + usize] = np.frombuffer(data, dtype=np.uint8, count=clen, offset=at)
-    del data
-    chunk_views = [memoryview(buf[int(bases[k]):int(bases[k + 1])]) for k in range(len(pieces))]
+    return buf, bases
 
-    # channel records may also sit inside chunks (rosbags and rosbag2 put them there)
-    for raw in chunk_views:
-        _collect_channels(raw, channels, what, path, leading_only=True)
-    if not set(topics) <= set(channels.values()):
-        for raw in chunk_views:  # rare: a channel record after messages in a chunk
-            _collect_channels(raw, channels, what, path, leading_only=False)
-    wanted = {cid: t for cid, t in channels.items() if t in topics}
 
-    per_topic: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {
-        t: [] for t in topics}
-    for k, ((_, indexes), raw) in enumerate(zip(pieces, chunk_views)):
-        base = int(bases[k])
-        if indexes:
-            found = _from_index(buf[base:int(bases[k + 1])], indexes, wanted, what, path)
-        else:
-            found = _from_records(raw, wanted, what, path)
-        for cid, (log, offs, lens) in found.items():
-            order = np.stack([np.full(offs.size, k, dtype=np.int64), offs], axis=1)
-            per_topic[wanted[cid]].append((log, offs + base, lens, order))
-    if loose:  # after the chunks in the buffer, in file order
-        k, at = len(pieces), int(bases[-1])
-        for j, (cid, log, d) in enumerate(loose):
-            buf[at:at + len(d)] = np.frombuffer(d, dtype=np.uint8)
-            if cid in wanted:
-                per_topic[wanted[cid]].append((np.array([log], np.int64),
-                                               np.array([at], np.int64),
-                                               np.array([len(d)], np.int64),
-                                               np.array([[k, j]], np.int64)))
-            at += len(d)
-    out: dict[str, ChannelMessages] = {}
-    for topic, parts in per_topic.items():
-        if not parts:
-            none = np.zeros(0, np.int64)
-            out[topic] = ChannelMessages(none, Payloads(buf, none, none),
-                                         np.zeros((0, 2), np.int64))
-            continue
-        log = np.concatenate([p[0] for p in parts])
-        starts = np.concatenate([p[1] for p in parts])
-        lens = np.concatenate([p[2] for p in parts])
-        order = np.concatenate([p[3] for p in parts])
-        idx = np.lexsort((order[:, 1], order[:, 0], log))
-        out[topic] = ChannelMessages(log[idx], Payloads(buf, starts[idx], lens[idx]), order[idx])
-    return out
+def _in_time_order(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+                   buf: np.ndarray) -> ChannelMessages:
+    """One topic's messages found in the chunks, sorted by log time (ties in file order)."""
+    if not parts:
+        none = np.zeros(0, np.int64)
+        return ChannelMessages(none, Payloads(buf, none, none), np.zeros((0, 2), np.int64))
+    log = np.concatenate([p[0] for p in parts])
+    starts = np.concatenate([p[1] for p in parts])
+    lens = np.concatenate([p[2] for p in parts])
+    order = np.concatenate([p[3] for p in parts])
+    idx = np.lexsort((order[:, 1], order[:, 0], log))
+    return ChannelMessages(log[idx], Payloads(buf, starts[idx], lens[idx]), order[idx])
 
 
 def _zstd_size(frame: bytes) -> int | None:

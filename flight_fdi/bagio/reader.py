@@ -131,8 +131,9 @@ def _merge_files(parts: list[dict], topics: set[str]) -> dict[str, RawSeries]:
             base += m.payloads.buf.size
         log = np.concatenate(logs)
         order = np.argsort(log, kind="stable")
-        out[t] = RawSeries(log[order], cdr.Payloads(np.concatenate(bufs), np.concatenate(starts)[order],
-                                               np.concatenate(lens)[order]))
+        out[t] = RawSeries(log[order], cdr.Payloads(np.concatenate(bufs),
+                                                    np.concatenate(starts)[order],
+                                                    np.concatenate(lens)[order]))
     return out
 
 

@@ -41,7 +41,7 @@ class Recording:
     first_stamp_s: float        # first recorded filter state of the channel (all segments)
     closed_cleanly: bool | None  # recorder's metadata flag (None: not a recorder_node bag)
     problems: dict[str, int] = field(default_factory=dict)
-    gaps: list = field(default_factory=list)  # states missing from the recording: core.recording.bridge_gaps
+    gaps: list = field(default_factory=list)  # missing states: core.recording.bridge_gaps
     frame_id: str = ""          # header.frame_id of the recorded states (the navigation frame)
 
 

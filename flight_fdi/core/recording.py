@@ -185,7 +185,10 @@ def error_result(bag: str, channel: str, message: str) -> dict:
 
 def summary_line(result: dict) -> str:
     """One log line: verdict, element, onset, magnitude, GLR, first alarm."""
-    post, glr, inf = result["post_flight"], result["post_flight"]["glr"], result["in_flight"]
+    post, inf = result["post_flight"], result["in_flight"]
+    # (a result without GLR or seed method -- e.g. a forward-only one -- still gives a line)
+    glr = post.get("glr") or {"hypothesis": "none (" + post.get("method", "-") + ")",
+                              "statistic": None, "threshold": None}
 
     def f(v: Any, spec: str = ".4g") -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
@@ -194,7 +197,8 @@ def summary_line(result: dict) -> str:
             + (f": {post['headline']}" if post.get("headline") else
                f" of {post['element']}" if post["element"] else "")
             + f", onset {f(post['onset_s'], '.1f')} s, magnitude {f(post['magnitude'])}; "
-            f"seed method {post['seed_method']['verdict']}, GLR {glr['hypothesis']} "
+            f"seed method {post.get('seed_method', {}).get('verdict', '-')}, GLR "
+            f"{glr['hypothesis']} "
             f"(l = {f(glr['statistic'])}, threshold {f(glr['threshold'])}); "
             f"{len(inf['alarms'])} in-flight alarm(s), first at {f(inf['first_alarm_s'], '.1f')} s")
     if result.get("error"):

@@ -110,196 +110,26 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from ..core.actuator import (DISTURBANCE, ActuatorConfig, ActuatorEvent, ActuatorMonitor,
-                             attitude_model, require_observable)
+from ..core.actuator import ActuatorEvent
 from ..core.errors import CoreError
-from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig, KalmanFilter
+from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.models import LinearModel
-from . import convert
+from . import attitude_diag, convert
 from . import diagnostics as diag
-from .errors import ParameterError
+from .attitude_parts import (  # noqa: F401 (parameters re-exported for filter_node)
+    ATTITUDE_ONLY, MODEL_KEYS, MONITOR_KEYS, AxisChannel, FilterHost, Sample, actuator_config,
+    build_attitude_model, is_attitude_model)
 from .params import fail
 
-# Small quantities are parameters in micro-units (like the INS mode's sigma_w_deg_h): rclpy's
-# Python params-file loader reads a double written as 1e-05 back as a string.
-_MICRO = 1e6
-#: node parameter -> (keyword of the built-in ``attitude_axis`` model, divisor to its SI unit)
-MODEL_KEYS = {"attitude_m_c": ("m_c", 1.0),
-              "attitude_sigma_md_walk_urad_s2": ("sigma_md_walk", _MICRO),
-              "attitude_sigma_angle_urad": ("sigma_angle", _MICRO),
-              "attitude_sigma_rate_urad_s": ("sigma_rate", _MICRO)}
-#: node parameter -> (ActuatorConfig field, divisor to its SI unit)
-MONITOR_KEYS = {"actuator_window_s": ("window_s", 1.0),
-                "actuator_threshold_urad_s2": ("threshold", _MICRO),
-                "actuator_zero_tolerance": ("zero_tol", 1.0),
-                "actuator_settle_s": ("settle_s", 1.0), "actuator_k_sigma": ("k_sigma", 1.0)}
-#: parameters that mean something only in the attitude mode
-ATTITUDE_ONLY = ("attitude_measure", *MODEL_KEYS, "angle_topic", "rate_topic", "control_topic",
-                 "attitude_wait_s", "rate_sync_tolerance_s", *MONITOR_KEYS)
 EVENT_TOPIC = "fdi/actuator_event"
 RESET_SERVICE = "~/reset_actuator"
 #: commands buffered for samples still to come; beyond this the oldest are folded into the one
 #: in force (a sample older than a folded command is then dropped: ``control_expired``)
 MAX_CONTROLS = 10000
-_ROWS = {"angle": 1, "angle+rate": 2, "rate": 1}
-_ALARM_NAMES = {0: "clear", 1: "raised", 2: "active", 3: "cleared"}
-
-
-def _time(t: float | None) -> str:
-    """A stamp for /diagnostics: full resolution (format_value's 6 digits would turn
-    1700000054.0 into 1.7e+09)."""
-    return "never" if t is None else f"{t:.6f}"
-
-
-# --------------------------------------------------------------------------- parameters
-
-def is_attitude_model(name: str) -> bool:
-    """True when ``model`` names the built-in attitude model (a model file selects the attitude
-    mode by having a control input B)."""
-    return name == "attitude_axis"
-
-
-def build_attitude_model(values: dict[str, Any], defaults: dict[str, Any],
-                         file_model: LinearModel | None = None) -> LinearModel:
-    """The attitude model from the node parameters, checked for observability (ParameterError
-    naming the parameter otherwise). ``file_model``: a model loaded from a YAML file with B."""
-    measure = values["attitude_measure"]
-    if file_model is None:
-        key = "attitude_sigma_rate_urad_s"
-        if measure == "angle" and values[key] != defaults[key]:
-            fail(key, values[key], f"its default ({defaults[key]!r}): the rate is not measured "
-                 "(attitude_measure angle)")
-        params = {core: values[k] / div for k, (core, div) in MODEL_KEYS.items()}
-        try:
-            model = attitude_model(measure, **params)
-        except CoreError as exc:  # the table's ranges should make this unreachable
-            raise ParameterError(f"invalid attitude model parameters: {exc}") from None
-        key = "attitude_measure"
-    else:
-        model = file_model
-        key = "model"
-        for k in MODEL_KEYS:
-            if values[k] != defaults[k]:
-                fail(k, values[k], f"its default ({defaults[k]!r}): attitude model parameters "
-                     "apply only to the built-in attitude_axis (a model file carries its own)")
-        if model.B.shape[1] != 1:
-            fail("model", values["model"], "an attitude model with one control input per axis; "
-                 f"{model.name} has {model.B.shape[1]}")
-        if DISTURBANCE not in model.state_names:
-            fail("model", values["model"], f"an attitude model with a state named "
-                 f"{DISTURBANCE!r} (the actuator monitor's); {model.name} has "
-                 f"{', '.join(model.state_names)}")
-        if model.m != _ROWS[measure]:
-            fail("attitude_measure", measure, f"the rows of the model file: {model.name} has "
-                 f"{model.m} measurement row(s) (angle: 1 row from angle_topic; angle+rate: "
-                 "2 rows, angle_topic then rate_topic)")
-    try:
-        require_observable(model, values["actuator_window_s"])
-    except CoreError as exc:
-        fail(key, values[key], f"an observable configuration ({exc})")
-    if measure == "rate":  # observable only for an exotic model file
-        fail("attitude_measure", measure, "angle or angle+rate (the attitude mode steps at each "
-             "angle sample)")
-    return model
-
-
-def actuator_config(values: dict[str, Any]) -> ActuatorConfig:
-    """ActuatorConfig from the ``actuator_*`` parameters."""
-    try:
-        return ActuatorConfig(**{f: values[k] / div for k, (f, div) in MONITOR_KEYS.items()})
-    except CoreError as exc:  # the table's ranges should make this unreachable
-        raise ParameterError(f"invalid actuator monitor parameters: {exc}") from None
-
-
-# --------------------------------------------------------------------------- state
-
-class FilterHost(Protocol):
-    """What the attitude mode needs of the filter node beyond rclpy's Node (publishers,
-    subscriptions, timers, logger, ``p``, ``counters``, ``diagnostics``, ``channels``,
-    ``inputs``): the node's shared input checks and outputs. The mode never touches a filter's
-    state except through KalmanFilter's public calls (``step``/``predict``/``update`` in one
-    ``transaction``)."""
-
-    def _now(self) -> float:
-        """The node's clock in seconds."""
-
-    def _resolve(self, key: str, topic: str) -> str:
-        """The fully qualified name of ``topic`` (ParameterError naming ``key``)."""
-
-    def _create_outputs(self, n_channels: int) -> None:
-        """fdi/innovation, fdi/state and fdi/model publishers (``pub_*``)."""
-
-    def _bad_stamp(self, what: str, t: float, sec: int, nanosec: int) -> bool:
-        """True (and counted) when a stamp cannot be carried by an output stamp."""
-
-    def _drop(self, reason: str, detail: str, channel: Any = None, n: int = 1) -> None:
-        """Count a dropped sample (``dropped_<reason>``) and warn (throttled)."""
-
-    def _dt(self, ch: Any, t: float) -> tuple[float, bool]:
-        """(dt, reset) of the next step of channel ``ch`` at ``t``."""
-
-
-class _AxisChannel:
-    """One axis: its filter, its actuator monitor, the latched event, counts."""
-
-    def __init__(self, name: str, model: LinearModel, gate: GateConfig,
-                 config: ActuatorConfig) -> None:
-        self.name = name
-        self.axis = convert.AXIS_INDEX[name]
-        self.model = model
-        self.config = config
-        self.kf = KalmanFilter(model, gate)
-        self.event: ActuatorEvent | None = None
-        self.windows_closed = 0
-        self.windows_evaluated = 0
-        self.last_t: float | None = None
-        self.last_step_clock: float | None = None
-        self.last_u: float | None = None
-        self.result = None
-        self.alarm_since: float | None = None
-        self.counters = diag.Counters(("fused", "gated", "rejected", "alarms_raised", "resets"))
-        self._new_monitor(check_observable=True)
-
-    def _new_monitor(self, check_observable: bool = False) -> None:
-        self.monitor = ActuatorMonitor(self.model, self.config, self.name, keep_windows=False,
-                                       check_observable=check_observable)
-        self.monitor.latched = self.event is not None  # the switch has been made
-        self._window = None
-
-    def reset(self) -> None:
-        """Restart the filter from the prior, and the monitor (its time line and open window;
-        a latched event stays latched)."""
-        self.kf.reset()
-        self.last_t = None
-        self.alarm_since = None
-        self._new_monitor()
-
-    def window_closed(self) -> bool:
-        """Count a window the monitor closed at the last update; True when one did."""
-        w = self.monitor.last_window
-        if w is None or w is self._window:
-            return False
-        self._window = w
-        self.windows_closed += 1
-        self.windows_evaluated += bool(w.evaluated)
-        return True
-
-
-class _Sample:
-    """An angle sample waiting for its command (and rate): stamp, values per axis, arrival time
-    on the node clock."""
-
-    __slots__ = ("t", "angle", "rate", "arrived")
-
-    def __init__(self, t: float, angle: np.ndarray, arrived: float) -> None:
-        self.t = t
-        self.angle = angle
-        self.rate: np.ndarray | None = None
-        self.arrived = arrived
 
 
 # --------------------------------------------------------------------------- the mode
@@ -343,7 +173,7 @@ class AttitudeMode:
 
         axes = sorted(p["channels"], key=convert.AXIS_INDEX.__getitem__)
         self._axes = np.array([convert.AXIS_INDEX[a] for a in axes])
-        self.channels = [_AxisChannel(a, model, gate, self.config) for a in axes]
+        self.channels = [AxisChannel(a, model, gate, self.config) for a in axes]
         names = ["received_angle"] + (["received_rate"] if self.with_rate else []) + [
             "received_control", "time_jump_resets", "control_late",
             "control_changed_within_interval"] + (["rate_missing"] if self.with_rate else [])
@@ -351,7 +181,7 @@ class AttitudeMode:
         node.counters = self.counters
         node.channels = self.channels
 
-        self._pending: deque[_Sample] = deque()
+        self._pending: deque[Sample] = deque()
         self._rates: deque[tuple[float, np.ndarray]] = deque()     # rate samples awaiting angles
         self._controls: deque[tuple[float, np.ndarray]] = deque()  # commands for samples to come
         self._current: tuple[float, np.ndarray] | None = None      # the last command stamped
@@ -424,7 +254,7 @@ class AttitudeMode:
         if order == "jump":
             self._angle_time_jump(t, self._last_angle_t)
         self._last_angle_t = t
-        e = _Sample(t, v, self.node._now())
+        e = Sample(t, v, self.node._now())
         if self.with_rate:
             # rates older than this angle (less the tolerance) can match no angle to come
             while self._rates and self._rates[0][0] < t - self.tol:
@@ -544,7 +374,7 @@ class AttitudeMode:
             self._reset_controls()  # still on the old time line
 
     # ------------------------------------------------------------------ processing
-    def _ready(self, e: _Sample, now: float | None) -> bool:
+    def _ready(self, e: Sample, now: float | None) -> bool:
         """The sample at the head waits for no more input (module docstring)."""
         if self._last_angle_t > e.t + self.wait_s or (now is not None and
                                                       now - e.arrived >= self.wait_s):
@@ -560,7 +390,7 @@ class AttitudeMode:
         while self._pending and self._ready(self._pending[0], now):
             self._process(self._pending.popleft())
 
-    def _process(self, e: _Sample) -> None:
+    def _process(self, e: Sample) -> None:
         t = e.t
         prev = self._last_sample_t
         self._last_sample_t = t
@@ -589,7 +419,7 @@ class AttitudeMode:
             self.counters.inc("control_changed_within_interval")
         self._step(e, None if cur is None else cur[1])
 
-    def _step(self, e: _Sample, u_vec: np.ndarray | None) -> None:
+    def _step(self, e: Sample, u_vec: np.ndarray | None) -> None:
         """One step per channel at the angle stamp; ``u_vec`` the command in force over the
         interval (None: only first steps, dt = 0, may be taken)."""
         node = self.node
@@ -656,7 +486,7 @@ class AttitudeMode:
         for msg in states:
             node.pub_state.publish(msg)
 
-    def _count(self, ch: _AxisChannel, t: float, res: Any, now: float, u: float) -> None:
+    def _count(self, ch: AxisChannel, t: float, res: Any, now: float, u: float) -> None:
         ch.last_t = t
         ch.last_step_clock = now
         ch.last_u = u
@@ -685,7 +515,7 @@ class AttitudeMode:
         self.pub_event.publish(self._String(data=json.dumps(record, sort_keys=True,
                                                             allow_nan=False)))
 
-    def _on_event(self, ch: _AxisChannel, event: ActuatorEvent) -> None:
+    def _on_event(self, ch: AxisChannel, event: ActuatorEvent) -> None:
         ch.event = event
         self.node.get_logger().error(f"{event.message()} (t={event.t:.3f} s, window "
                                      f"{event.window_start_t:.3f} .. {event.window_end_t:.3f} s)")
@@ -711,69 +541,4 @@ class AttitudeMode:
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_statuses(self) -> list:
-        name = self.node.get_name()
-        problems = self.inputs.problems(self.node.diagnostics.clock_stalled_s())
-        values = self.inputs.key_values() + self.counters.key_values()
-        values += [("waiting_samples", str(len(self._pending))),
-                   ("buffered_commands", str(len(self._controls)))]
-        out = [diag.make_status(f"{name}: inputs", diag.WARN if problems else diag.OK,
-                                "; ".join(problems) if problems else "inputs OK", values,
-                                hardware_id=self.angle_name)]
-        now = self.node._now()
-        for ch in self.channels:
-            out.append(self._channel_status(name, ch, now))
-            out.append(self._actuator_status(name, ch))
-        return out
-
-    def _channel_status(self, name: str, ch: _AxisChannel, now: float):
-        res = ch.result
-        vals: list[tuple[str, Any]] = [
-            ("beta2", math.nan if res is None else res.beta2),
-            ("gate_threshold", self.gate.threshold(self.model.m) if res is None
-             else res.threshold),
-            ("alarm_state", "never updated" if res is None
-             else _ALARM_NAMES.get(res.alarm_state, str(res.alarm_state))),
-            ("alarm_since_s", _time(ch.alarm_since)),
-            ("last_stamp_s", _time(ch.last_t)),
-            ("u", ch.last_u),
-            ("accuracy_J", ch.kf.accuracy()),
-        ]
-        vals += ch.counters.key_values()
-        vals += [(f"{ch.name}.{nm}", float(v))
-                 for nm, v in zip(self.model.state_names, ch.kf.x)]
-        since = math.nan if ch.last_step_clock is None else now - ch.last_step_clock
-        if ch.kf.alarm_active and ch.last_t is not None:
-            level, text = diag.WARN, (f"innovation alarm since t={ch.alarm_since:.3f} s (the "
-                                      "measurements disagree with the model)")
-        else:
-            level, text = diag.update_freshness(None if ch.last_step_clock is None else since,
-                                                self.p["stale_after_s"])
-        return diag.make_status(f"{name}: channel {ch.name}", level, text, vals,
-                                hardware_id=f"{self.angle_name} {ch.name}")
-
-    def _actuator_status(self, name: str, ch: _AxisChannel):
-        c = self.config
-        ev = ch.event
-        w = ch.monitor.last_window
-        vals: list[tuple[str, Any]] = [
-            ("action", "switch_to_reserve" if ev is not None else "none"),
-            ("threshold", c.threshold), ("window_s", c.window_s),
-            ("windows_closed", ch.windows_closed), ("windows_evaluated", ch.windows_evaluated),
-            ("last_window_mean", None if w is None else w.mean),
-            ("last_window_std", None if w is None else w.std),
-            ("last_window_end_s", _time(None if w is None else w.end_t)),
-            ("last_window_evaluated", None if w is None else w.evaluated),
-        ]
-        if ev is not None:
-            vals += [("event_t_s", _time(ev.t)), ("event_window_start_s", _time(ev.window_start_t)),
-                     ("event_window_end_s", _time(ev.window_end_t)), ("event_mean", ev.mean),
-                     ("event_std", ev.std), ("event_samples", ev.samples)]
-            level, text = diag.ERROR, f"switch to reserve: {ev.message()}"
-        elif w is None:
-            level, text = diag.OK, "no actuator fault (no zero-control window closed yet)"
-        else:
-            note = "" if w.evaluated else ", not evaluated: estimate too uncertain"
-            level, text = diag.OK, (f"no actuator fault (last window mean {w.mean:.3g} "
-                                    f"rad/s^2{note})")
-        return diag.make_status(f"{name}: actuator {ch.name}", level, text, vals,
-                                hardware_id=f"actuator {ch.name}")
+        return attitude_diag.statuses(self)

@@ -76,7 +76,7 @@ def header(stamp, frame_id: str = ""):
 
 def twist_velocity_raw(data: bytes) -> tuple[int, int, tuple[float, float, float]]:
     """Serialized geometry_msgs/TwistStamped -> (sec, nanosec, linear velocity (x, y, z)),
-    straight from the CDR bytes (:mod:`flight_fdi.bagio.cdr.message`; WireError when malformed)."""
+    straight from the CDR bytes (``bagio.cdr.message``; WireError when malformed)."""
     sec, nanosec, x, y, z = wire.decode_twist_stamped(data)
     return sec, nanosec, (x, y, z)
 
@@ -98,8 +98,8 @@ _NAN3 = (float("nan"),) * 3
 
 def velocity_decoder(msgtype: str, odometry_twist_frame: str = "child"):
     """f(data) -> (sec, nanosec, linear velocity (x, y, z), variance per axis; NaN where the
-    type has none) for one of VELOCITY_TYPES, from the CDR bytes (:mod:`flight_fdi.bagio.cdr.message`; WireError when
-    malformed). Odometry: see wire.decode_odometry (rotated into header.frame_id unless
+    type has none) for one of VELOCITY_TYPES, from the CDR bytes (``bagio.cdr.message``;
+    WireError when malformed). Odometry: see wire.decode_odometry (rotated into header.frame_id unless
     ``odometry_twist_frame`` is "header")."""
     if msgtype == VELOCITY_TYPES[0]:
         def twist(data: bytes):

@@ -42,35 +42,7 @@ dt is the difference of reference header stamps.
 
 Bad input never stops the node; every dropped sample is counted by reason and reported in
 ``/diagnostics`` (status "<node>: inputs" for message-level counts, "<node>: channel <c>" for
-per-channel counts). Messages are never reordered.
-
-    =============================== ===========================================================
-    count                           what happened
-    =============================== ===========================================================
-    dropped_ins_invalid_stamp       INS stamp after the last time a stamp can hold (sec
-                                    2^31 - 1 with nanosec >= 1e9: outputs could not carry it)
-    dropped_ins_nonfinite           INS velocity NaN/Inf on a configured axis
-    dropped_ins_duplicate           INS stamp equal to the previous one
-    dropped_ins_out_of_order        INS stamp older than the previous one (by <= time_jump_reset_s)
-    dropped_ins_stamp_outlier       INS stamp that jumped (see below) and was not continued
-    dropped_reference_invalid_stamp reference stamp after the last time a stamp can hold
-    dropped_reference_duplicate     reference stamp equal to the previous one
-    dropped_reference_out_of_order  reference stamp older than the previous one (idem)
-    dropped_reference_stamp_outlier reference stamp that jumped and was not continued
-    dropped_ins_gap                 the INS samples around the reference stamp are more than
-                                    ``max_gap_s`` apart (INS dropout): the reference is dropped
-    dropped_ins_too_old             the reference stamp is older than the INS buffer
-    dropped_ins_core_error          the INS buffer refused the sample (CoreError)
-    dropped_ins_timeout             a reference waited more than ``buffer_s`` (of reference
-                                    stamps) for the INS sample after it
-    dropped_time_jump               references waiting when the time line jumped back
-    time_jump_resets                stamps went back by more than ``time_jump_reset_s``
-    (channel) dropped_reference_nonfinite   reference velocity NaN/Inf on the channel's axis
-    (channel) dropped_core_error    the core raised CoreError for this sample
-    (channel) covariance_invalid    zero / negative / NaN reference covariance: the sample is
-                                    used with R = ``reference_variance``
-    (channel) resets                filter restarts (time jump, or a gap > reset_after_gap_s)
-    =============================== ===========================================================
+per-channel counts; the list is in ``nodes/filter_velocity.py``). Messages are never reordered.
 
 A stamp that goes backwards by more than ``time_jump_reset_s`` or forward by more than
 ``reset_after_gap_s`` is a time jump (core ``timeline.StampLine``). One wild stamp (a 0 from a
@@ -88,40 +60,11 @@ is at most ``reset_after_gap_s``; beyond that it restarts from the prior (warnin
 ``reset = True``), because after a very long blind interval the old estimate says little.
 
 Redundant references (SPEC section 2, seed 001; core ``flight_fdi.core.references``)
-    With ``reference_topics`` naming i topics, every reference is one measurement row (row name =
-    its resolved topic name). Reference samples whose stamps lie within
-    ``reference_sync_tolerance_s`` of the first one of a group are stacked into one i-row update
-    at that first stamp (each row uses the INS velocity interpolated at its own stamp). A
-    reference that has no sample for a stamp is absent from that update (fewer rows; counted as
-    ``missing`` of that reference): an update waits for a missing reference until that reference
-    has moved past the stamp, or until some reference is ``reference_sync_wait_s`` (of stamps)
-    ahead, and not at all for a reference more than ``reference_sync_wait_s`` behind (dead or
-    lagging); a sample arriving after its stamp was processed is dropped and counted
-    (``dropped_reference_late``). Updates are never reordered.
-
-    Per channel each row has its own gate (beta2_k = nu_k^2 / S_kk against the one-row
-    threshold); a reference whose exceedance is isolated (the other rows agree with the
-    prediction) ``alarm_m`` of ``alarm_n`` times is declared failed, and is readmitted after its
-    own gate has passed for ``readmit_after_s``. ``reference_mode`` says what a failed reference
-    does to the filter: ``exclude`` (AF, its row is struck out), ``known_anomaly`` (KF2, its
-    variance grows by ``anomaly_variance``), ``nominal`` (nothing: reported only). In the two
-    active modes a row isolated at the current sample is handled so already (a suspect). The last
-    healthy reference is never declared failed; an update that carries only failed rows fuses
-    nothing in exclude mode (a prediction only: FilterState without rows, fused false).
-
-    Innovation (one per channel and update) carries every row present: ``innovation``,
-    ``innovation_covariance`` and ``row_beta2`` are the nominal ones (S = H P- H^T + R, also
-    for excluded rows); ``beta2`` and ``gate_threshold`` are over the rows used (known_anomaly:
-    with S + C Gamma C^T); ``row_failed`` = the reference is declared failed; ``row_excluded`` =
-    the row is handled by the mode in this update -- struck out (exclude) or inflated by Gamma
-    (known_anomaly), for a failed or a suspect row; always false in nominal mode. FilterState
-    carries z, r, h of the rows actually fused (exclude: the rows kept; known_anomaly: every row
-    with the inflated r), so a recording re-runs exactly what was fused. ``/diagnostics`` has one
-    status per reference ("<node>: reference <topic>": per channel failed / excluded, time since
-    the failure, failures and readmissions, its last row beta2; missing and late counts) and,
-    per channel, the estimation accuracy J = tr(D P) with D the identity on the scaled states
-    (J = sum_i P_ii / scale_i^2: the prior std of each state counts 1; 4 for a fresh INS
-    channel) and the rows used at the last update.
+    With ``reference_topics`` naming i topics, every reference is one measurement row; samples
+    within ``reference_sync_tolerance_s`` are stacked into one i-row update (the grouping rules:
+    ``flight_fdi.core.refsync``), each reference has its own gate and is declared failed,
+    handled per ``reference_mode`` (exclude, known_anomaly, nominal) and readmitted; the details
+    and the outputs are in ``nodes/filter_velocity.py``.
 
 Parameters: ``FILTER_PARAMS`` below (documented in ``config/filter.yaml``). Invalid parameters
 stop the node at start-up with a ParameterError naming the parameter.
@@ -130,7 +73,6 @@ from __future__ import annotations
 
 import math
 import sys
-import time
 from typing import Any
 
 import numpy as np
@@ -139,18 +81,18 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.validate_topic_name import validate_topic_name
 
-from ..bagio.cdr import WireError
 from ..core.actuator import MEASUREMENTS, ActuatorConfig
 from ..core.errors import CoreError
-from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig
+from ..core.kalman import GateConfig
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
 from ..core.refsync import ReferenceSync
 from ..core.references import ReferenceConfig
-from ..core.timeline import ACCEPT, DUPLICATE, HELD, NEW_LINE, OUT_OF_ORDER, OUTLIER, StampLine
+from ..core.timeline import StampLine
 from . import attitude_mode, convert, filter_diag, ins3d_mode
 from .convert import VELOCITY_TYPES
 from .filter_parts import Channel as _Channel, Reference as _Reference
-from .qos import INPUT_QOS_CHOICES, InputSubscriptions, input_profile, output_qos
+from .filter_velocity import VelocityMode
+from .qos import INPUT_QOS_CHOICES, input_profile, output_qos
 from . import diagnostics as diag
 from .clockutil import ClockReader
 from .errors import ParameterError
@@ -424,7 +366,7 @@ def validate(values: dict[str, Any]) -> None:
     build_model(values)
 
 
-class FilterNode(Node):
+class FilterNode(VelocityMode, Node):
     """The filter node (see the module docstring).
 
     ``FilterNode(context=..., parameter_overrides=[...])`` builds it in-process (any keyword goes
@@ -572,307 +514,6 @@ class FilterNode(Node):
         self._drop(f"{what}_invalid_stamp", f"{what} sample with stamp sec={sec} "
                    f"nanosec={nanosec}: after the last time a ROS stamp can hold")
         return True
-
-    def _subscribe_inputs(self) -> None:
-        """Raw subscriptions of the INS and reference topics in their configured types: the few
-        fields used are read from the CDR bytes (convert / wire), ~15 times cheaper than rclpy
-        building the message objects (TwistStamped INS: the original fast decoder)."""
-        p = self.p
-        self._decode_ref = convert.velocity_decoder(p["reference_type"], p["odometry_twist_frame"])
-        if p["ins_type"] == convert.VELOCITY_TYPES[0]:
-            self._decode_ins = convert.twist_velocity_raw
-        else:
-            full = convert.velocity_decoder(p["ins_type"], p["odometry_twist_frame"])
-            self._decode_ins = lambda data: full(data)[:3]
-        self.subs = InputSubscriptions(self, p["input_qos"], p["input_queue_depth"])
-        self.subs.subscribe(convert.message_class(p["ins_type"]), self.ins_name, self._on_ins)
-        ref_cls = convert.message_class(p["reference_type"])
-        for ref in self.refs:
-            self.subs.subscribe(ref_cls, ref.name,
-                                lambda data, k=ref.index: self._on_reference(k, data))
-
-    def _malformed(self, what: str, exc: Exception) -> None:
-        """A message whose bytes are not its type (only a broken publisher sends that)."""
-        self._drop(f"{what}_malformed", f"{what} message: {exc}")
-
-    # ------------------------------------------------------------------ INS input
-    def _on_ins(self, data: bytes) -> None:
-        self.inputs.seen(self.ins_name)
-        self.counters.inc("received_ins")
-        try:
-            sec, nanosec, lin = self._decode_ins(data)
-        except WireError as exc:
-            self._malformed("ins", exc)
-            return
-        t = convert.parts_to_s(sec, nanosec)
-        if self._bad_stamp("ins", t, sec, nanosec):
-            return
-        values = [lin[a] for a in self._axes_list]
-        if not all(map(math.isfinite, values)):
-            self._drop("ins_nonfinite", f"INS sample at t={t:.3f} s: non-finite velocity "
-                       f"{values}")
-            return
-        # one channel: a plain float (the aligner's cheap path); several: a vector
-        v = values[0] if len(values) == 1 else np.array(values)
-        verdict = self._ins_line.check(t, (t, v))
-        if verdict.dismissed:
-            self._outliers("ins", verdict.dismissed)
-        kind = verdict.kind
-        if kind == ACCEPT:
-            self._add_ins(t, v)
-        elif kind == NEW_LINE:
-            self._ins_time_jump(*verdict.jump)
-            for t_k, v_k in verdict.released:
-                self._add_ins(t_k, v_k)
-        elif kind != HELD:
-            self._stamp_drop("ins", kind, t)
-
-    def _add_ins(self, t: float, v: Any) -> None:
-        try:
-            updates = self.sync.add_ins(t, v)
-        except CoreError as exc:
-            self._drop("ins_core_error", f"INS sample at t={t:.3f} s: {exc}")
-            return
-        self._process(updates)
-
-    def _stamp_drop(self, what: str, kind: str, t: float, ref: Any = None) -> None:
-        """A sample dropped by its time line (duplicate, out of order, outlier)."""
-        line = self._ins_line if ref is None else ref.line
-        where = "INS" if ref is None else f"reference sample on {ref.name}"
-        why = {DUPLICATE: "duplicate stamp", OUT_OF_ORDER: f"older than the last one "
-               f"({line.last:.3f} s)", OUTLIER: "repeats a wild stamp"}[kind]
-        self._drop(f"{what}_{'stamp_outlier' if kind == OUTLIER else kind}",
-                   f"{where} at t={t:.3f} s: {why}")
-
-    def _outliers(self, what: str, dismissed: list) -> None:
-        """Held samples whose jump the next samples did not continue: wild stamps."""
-        stamps = ", ".join(f"{p[0]:.3f}" for p in dismissed)
-        self._drop(f"{what}_stamp_outlier", f"{len(dismissed)} {what} sample(s) with a wild stamp "
-                   f"({stamps} s; the time line continued)", n=len(dismissed))
-
-    def _ins_time_jump(self, last: float, t: float) -> None:
-        self.get_logger().warning(
-            f"INS time jumped from {last:.3f} s to {t:.3f} s (confirmed by "
-            f"{self.p['time_jump_confirm']} samples): INS buffer reset")
-        self.sync.ins_time_jump(t, self.p["time_jump_reset_s"])
-
-    # ------------------------------------------------------------------ reference input
-    def _on_reference(self, k: int, data: bytes) -> None:
-        ref = self.refs[k]
-        self.inputs.seen(ref.name)
-        self.counters.inc("received_reference")
-        try:
-            sec, nanosec, lin, var = self._decode_ref(data)
-        except WireError as exc:
-            self._malformed("reference", exc)
-            return
-        t = convert.parts_to_s(sec, nanosec)
-        if self._bad_stamp("reference", t, sec, nanosec):
-            return
-        verdict = ref.line.check(t, (t, lin, var))
-        if verdict.dismissed:
-            self._outliers("reference", verdict.dismissed)
-        kind = verdict.kind
-        if kind == ACCEPT:
-            self._accept_reference(k, t, lin, var)
-        elif kind == NEW_LINE:
-            self._reference_time_jump(*verdict.jump)
-            # the other references start on the new line too; what they held is on it
-            todo = [(s_[0], k, s_, True) for s_ in verdict.released]
-            todo += [(s_[0], j, s_, False) for j, other in enumerate(self.refs) if j != k
-                     for s_ in other.line.reset()]
-            for _, j, (t_j, lin_j, var_j), accepted in sorted(todo, key=lambda e: e[0]):
-                if accepted:
-                    self._accept_reference(j, t_j, lin_j, var_j)
-                else:
-                    self._on_reference_sample(j, t_j, lin_j, var_j)
-        elif kind != HELD:
-            self._stamp_drop("reference", kind, t, ref)
-
-    def _on_reference_sample(self, k: int, t: float, lin: Any, var: Any) -> None:
-        ref = self.refs[k]
-        verdict = ref.line.check(t, (t, lin, var))
-        if verdict.kind == ACCEPT:
-            self._accept_reference(k, t, lin, var)
-        else:  # only after a reset of the line: cannot jump again
-            self._stamp_drop("reference", verdict.kind, t, ref)
-
-    def _accept_reference(self, k: int, t: float, lin: Any, var: Any) -> None:
-        ref = self.refs[k]
-        ref.counters.inc("samples")
-        updates = self.sync.add_reference(k, t, lin, var)
-        if updates is None:
-            # its stamp has been processed (without it): an update is never redone
-            ref.counters.inc("dropped_late")
-            self._drop("reference_late", f"reference sample on {ref.name} at t={t:.3f} s: "
-                       f"arrived after the update at {self.sync.last_epoch_t:.3f} s")
-            return
-        self._process(updates)
-
-    def _reference_time_jump(self, last: float, t: float) -> None:
-        self.counters.inc("time_jump_resets")
-        reason = (f"reference time jumped from {last:.3f} s to {t:.3f} s (confirmed by "
-                  f"{self.p['time_jump_confirm']} samples)")
-        self.get_logger().warning(f"{reason}: filter reset")
-        for ch in self.channels:
-            self._reset_channel(ch, reason)
-        self.sync.reference_time_jump(t, self.p["time_jump_reset_s"])
-
-    def _process(self, updates: list) -> None:
-        """Step the filter for the updates released by the synchronisation, in stamp order."""
-        for u in updates:
-            if self.redundant:
-                for k in u.missing:
-                    self.refs[k].counters.inc("missing")
-                self._step_redundant(u.t, u.rows)
-            else:
-                _, v_ins, v_ref, var = u.rows[0]
-                self._step(u.t, v_ins, v_ref, var)
-
-    # ------------------------------------------------------------------ the filter step
-    def _row(self, ch: _Channel, t: float, v_ins: np.ndarray, v_ref: np.ndarray,
-             var: np.ndarray) -> tuple[float, float] | None:
-        """(z, r) of one reference sample on channel ``ch``; None (counted) when the reference
-        velocity is not finite on that axis."""
-        vr = float(v_ref[ch.axis])
-        if not math.isfinite(vr):
-            self._drop("reference_nonfinite", f"reference sample at t={t:.3f} s on "
-                       f"channel {ch.name}: non-finite velocity {vr}", channel=ch)
-            return None
-        r = float(var[ch.axis])
-        if not (self.p["use_reference_covariance"] and math.isfinite(r) and r > 0.0):
-            if self.p["use_reference_covariance"]:
-                ch.counters.inc("covariance_invalid")
-            r = self.p["reference_variance"]
-        return float(v_ins[ch.column]) - vr, r
-
-    def _dt(self, ch: _Channel, t: float) -> tuple[float, bool]:
-        """(dt, reset) of the next step of ``ch`` at ``t``; restarts it after a long gap."""
-        reset = ch.last_t is None
-        dt = 0.0 if reset else t - ch.last_t
-        if dt > self.p["reset_after_gap_s"]:
-            reason = (f"no update for {dt:.1f} s (> reset_after_gap_s "
-                      f"{self.p['reset_after_gap_s']} s)")
-            self.get_logger().warning(f"channel {ch.name}: {reason}: filter restarted from the "
-                                      "prior")
-            self._reset_channel(ch, reason)
-            reset, dt = True, 0.0
-        return dt, reset
-
-    @staticmethod
-    def _reset_channel(ch: _Channel, reason: str) -> None:
-        ch.reset()
-        ch.counters.inc("resets")
-        ch.last_reset = (time.monotonic(), reason)
-
-    def _count(self, ch: _Channel, t: float, res: Any, now: float) -> None:
-        ch.last_t = t
-        ch.last_step_clock = now
-        ch.result = res
-        if res.fused:
-            ch.counters.inc("fused")
-        if res.exceeded:
-            ch.counters.inc("gated")
-            if not res.fused:
-                ch.counters.inc("rejected")
-        self._alarm_transition(ch, t, res)
-
-    def _step(self, t: float, v_ins: np.ndarray, v_ref: np.ndarray, var: np.ndarray) -> None:
-        """One filter step per channel at reference stamp ``t`` (one reference). The
-        innovations (what the in-flight monitor waits for) are published as soon as each is
-        known, the states after."""
-        stamp = convert.stamp_parts(t)
-        now = self._now()
-        states = []
-        for ch in self.channels:
-            row = self._row(ch, t, v_ins, v_ref, var)
-            if row is None:
-                continue
-            z, r = row
-            dt, reset = self._dt(ch, t)
-            try:
-                res = ch.kf.step1(dt, z, r)
-            except CoreError as exc:
-                self._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
-                           channel=ch)
-                continue
-            ch.rows_used = 1
-            self._count(ch, t, res, now)
-            self.pub_innovation.publish(
-                convert.innovation_bytes(stamp, ch.name, self._row_names, res,
-                                         frame_id=self._frame))
-            x, P = ch.kf.state_lists()
-            states.append(convert.filter_state_bytes(
-                stamp, ch.name, self.model.state_names, x, P, z=[z], R=[r], H=self._h_list,
-                dt=dt, fused=res.fused, gated=res.exceeded, reset=reset, frame_id=self._frame))
-        for msg in states:
-            self.pub_state.publish(msg)
-        self.counters.inc("published", len(states))
-
-    def _step_redundant(self, t: float, rows: list) -> None:
-        """One update per channel at stamp ``t`` with the rows of the references present
-        (``rows``: (reference index, INS velocity at its stamp, reference velocity, variance))."""
-        stamp = convert.stamp_parts(t)
-        now = self._now()
-        states = []
-        for ch in self.channels:
-            present, zs, rs = [], [], []
-            for k, v_ins, v_ref, var in rows:
-                row = self._row(ch, t, v_ins, v_ref, var)
-                if row is not None:
-                    present.append(k)
-                    zs.append(row[0])
-                    rs.append(row[1])
-            if not present:
-                continue
-            dt, reset = self._dt(ch, t)
-            try:
-                out = ch.rf.step(t, dt, zs, rs, present)
-            except CoreError as exc:
-                self._drop("core_error", f"sample at t={t:.3f} s on channel {ch.name}: {exc}",
-                           channel=ch)
-                continue
-            res = out.update
-            ch.rows_used = len(out.z_used)
-            self._count(ch, t, res, now)
-            for ev in out.events:
-                self._reference_event(ch, ev)
-            self.pub_innovation.publish(convert.innovation_bytes(
-                stamp, ch.name, out.names, res, row_failed=out.row_failed,
-                row_excluded=out.row_excluded, frame_id=self._frame))
-            states.append(convert.filter_state_bytes(
-                stamp, ch.name, self.model.state_names, ch.kf.x, ch.kf.P, z=out.z_used,
-                R=out.R_used, H=out.H_used, dt=dt, fused=res.fused, gated=res.exceeded,
-                reset=reset, frame_id=self._frame))
-        for msg in states:
-            self.pub_state.publish(msg)
-        self.counters.inc("published", len(states))
-
-    def _reference_event(self, ch: _Channel, ev: Any) -> None:
-        mode = self.ref_config.mode
-        if ev.kind == "failed":
-            what = {"exclude": "excluded", "known_anomaly": "inflated by anomaly_variance",
-                    "nominal": "still fused (nominal mode)"}[mode]
-            self.get_logger().warning(
-                f"channel {ch.name}: reference {ev.name} failed at t={ev.t:.3f} s (row beta2 "
-                f"{ev.beta2:.3g} > {self.gate.threshold(1):.3g} in {self.gate.alarm_m} of its "
-                f"last {self.gate.alarm_n} samples): {what}")
-        else:
-            self.get_logger().info(
-                f"channel {ch.name}: reference {ev.name} readmitted at t={ev.t:.3f} s "
-                f"(healthy for {self.p['readmit_after_s']} s)")
-
-    def _alarm_transition(self, ch: _Channel, t: float, res: Any) -> None:
-        if res.alarm_state == ALARM_RAISED:
-            ch.alarm_since = t
-            ch.counters.inc("alarms_raised")
-            self.get_logger().warning(
-                f"channel {ch.name}: INS fault alarm raised at t={t:.3f} s "
-                f"(beta2 {res.beta2:.3g} > {res.threshold:.3g} in {self.gate.alarm_m} of the "
-                f"last {self.gate.alarm_n} samples)")
-        elif res.alarm_state == ALARM_CLEARED:
-            ch.alarm_since = None
-            self.get_logger().info(f"channel {ch.name}: alarm cleared at t={t:.3f} s")
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_statuses(self) -> list:
