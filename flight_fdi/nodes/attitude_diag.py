@@ -1,7 +1,40 @@
-"""``/diagnostics`` of filter_node in the attitude mode: the inputs, per axis the channel
-(beta2, alarm, accuracy, state) and the actuator monitor (the "switch to reserve" event)."""
+"""What filter_node's attitude mode reports: ``/diagnostics`` (the inputs, per axis the channel
+-- beta2, alarm, accuracy, state -- and the actuator monitor) and the "switch to reserve" event
+on ``fdi/actuator_event`` with its reset service.
+
+Bad input is counted, never fatal (message level in "inputs", sample level per channel):
+
+    =================================== =======================================================
+    count                               what happened
+    =================================== =======================================================
+    dropped_{angle,rate,control}_invalid_stamp stamp after the last time a ROS stamp can hold
+                                        (sec 2^31 - 1 with nanosec >= 1e9)
+    dropped_{angle,rate,control}_duplicate     stamp equal to the previous one on that topic
+    dropped_{angle,rate,control}_out_of_order  stamp older than the previous one (by at most
+                                        ``time_jump_reset_s``)
+    dropped_control_nonfinite           NaN/Inf command on a configured axis: the message is
+                                        ignored, the previous command stays in force
+    dropped_no_control                  no command known yet for the sample
+    dropped_rate_unmatched              a rate sample with no angle sample within
+                                        ``rate_sync_tolerance_s`` (or after its angle was used)
+    dropped_time_jump                   samples waiting when the angle time line jumped back
+    dropped_control_expired             a sample older than the bounded command buffer
+    rate_missing                        a step without its rate sample (angle alone)
+    control_late                        a command stamped before a sample already processed
+                                        (in force from then on)
+    control_changed_within_interval     see above
+    time_jump_resets                    angle stamps went back by more than
+                                        ``time_jump_reset_s``: filters restarted
+    (channel) dropped_angle_nonfinite   NaN/Inf angle on the channel's axis
+    (channel) dropped_rate_nonfinite    NaN/Inf rate on the channel's axis (angle alone)
+    (channel) dropped_core_error        the core raised CoreError for this sample
+    (channel) resets                    filter restarts (time jump, gap > reset_after_gap_s,
+                                        control time jump)
+    =================================== =======================================================
+"""
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -84,3 +117,40 @@ def _actuator_status(mode: Any, name: str, ch: Any):
                                 f"rad/s^2{note})")
     return diag.make_status(f"{name}: actuator {ch.name}", level, text, vals,
                             hardware_id=f"actuator {ch.name}")
+
+
+# --------------------------------------------------------------------------- the event
+
+def publish_record(mode: Any, record: dict) -> None:
+    """A JSON record on fdi/actuator_event (latched)."""
+    record = {"node": mode.node.get_fully_qualified_name(), **record}
+    mode.pub_event.publish(mode._String(data=json.dumps(record, sort_keys=True,
+                                                        allow_nan=False)))
+
+
+def on_event(mode: Any, ch: Any, event: Any) -> None:
+    """An actuator event of channel ``ch``: latched, logged, published, diagnosed at once."""
+    ch.event = event
+    mode.node.get_logger().error(f"{event.message()} (t={event.t:.3f} s, window "
+                                 f"{event.window_start_t:.3f} .. {event.window_end_t:.3f} s)")
+    publish_record(mode, {**event.as_dict(), "message": event.message()})
+    mode.node.diagnostics.publish_now()
+
+
+def on_reset(mode: Any, request: Any, response: Any) -> Any:
+    """The ~/reset_actuator service: re-arm the monitors that latched an event."""
+    axes = [ch.name for ch in mode.channels if ch.event is not None]
+    for ch in mode.channels:
+        if ch.event is not None:
+            ch.event = None
+            ch.monitor.reset()
+    if axes:
+        publish_record(mode, {"action": "reset", "axes": axes})
+        mode.node.get_logger().warning(
+            f"actuator monitor re-armed on axis {', '.join(axes)} (reset_actuator)")
+        response.message = f"actuator monitor re-armed on axis {', '.join(axes)}"
+        mode.node.diagnostics.publish_now()
+    else:
+        response.message = "no actuator event latched"
+    response.success = True
+    return response

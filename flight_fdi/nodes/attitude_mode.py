@@ -71,35 +71,8 @@ staleness, counts), per channel "<node>: channel <c>" (beta2, gate, innovation a
 the measurements disagree with the model --, last command, counts, x) and
 "<node>: actuator <c>".
 
-Bad input is counted, never fatal (message level in "inputs", sample level per channel):
-
-    =================================== =======================================================
-    count                               what happened
-    =================================== =======================================================
-    dropped_{angle,rate,control}_invalid_stamp stamp after the last time a ROS stamp can hold
-                                        (sec 2^31 - 1 with nanosec >= 1e9)
-    dropped_{angle,rate,control}_duplicate     stamp equal to the previous one on that topic
-    dropped_{angle,rate,control}_out_of_order  stamp older than the previous one (by at most
-                                        ``time_jump_reset_s``)
-    dropped_control_nonfinite           NaN/Inf command on a configured axis: the message is
-                                        ignored, the previous command stays in force
-    dropped_no_control                  no command known yet for the sample
-    dropped_rate_unmatched              a rate sample with no angle sample within
-                                        ``rate_sync_tolerance_s`` (or after its angle was used)
-    dropped_time_jump                   samples waiting when the angle time line jumped back
-    dropped_control_expired             a sample older than the bounded command buffer
-    rate_missing                        a step without its rate sample (angle alone)
-    control_late                        a command stamped before a sample already processed
-                                        (in force from then on)
-    control_changed_within_interval     see above
-    time_jump_resets                    angle stamps went back by more than
-                                        ``time_jump_reset_s``: filters restarted
-    (channel) dropped_angle_nonfinite   NaN/Inf angle on the channel's axis
-    (channel) dropped_rate_nonfinite    NaN/Inf rate on the channel's axis (angle alone)
-    (channel) dropped_core_error        the core raised CoreError for this sample
-    (channel) resets                    filter restarts (time jump, gap > reset_after_gap_s,
-                                        control time jump)
-    =================================== =======================================================
+Bad input is counted, never fatal (message level in "inputs", sample level per channel; the
+counts are listed in ``nodes/attitude_diag.py``).
 
 A jump back of the control stamps (a bag loop) clears the command state and restarts the
 filters; samples between the jumps of the two topics may use a command of the other time line
@@ -107,14 +80,12 @@ for a moment -- the angle's own jump then restarts the filters again.
 """
 from __future__ import annotations
 
-import json
 import math
 from collections import deque
 from typing import Any
 
 import numpy as np
 
-from ..core.actuator import ActuatorEvent
 from ..core.errors import CoreError
 from ..core.kalman import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.models import LinearModel
@@ -141,11 +112,6 @@ class AttitudeMode:
     and ``diagnostics``."""
 
     def __init__(self, node: FilterHost, model: LinearModel, gate: GateConfig, qos: Any) -> None:
-        from geometry_msgs.msg import Vector3Stamped
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-        from std_msgs.msg import String
-        from std_srvs.srv import Trigger
-
         self.node = node
         p = self.p = node.p
         self.model = model
@@ -158,17 +124,7 @@ class AttitudeMode:
         self._H = np.asarray(model.H, dtype=float)
         self._R = np.asarray(model.R, dtype=float)
 
-        self.angle_name = node._resolve("angle_topic", p["angle_topic"])
-        self.control_name = node._resolve("control_topic", p["control_topic"])
-        if self.control_name == self.angle_name:
-            fail("control_topic", p["control_topic"], f"a topic other than angle_topic (both "
-                 f"resolve to {self.angle_name})")
-        self.rate_name = None
-        if self.with_rate:
-            self.rate_name = node._resolve("rate_topic", p["rate_topic"])
-            if self.rate_name in (self.angle_name, self.control_name):
-                fail("rate_topic", p["rate_topic"], f"a topic other than angle_topic and "
-                     f"control_topic (it resolves to {self.rate_name})")
+        self._resolve_topics()
         self._row_names = [self.angle_name] + ([self.rate_name] if self.with_rate else [])
 
         axes = sorted(p["channels"], key=convert.AXIS_INDEX.__getitem__)
@@ -192,28 +148,7 @@ class AttitudeMode:
         self._last_control_t: float | None = None
         self._last_sample_t: float | None = None  # stamp of the last sample processed
 
-        node.create_subscription(Vector3Stamped, self.angle_name, self._on_angle, qos)
-        if self.with_rate:
-            node.create_subscription(Vector3Stamped, self.rate_name, self._on_rate, qos)
-        node.create_subscription(Vector3Stamped, self.control_name, self._on_control, qos)
-        node._create_outputs(len(self.channels))
-        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                             reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self._String = String
-        self.pub_event = node.create_publisher(String, EVENT_TOPIC, latched)
-        self.reset_service = node.create_service(Trigger, RESET_SERVICE, self._on_reset)
-
-        inputs = [self.angle_name] + ([self.rate_name] if self.with_rate else []) + [
-            self.control_name]
-        self.inputs = node.inputs = diag.InputMonitor(node._now, inputs,
-                                                      window_s=p["rate_window_s"],
-                                                      stale_after_s=p["stale_after_s"])
-        node.diagnostics = diag.DiagnosticsTimer(node, p["diagnostics_period_s"],
-                                                 self.diagnostic_statuses)
-        # samples whose command never comes (a controller publishing only on change) are
-        # processed after attitude_wait_s of node time
-        self.timer = node.create_timer(self.wait_s / 2.0, self._on_timer)
+        self._create_interfaces(qos)
         stamp = node.get_clock().now().to_msg()
         for ch in self.channels:
             node.pub_model.publish(convert.model_info_msg(stamp, ch.name, model, gate,
@@ -225,6 +160,54 @@ class AttitudeMode:
             f"{self.control_name}, measurements {', '.join(self._row_names)} "
             f"({p['input_qos']}); actuator monitor: |mean disturbance| over {c.window_s:g} s of "
             f"zero control > {c.threshold:g} -> switch to reserve")
+
+    def _resolve_topics(self) -> None:
+        """The resolved input topics (distinct; ParameterError naming the parameter)."""
+        node, p = self.node, self.p
+        self.angle_name = node._resolve("angle_topic", p["angle_topic"])
+        self.control_name = node._resolve("control_topic", p["control_topic"])
+        if self.control_name == self.angle_name:
+            fail("control_topic", p["control_topic"], f"a topic other than angle_topic (both "
+                 f"resolve to {self.angle_name})")
+        self.rate_name = None
+        if self.with_rate:
+            self.rate_name = node._resolve("rate_topic", p["rate_topic"])
+            if self.rate_name in (self.angle_name, self.control_name):
+                fail("rate_topic", p["rate_topic"], f"a topic other than angle_topic and "
+                     f"control_topic (it resolves to {self.rate_name})")
+
+    def _create_interfaces(self, qos: Any) -> None:
+        """Subscriptions, outputs, the event topic, the reset service, the input monitor, the
+        diagnostics and the wait timer, on the node."""
+        from geometry_msgs.msg import Vector3Stamped
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+        from std_srvs.srv import Trigger
+
+        node, p = self.node, self.p
+        node.create_subscription(Vector3Stamped, self.angle_name, self._on_angle, qos)
+        if self.with_rate:
+            node.create_subscription(Vector3Stamped, self.rate_name, self._on_rate, qos)
+        node.create_subscription(Vector3Stamped, self.control_name, self._on_control, qos)
+        node._create_outputs(len(self.channels))
+        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._String = String
+        self.pub_event = node.create_publisher(String, EVENT_TOPIC, latched)
+        self.reset_service = node.create_service(
+            Trigger, RESET_SERVICE, lambda request, response: attitude_diag.on_reset(
+                self, request, response))
+        inputs = [self.angle_name] + ([self.rate_name] if self.with_rate else []) + [
+            self.control_name]
+        self.inputs = node.inputs = diag.InputMonitor(node._now, inputs,
+                                                      window_s=p["rate_window_s"],
+                                                      stale_after_s=p["stale_after_s"])
+        node.diagnostics = diag.DiagnosticsTimer(node, p["diagnostics_period_s"],
+                                                 self.diagnostic_statuses)
+        # samples whose command never comes (a controller publishing only on change) are
+        # processed after attitude_wait_s of node time
+        self.timer = node.create_timer(self.wait_s / 2.0, self._on_timer)
 
     # ------------------------------------------------------------------ inputs
     def _order(self, topic: str, t: float, last: float | None) -> str:
@@ -482,7 +465,7 @@ class AttitudeMode:
                 stamp, ch.name, self.model.state_names, x, P, z=z, R=R, H=H, u=(u,), dt=dt,
                 fused=res.fused, gated=res.exceeded, reset=reset, frame_id=self.p["frame_id"]))
             if event is not None:
-                self._on_event(ch, event)
+                attitude_diag.on_event(self, ch, event)
         for msg in states:
             node.pub_state.publish(msg)
 
@@ -508,36 +491,6 @@ class AttitudeMode:
             ch.alarm_since = None
             self.node.get_logger().info(f"channel {ch.name}: innovation alarm cleared at "
                                         f"t={t:.3f} s")
-
-    # ------------------------------------------------------------------ the event
-    def _publish_record(self, record: dict) -> None:
-        record = {"node": self.node.get_fully_qualified_name(), **record}
-        self.pub_event.publish(self._String(data=json.dumps(record, sort_keys=True,
-                                                            allow_nan=False)))
-
-    def _on_event(self, ch: AxisChannel, event: ActuatorEvent) -> None:
-        ch.event = event
-        self.node.get_logger().error(f"{event.message()} (t={event.t:.3f} s, window "
-                                     f"{event.window_start_t:.3f} .. {event.window_end_t:.3f} s)")
-        self._publish_record({**event.as_dict(), "message": event.message()})
-        self.node.diagnostics.publish_now()
-
-    def _on_reset(self, request: Any, response: Any) -> Any:
-        axes = [ch.name for ch in self.channels if ch.event is not None]
-        for ch in self.channels:
-            if ch.event is not None:
-                ch.event = None
-                ch.monitor.reset()
-        if axes:
-            self._publish_record({"action": "reset", "axes": axes})
-            self.node.get_logger().warning(
-                f"actuator monitor re-armed on axis {', '.join(axes)} (reset_actuator)")
-            response.message = f"actuator monitor re-armed on axis {', '.join(axes)}"
-            self.node.diagnostics.publish_now()
-        else:
-            response.message = "no actuator event latched"
-        response.success = True
-        return response
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_statuses(self) -> list:

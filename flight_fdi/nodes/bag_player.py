@@ -144,31 +144,11 @@ class BagPlayer(Node):
 
     def _setup(self, topics: list[str]) -> None:
         from rclpy.clock import Clock, ClockType
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-        from flight_fdi.bagio.typestore import get_typestore
 
         from .diagnostics import DiagnosticsTimer
-        from .recorder_node import KNOWN_TYPES, rclpy_message_class
 
         p = self.params
-        store = get_typestore()
-        self.publishers_by_topic: dict[str, Any] = {}
-        self._stamped: set[str] = set()
-        for topic in topics:
-            msgtype = self.source.types[topic]
-            try:
-                cls = rclpy_message_class(msgtype)
-            except (ImportError, AttributeError, ValueError) as exc:
-                fail("topics", p["topics"], f"topics whose message types rclpy can import; "
-                     f"{topic} carries {msgtype} ({exc})")
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["queue_depth"],
-                             reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL
-                             if topic in self.source.latched else DurabilityPolicy.VOLATILE)
-            self.publishers_by_topic[topic] = self.create_publisher(cls, topic, qos)
-            if _has_header(msgtype, store):
-                self._stamped.add(topic)
+        self._create_publishers(topics)
         self._clock_pub = None
         if p["publish_clock"]:
             from rosgraph_msgs.msg import Clock as ClockMsg
@@ -194,24 +174,9 @@ class BagPlayer(Node):
         self._started = False
         self._start_wall = 0.0
         self._t_first = None
-        self._ack_sub = None
         self._watchdog = None
-        self.ack_topic = ""
-        if p["ack_topic"]:
-            try:
-                self.ack_topic = self.resolve_topic_name(p["ack_topic"])
-            except Exception as exc:  # rclpy's InvalidTopicNameException and friends
-                fail("ack_topic", p["ack_topic"], f"a valid ROS topic name ({exc})")
-            # a project topic, else a std_msgs/Header topic such as recorder_node's ~/recorded
-            msgtype = KNOWN_TYPES.get(self.ack_topic.lstrip("/"),
-                                      KNOWN_TYPES.get(p["ack_topic"].lstrip("/"),
-                                                      "std_msgs/msg/Header"))
-            ack_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                                 reliability=ReliabilityPolicy.RELIABLE)
-            self._ack_sub = self.create_subscription(rclpy_message_class(msgtype),
-                                                     self.ack_topic, self._on_ack, ack_qos,
-                                                     raw=True)
-        elif p["fast"]:
+        self._subscribe_ack()
+        if not p["ack_topic"] and p["fast"]:
             self.get_logger().warning(
                 "fast replay without ack_topic: loss-free only when all consumers run in this "
                 "process on one single-threaded executor")
@@ -227,6 +192,58 @@ class BagPlayer(Node):
         self.get_logger().info(f"playing {self.source.count} messages on "
                                f"{', '.join(topics)} from {self.source.path}, {mode}")
         self._try_start()
+
+    def _create_publishers(self, topics: list[str]) -> None:
+        """One publisher per played topic, in the bag's type (raw), latched where the recorded
+        publishers were; notes which types start with a header (their stamps are tracked)."""
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        from flight_fdi.bagio.typestore import get_typestore
+
+        from .recorder_node import rclpy_message_class
+
+        p = self.params
+        store = get_typestore()
+        self.publishers_by_topic: dict[str, Any] = {}
+        self._stamped: set[str] = set()
+        for topic in topics:
+            msgtype = self.source.types[topic]
+            try:
+                cls = rclpy_message_class(msgtype)
+            except (ImportError, AttributeError, ValueError) as exc:
+                fail("topics", p["topics"], f"topics whose message types rclpy can import; "
+                     f"{topic} carries {msgtype} ({exc})")
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["queue_depth"],
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL
+                             if topic in self.source.latched else DurabilityPolicy.VOLATILE)
+            self.publishers_by_topic[topic] = self.create_publisher(cls, topic, qos)
+            if _has_header(msgtype, store):
+                self._stamped.add(topic)
+
+    def _subscribe_ack(self) -> None:
+        """The subscription to ``ack_topic`` (none when it is empty)."""
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+        from .recorder_node import KNOWN_TYPES, rclpy_message_class
+
+        p = self.params
+        self._ack_sub = None
+        self.ack_topic = ""
+        if not p["ack_topic"]:
+            return
+        try:
+            self.ack_topic = self.resolve_topic_name(p["ack_topic"])
+        except Exception as exc:  # rclpy's InvalidTopicNameException and friends
+            fail("ack_topic", p["ack_topic"], f"a valid ROS topic name ({exc})")
+        # a project topic, else a std_msgs/Header topic such as recorder_node's ~/recorded
+        msgtype = KNOWN_TYPES.get(self.ack_topic.lstrip("/"),
+                                  KNOWN_TYPES.get(p["ack_topic"].lstrip("/"),
+                                                  "std_msgs/msg/Header"))
+        ack_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                             reliability=ReliabilityPolicy.RELIABLE)
+        self._ack_sub = self.create_subscription(rclpy_message_class(msgtype),
+                                                 self.ack_topic, self._on_ack, ack_qos, raw=True)
 
     # ------------------------------------------------------------------ start
     def _ready(self) -> bool:

@@ -29,7 +29,9 @@ def test_blocked_cdr_decode_equals_one_piece_and_names_the_message(monkeypatch):
         payloads += cdr.encode(cdr.TWIST_COV_STAMPED, stamps[k:k + 1], frames[k % 3],
                                twist[k:k + 1], cov[k])
     one = cdr.decode(cdr.TWIST_COV_STAMPED, payloads, twist_cols=[0, 4], cov_cols=[0, 7, 35])
-    monkeypatch.setattr(cdr, "_BLOCK", 7)
+    from flight_fdi.bagio.cdr import series
+
+    monkeypatch.setattr(series, "_BLOCK", 7)
     blocked = cdr.decode(cdr.TWIST_COV_STAMPED, payloads, twist_cols=[0, 4], cov_cols=[0, 7, 35])
     for a, b in zip(one, blocked):
         np.testing.assert_array_equal(a, b)
