@@ -147,3 +147,52 @@ def test_decode_string_rejects_truncated_messages(cut, message):
         cdr.decode_string(payload[:cut], what="m")
     with pytest.raises(BagError, match="not UTF-8"):
         cdr.decode_string(payload[:8] + b"\xff\xfe\xfd\xfc\x00" + payload[13:], what="m")
+
+
+@pytest.mark.parametrize("little", [True, False])
+def test_filter_state_full_decoder_matches_rosbags(little):
+    store = get_typestore()
+    T = store.types
+    rng = np.random.default_rng(11)
+    payloads, msgs = [], []
+    for i in range(16):
+        n, m, p = 1 + i % 4, i % 3, i % 2        # empty and non-empty sequences of every kind
+        header = T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=1_700_000_000 - 5 * i, nanosec=11 * i),
+            frame_id="enu" * (i % 3))
+        msg = T["flight_fdi_msgs/msg/FilterState"](
+            header=header, channel="xy"[i % 2], state_names=[f"s{k}" for k in range(n)],
+            x=rng.normal(size=n), p=rng.normal(size=n * n), z=rng.normal(size=m),
+            r=rng.normal(size=m * m), h=rng.normal(size=m * n), u=rng.normal(size=p),
+            dt=0.01 * i, fused=bool(i & 1), gated=bool(i & 2), reset=bool(i & 4))
+        payloads.append(bytes(store.serialize_cdr(msg, "flight_fdi_msgs/msg/FilterState",
+                                                  little_endian=little)))
+        msgs.append(msg)
+    records = cdr.decode_filter_states(payloads)
+    for r, m in zip(records, msgs):
+        assert r.stamp_ns == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+        assert (r.frame_id, r.channel, list(r.state_names)) == (m.header.frame_id, m.channel,
+                                                                 m.state_names)
+        for name in ("x", "p", "z", "r", "h", "u"):
+            np.testing.assert_array_equal(getattr(r, name), getattr(m, name))
+        assert (r.dt, r.fused, r.gated, r.reset) == (m.dt, m.fused, m.gated, m.reset)
+    for cut in (10, 30, len(payloads[3]) - 1):
+        with pytest.raises(BagError, match="#0: not a valid flight_fdi_msgs/msg/FilterState"):
+            cdr.decode_filter_states([payloads[3][:cut]])
+
+
+@pytest.mark.parametrize("little", [True, False])
+def test_header_stamp_and_header_bytes(little):
+    store = get_typestore()
+    T = store.types
+    header = T["std_msgs/msg/Header"](
+        stamp=T["builtin_interfaces/msg/Time"](sec=-3, nanosec=999_999_999), frame_id="base")
+    twist = T["geometry_msgs/msg/Twist"](
+        linear=T["geometry_msgs/msg/Vector3"](x=1.0, y=2.0, z=3.0),
+        angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0))
+    data = bytes(store.serialize_cdr(T[cdr.TWIST_STAMPED](header=header, twist=twist),
+                                     cdr.TWIST_STAMPED, little_endian=little))
+    assert cdr.header_stamp_ns(data) == -3 * 10**9 + 999_999_999
+    alone = bytes(store.serialize_cdr(header, "std_msgs/msg/Header", little_endian=little))
+    assert cdr.header_bytes(data) == alone
+    assert cdr.header_stamp_ns(data[:11]) is None and cdr.header_bytes(data[:20]) is None
