@@ -68,7 +68,8 @@ def _float64s(data: bytes, e: str, p: int) -> tuple[np.ndarray, int]:
         p = (p + 7) & ~7
     if 4 + p + 8 * n > len(data):
         raise ValueError("message too short")
-    return np.frombuffer(data, dtype=e + "f8", count=n, offset=4 + p).astype(float), p + 8 * n
+    return (np.frombuffer(data, dtype=e + "f8", count=n, offset=4 + p).astype(float, copy=False),
+            p + 8 * n)
 
 
 def _checked(data: bytes) -> str:
@@ -123,7 +124,7 @@ def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",
 
 @dataclass(slots=True)
 class FilterStateRecord:
-    """One flight_fdi_msgs/FilterState, every field (arrays as float64 numpy arrays)."""
+    """One flight_fdi_msgs/FilterState, every field (arrays: read-only float64 views)."""
 
     stamp_ns: int
     frame_id: str
@@ -149,12 +150,20 @@ def decode_filter_states(payloads: "Payloads | Sequence[bytes | memoryview]",
         payloads = Payloads.from_list(payloads)
     raw = payloads.buf.tobytes() if payloads.buf.size else b""
     out = []
+    # frame_id, channel and state names repeat within a stream: remember those prefixes
+    known: list[tuple[bytes, str, tuple[str, str, tuple[str, ...], int]]] = []
     for i, (start, length) in enumerate(zip(payloads.starts.tolist(), payloads.lengths.tolist())):
         data = raw[start:start + length]
         try:
             e = _checked(data)
             sec, nsec = struct.unpack_from(e + "iI", data, 4)
-            frame_id, channel, state_names, p = _state_prefix(data, e)
+            hit = next((h for pref, ee, h in known if ee == e and data.startswith(pref, 12)),
+                       None)
+            if hit is None:
+                hit = _state_prefix(data, e)
+                if len(known) < 64:
+                    known.append((data[12:4 + hit[3]], e, hit))
+            frame_id, channel, state_names, p = hit
             arrays = []
             for _ in range(6):  # x, p, z, r, h, u
                 arr, p = _float64s(data, e, p)
