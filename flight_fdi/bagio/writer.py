@@ -70,6 +70,18 @@ def prepare_path(path: str | Path, overwrite: bool, hint: str) -> Path:
     return path
 
 
+def _new_topic(topic: str, msgtype: str, known: str | None, verb: str) -> bool:
+    """True when ``topic`` is to be added; False when it exists with ``msgtype`` already;
+    BagError when it exists with another type or is not an absolute name."""
+    if known is not None:
+        if known != msgtype:
+            raise BagError(f"topic {topic} {verb} {known}, cannot also write {msgtype}")
+        return False
+    if not topic.startswith("/"):
+        raise BagError(f"topic {topic!r} must be an absolute name starting with '/'")
+    return True
+
+
 def qos_profile(name: str):
     """The offered QoS profile stored with a connection.
 
@@ -109,13 +121,8 @@ class BagWriter:
 
     def add_topic(self, topic: str, msgtype: str, qos: str = "default") -> None:
         """Add a connection explicitly (needed only to choose a non-default QoS profile)."""
-        if topic in self._connections:
-            if self._types[topic] != msgtype:
-                raise BagError(f"topic {topic} already carries {self._types[topic]}, "
-                               f"cannot also write {msgtype}")
+        if not _new_topic(topic, msgtype, self._types.get(topic), "already carries"):
             return
-        if not topic.startswith("/"):
-            raise BagError(f"topic {topic!r} must be an absolute name starting with '/'")
         msgdef, rihs01 = msg_definition(msgtype)
         try:
             conn = self._writer.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01,
@@ -127,11 +134,7 @@ class BagWriter:
         self.counts[topic] = 0
 
     def _conn(self, topic: str, msgtype: str):
-        if topic not in self._connections:
-            self.add_topic(topic, msgtype)
-        elif self._types[topic] != msgtype:
-            raise BagError(f"topic {topic} already carries {self._types[topic]}, "
-                           f"cannot also write {msgtype}")
+        self.add_topic(topic, msgtype)  # (checks the type of an existing topic)
         return self._connections[topic]
 
     @staticmethod
@@ -310,13 +313,9 @@ class RecordingBag:
         """Add a connection; its message definition comes from the project's type store."""
         if self.closed:
             raise BagError(f"bag '{self.path}' is closed")
-        if name in self.topics:
-            if self.topics[name].msgtype != msgtype:
-                raise BagError(f"topic {name} is recorded as {self.topics[name].msgtype}, "
-                               f"not {msgtype}")
+        known = self.topics[name].msgtype if name in self.topics else None
+        if not _new_topic(name, msgtype, known, "is recorded as"):
             return
-        if not name.startswith("/"):
-            raise BagError(f"topic {name!r} must be an absolute name starting with '/'")
         msgdef, rihs01 = msg_definition(msgtype)
         qos = [dict(q) for q in offered_qos]
         topic = _Topic(len(self.topics) + 1, name, msgtype, rihs01, qos)

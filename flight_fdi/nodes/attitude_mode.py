@@ -94,6 +94,7 @@ from . import diagnostics as diag
 from .attitude_parts import (  # noqa: F401 (parameters re-exported for filter_node)
     ATTITUDE_ONLY, MODEL_KEYS, MONITOR_KEYS, AxisChannel, FilterHost, Sample, actuator_config,
     build_attitude_model, is_attitude_model)
+from .filter_parts import count_step
 from .params import fail
 
 EVENT_TOPIC = "fdi/actuator_event"
@@ -470,16 +471,8 @@ class AttitudeMode:
             node.pub_state.publish(msg)
 
     def _count(self, ch: AxisChannel, t: float, res: Any, now: float, u: float) -> None:
-        ch.last_t = t
-        ch.last_step_clock = now
+        count_step(ch, t, res, now)
         ch.last_u = u
-        ch.result = res
-        if res.fused:
-            ch.counters.inc("fused")
-        if res.exceeded:
-            ch.counters.inc("gated")
-            if not res.fused:
-                ch.counters.inc("rejected")
         if res.alarm_state == ALARM_RAISED:
             ch.alarm_since = t
             ch.counters.inc("alarms_raised")

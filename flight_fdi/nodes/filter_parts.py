@@ -1,6 +1,8 @@
 """The per-channel, per-reference and per-update state of filter_node (INS velocity mode)."""
 from __future__ import annotations
 
+from typing import Any
+
 from ..core.kalman import GateConfig, KalmanFilter
 from ..core.models import LinearModel
 from ..core.references import ReferenceConfig, RedundantFilter
@@ -54,3 +56,16 @@ class Reference:
         self.line: StampLine | None = None  # its time line (set by the node)
         self.counters = diag.Counters(("samples", "missing", "dropped_late"))
 
+
+def count_step(ch: Any, t: float, res: Any, now: float) -> None:
+    """Note a filter step of channel ``ch`` (a Channel or the attitude mode's AxisChannel) at
+    stamp ``t`` and node time ``now``: its result and the fused / gated / rejected counts."""
+    ch.last_t = t
+    ch.last_step_clock = now
+    ch.result = res
+    if res.fused:
+        ch.counters.inc("fused")
+    if res.exceeded:
+        ch.counters.inc("gated")
+        if not res.fused:
+            ch.counters.inc("rejected")

@@ -84,7 +84,7 @@ from ..core.errors import CoreError
 from ..core.kalman import ALARM_CLEARED, ALARM_RAISED
 from ..core.timeline import ACCEPT, DUPLICATE, HELD, NEW_LINE, OUT_OF_ORDER, OUTLIER
 from . import convert
-from .filter_parts import Channel as _Channel
+from .filter_parts import Channel as _Channel, count_step
 from .qos import InputSubscriptions
 
 
@@ -284,15 +284,7 @@ class VelocityMode:
         ch.last_reset = (time.monotonic(), reason)
 
     def _count(self, ch: _Channel, t: float, res: Any, now: float) -> None:
-        ch.last_t = t
-        ch.last_step_clock = now
-        ch.result = res
-        if res.fused:
-            ch.counters.inc("fused")
-        if res.exceeded:
-            ch.counters.inc("gated")
-            if not res.fused:
-                ch.counters.inc("rejected")
+        count_step(ch, t, res, now)
         self._alarm_transition(ch, t, res)
 
     def _step(self, t: float, v_ins: np.ndarray, v_ref: np.ndarray, var: np.ndarray) -> None:

@@ -79,6 +79,36 @@ def _checked(data: bytes) -> str:
     return "<" if data[1] == 1 else ">"
 
 
+def _filter_states(payloads: "Payloads | Sequence[bytes | memoryview]", what: str):
+    """Per message: (number, bytes, byte order, stamp ns, (frame_id, channel, state_names,
+    payload position of x's count)). The prefix up to x is the same within one stream: it is
+    decoded once per distinct prefix. Errors raised in the loop body by the caller's decoding
+    (ValueError, struct.error) are turned into BagError naming ``what`` and the message by
+    :func:`_malformed`."""
+    if not isinstance(payloads, Payloads):
+        payloads = Payloads.from_list(payloads)
+    raw = payloads.buf.tobytes() if payloads.buf.size else b""
+    known: list[tuple[bytes, str, tuple[str, str, tuple[str, ...], int]]] = []
+    for i, (start, length) in enumerate(zip(payloads.starts.tolist(), payloads.lengths.tolist())):
+        data = raw[start:start + length]
+        try:
+            e = _checked(data)
+            sec, nsec = struct.unpack_from(e + "iI", data, 4)
+            hit = next((h for pref, ee, h in known if ee == e and data.startswith(pref, 12)),
+                       None)
+            if hit is None:
+                hit = _state_prefix(data, e)
+                if len(known) < 64:
+                    known.append((data[12:4 + hit[3]], e, hit))
+        except (ValueError, struct.error, UnicodeDecodeError) as exc:
+            raise _malformed(what, i, exc) from None
+        yield i, data, e, sec * _NS + nsec, hit
+
+
+def _malformed(what: str, i: int, exc: Exception) -> BagError:
+    return BagError(f"{what} #{i}: not a valid {FILTER_STATE} ({exc})")
+
+
 def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",
                           what: str = "message"
                           ) -> tuple[np.ndarray, list[str], list[tuple[str, ...]],
@@ -89,37 +119,17 @@ def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",
     layout is walked field by field (header, channel, state_names, x) with CDR alignment, which
     is ~10x faster than rosbags' generic deserializer for the many truth messages of a long flight.
     """
-    if not isinstance(payloads, Payloads):
-        payloads = Payloads.from_list(payloads)
-    raw = payloads.buf.tobytes() if payloads.buf.size else b""
-    n = len(payloads)
-    stamps = np.zeros(n, dtype=np.int64)
-    channels: list[str] = []
-    names: list[tuple[str, ...]] = []
-    xs: list[np.ndarray] = []
-    # everything from frame_id up to x is identical within one stream: remember those prefixes
-    known: list[tuple[bytes, str, tuple[str, tuple[str, ...], int]]] = []
-    for i, (start, length) in enumerate(zip(payloads.starts.tolist(), payloads.lengths.tolist())):
-        data = raw[start:start + length]
+    stamps, channels, names, xs = [], [], [], []
+    for i, data, e, stamp, (_, channel, state_names, p) in _filter_states(payloads, what):
         try:
-            e = _checked(data)
-            sec, nsec = struct.unpack_from(e + "iI", data, 4)
-            hit = next((h for pref, ee, h in known if ee == e and data.startswith(pref, 12)),
-                       None)
-            if hit is None:
-                _, channel, state_names, p = _state_prefix(data, e)
-                hit = (channel, state_names, p)
-                if len(known) < 64:
-                    known.append((data[12:4 + p], e, hit))
-            channel, state_names_t, p = hit
             x, _ = _float64s(data, e, p)
-        except (ValueError, struct.error, UnicodeDecodeError) as exc:
-            raise BagError(f"{what} #{i}: not a valid {FILTER_STATE} ({exc})") from None
-        stamps[i] = sec * _NS + nsec
+        except (ValueError, struct.error) as exc:
+            raise _malformed(what, i, exc) from None
+        stamps.append(stamp)
         channels.append(channel)
-        names.append(state_names_t)
+        names.append(state_names)
         xs.append(x)
-    return stamps, channels, names, xs
+    return np.array(stamps, dtype=np.int64), channels, names, xs
 
 
 @dataclass(slots=True)
@@ -146,24 +156,9 @@ def decode_filter_states(payloads: "Payloads | Sequence[bytes | memoryview]",
                          what: str = "message") -> list[FilterStateRecord]:
     """Every field of a series of flight_fdi_msgs/FilterState messages (either byte order).
     BagError naming ``what`` and the message number for a malformed one."""
-    if not isinstance(payloads, Payloads):
-        payloads = Payloads.from_list(payloads)
-    raw = payloads.buf.tobytes() if payloads.buf.size else b""
     out = []
-    # frame_id, channel and state names repeat within a stream: remember those prefixes
-    known: list[tuple[bytes, str, tuple[str, str, tuple[str, ...], int]]] = []
-    for i, (start, length) in enumerate(zip(payloads.starts.tolist(), payloads.lengths.tolist())):
-        data = raw[start:start + length]
+    for i, data, e, stamp, (frame_id, channel, state_names, p) in _filter_states(payloads, what):
         try:
-            e = _checked(data)
-            sec, nsec = struct.unpack_from(e + "iI", data, 4)
-            hit = next((h for pref, ee, h in known if ee == e and data.startswith(pref, 12)),
-                       None)
-            if hit is None:
-                hit = _state_prefix(data, e)
-                if len(known) < 64:
-                    known.append((data[12:4 + hit[3]], e, hit))
-            frame_id, channel, state_names, p = hit
             arrays = []
             for _ in range(6):  # x, p, z, r, h, u
                 arr, p = _float64s(data, e, p)
@@ -173,10 +168,10 @@ def decode_filter_states(payloads: "Payloads | Sequence[bytes | memoryview]",
                 raise ValueError("message too short")
             (dt,) = struct.unpack_from(e + "d", data, 4 + p)
             flags = data[4 + p + 8:4 + p + 11]
-        except (ValueError, struct.error, UnicodeDecodeError) as exc:
-            raise BagError(f"{what} #{i}: not a valid {FILTER_STATE} ({exc})") from None
-        out.append(FilterStateRecord(sec * _NS + nsec, frame_id, channel, state_names,
-                                     *arrays, dt, *(b != 0 for b in flags)))
+        except (ValueError, struct.error) as exc:
+            raise _malformed(what, i, exc) from None
+        out.append(FilterStateRecord(stamp, frame_id, channel, state_names, *arrays, dt,
+                                     *(b != 0 for b in flags)))
     return out
 
 
