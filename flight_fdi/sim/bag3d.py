@@ -94,37 +94,15 @@ def truth_matrix(flight: Flight3D, index: np.ndarray | None = None) -> np.ndarra
 
 
 def _truth_payloads(x: np.ndarray, stamps: np.ndarray, dt_truth: float) -> list[bytes]:
-    """FilterState messages (channel ``truth3d``, state_names TRUTH_NAMES, x rows) for a series.
+    """FilterState messages (channel ``truth3d``, state_names TRUTH_NAMES, x rows) for a series,
+    serialized by the project's CDR codec (``bagio.cdr.message``, equal to rosbags' output)."""
+    from flight_fdi.bagio.cdr import message
 
-    One message is serialized by rosbags; the others are that template with the stamp, x and dt
-    bytes replaced (every other field is identical), which a test checks against rosbags."""
-    from flight_fdi.bagio import cdr
-    from flight_fdi.bagio.typestore import get_typestore
-
-    store = get_typestore()
-    FilterState = store.types[FILTER_STATE]
-    Header = store.types["std_msgs/msg/Header"]
-    Time = store.types["builtin_interfaces/msg/Time"]
-    empty = np.zeros(0)
-    sentinel = np.pi * (1.0 + np.arange(x.shape[1]))
-    dt_sentinel = np.e * 1e5
-    msg = FilterState(header=Header(stamp=Time(sec=0, nanosec=0), frame_id=ENU_FRAME),
-                      channel=TRUTH_CHANNEL, state_names=list(TRUTH_NAMES), x=sentinel, p=empty,
-                      z=empty, r=empty, h=empty, u=empty, dt=dt_sentinel, fused=False,
-                      gated=False, reset=False)
-    template = bytes(store.serialize_cdr(msg, FILTER_STATE))
-    ox = template.find(sentinel.astype("<f8").tobytes())
-    odt = template.find(np.float64(dt_sentinel).astype("<f8").tobytes())
-    n = stamps.size
-    buf = np.tile(np.frombuffer(template, dtype=np.uint8), (n, 1))
     sec, nsec = np.divmod(np.asarray(stamps, dtype=np.int64), _NS)
-    buf[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
-    buf[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(n, 4)
-    buf[:, ox:ox + 8 * x.shape[1]] = np.ascontiguousarray(x, "<f8").view(np.uint8).reshape(n, -1)
-    dts = np.full(n, dt_truth)
-    dts[:1] = 0.0
-    buf[:, odt:odt + 8] = dts.astype("<f8").view(np.uint8).reshape(n, 8)
-    return cdr.rows(buf)
+    names = list(TRUTH_NAMES)
+    return [message.encode_filter_state(s, ns, ENU_FRAME, TRUTH_CHANNEL, names, row, (), (), (),
+                                        (), (), 0.0 if k == 0 else dt_truth, False, False, False)
+            for k, (s, ns, row) in enumerate(zip(sec.tolist(), nsec.tolist(), x.tolist()))]
 
 
 def _imu_values(flight: Flight3D, every: int) -> tuple[np.ndarray, np.ndarray]:

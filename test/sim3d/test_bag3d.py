@@ -102,7 +102,7 @@ def test_truth_and_description(flight_and_bag):
     i = TRUTH_NAMES.index("accel_fault_z")
     t = np.arange(241) * 0.5
     assert np.allclose(x[:, i], np.where(t >= 20, 2e-3 * 9.80665, 0.0), rtol=1e-12, atol=0)
-    # the patched template equals rosbags' own serialization of the same message
+    # the codec's message equals rosbags' own serialization of the same message
     store = get_typestore()
     raw = store.serialize_cdr(truth[7], "flight_fdi_msgs/msg/FilterState")
     assert np.array_equal(x[7], np.asarray(store.deserialize_cdr(
