@@ -6,11 +6,7 @@ frame_id) and matches the streams by header stamp: a triple is three samples wit
 (within ``match_tolerance_ns``). Non-finite samples, duplicate and out-of-order stamps are dropped
 and counted, as voter_node does.
 
-Imu layout after the 4-byte CDR header (little endian; doubles 8-byte aligned in the body)::
-
-    0 int32 stamp.sec, 4 uint32 stamp.nanosec, 8 uint32 len(frame_id) + 1, 12 frame_id ...
-    a = align8(12 + L): orientation (4 doubles), orientation_covariance (9),
-    a + 104: angular_velocity x, y, z;  a + 200: linear_acceleration x, y, z
+The Imu messages are decoded by the one CDR codec (``cdr.decode_doubles``).
 """
 from __future__ import annotations
 
@@ -19,11 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
+from . import cdr
 from .errors import BagError
 from .reader import read_topics_raw, topic_list
 
 IMU_MSG = "sensor_msgs/msg/Imu"
-_NS = 1_000_000_000
+#: the doubles of angular_velocity and linear_acceleration among the Imu's 37 (orientation 4,
+#: its covariance 9, angular_velocity 3, its covariance 9, linear_acceleration 3, ...)
+_IMU_COLUMNS = (13, 14, 15, 25, 26, 27)
 
 
 @dataclass
@@ -40,32 +39,9 @@ class ImuTriples:
 
 
 def decode_imu(payloads, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """(stamp_ns (N,), values (N, 6) gyro x/y/z, accel x/y/z) of serialized Imu messages."""
-    buf, st, ln = payloads.buf, payloads.starts, payloads.lengths
-    n = st.size
-    if n == 0:
-        return np.zeros(0, np.int64), np.zeros((0, 6))
-    if np.any(ln < 16):
-        raise BagError(f"{what}: an Imu message is too short")
-    if np.any(buf[st + 1] != 1) or np.any(buf[st] != 0):
-        raise BagError(f"{what}: only little-endian CDR Imu messages are supported")
-    body = st + 4
-
-    def u32(pos):
-        b = buf[pos[:, None] + np.arange(4)].astype(np.uint32)
-        return b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16) | (b[:, 3] << 24)
-
-    sec = u32(body).astype(np.int32).astype(np.int64)
-    nsec = u32(body + 4).astype(np.int64)
-    L = u32(body + 8).astype(np.int64)
-    a = (12 + L + 7) & ~7
-    if np.any(a + 224 > ln - 4):
-        raise BagError(f"{what}: an Imu message is too short for its frame_id")
-    offs = np.concatenate([a[:, None] + 104 + 8 * np.arange(3), a[:, None] + 200
-                           + 8 * np.arange(3)], axis=1)            # (N, 6)
-    idx = (body[:, None, None] + offs[:, :, None] + np.arange(8)).reshape(n, -1)
-    vals = buf[idx].reshape(n, 6, 8).copy().view("<f8").reshape(n, 6)
-    return sec * _NS + nsec, vals
+    """(stamp_ns (N,), values (N, 6) gyro x/y/z, accel x/y/z) of serialized Imu messages
+    (the one CDR codec: ``cdr.decode_doubles``)."""
+    return cdr.decode_doubles(cdr.IMU, payloads, _IMU_COLUMNS, what)
 
 
 def _check_topics(p: Path, available: dict[str, str], topics) -> None:

@@ -225,3 +225,31 @@ def test_simulated_imu_messages_equal_rosbags_serialization():
             angular_velocity_covariance=cov_w, linear_acceleration=vec(*out[k, 3:]),
             linear_acceleration_covariance=cov_a)
         assert data == bytes(store.serialize_cdr(msg, cdr.IMU))
+
+
+@pytest.mark.parametrize("little", [True, False])
+def test_decode_doubles_reads_imu_in_both_byte_orders(little):
+    store = get_typestore()
+    T = store.types
+    rng = np.random.default_rng(9)
+    vec = T["geometry_msgs/msg/Vector3"]
+    payloads, want, stamps = [], [], []
+    for k in range(7):
+        v = rng.normal(size=37)
+        msg = T[cdr.IMU](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
+                sec=1_700_000_000 + k, nanosec=k), frame_id="imu" * k),
+            orientation=T["geometry_msgs/msg/Quaternion"](*v[:4]),
+            orientation_covariance=v[4:13], angular_velocity=vec(*v[13:16]),
+            angular_velocity_covariance=v[16:25], linear_acceleration=vec(*v[25:28]),
+            linear_acceleration_covariance=v[28:])
+        payloads.append(bytes(store.serialize_cdr(msg, cdr.IMU, little_endian=little)))
+        want.append(v)
+        stamps.append((1_700_000_000 + k) * 10**9 + k)
+    s, vals = cdr.decode_doubles(cdr.IMU, payloads, range(37))
+    np.testing.assert_array_equal(s, stamps)
+    np.testing.assert_array_equal(vals, want)
+    with pytest.raises(BagError, match="columns must be in 0..36"):
+        cdr.decode_doubles(cdr.IMU, payloads, [37])
+    with pytest.raises(BagError, match="#2: .* too short"):
+        cdr.decode_doubles(cdr.IMU, payloads[:2] + [payloads[2][:-8]], [0])

@@ -7,7 +7,8 @@ messages and the filter node handles every message on its hot path. Measured on 
 and the per-message codecs 1-4 us. So the project keeps one hand-written codec, in three parts:
 
 * :mod:`.series` -- whole series with numpy: TwistStamped / TwistWithCovarianceStamped
-  (decode and encode), any header-plus-doubles type (``encode_doubles``: sensor_msgs/Imu),
+  (decode and encode), any header-plus-doubles type (``encode_doubles`` / ``decode_doubles``:
+  sensor_msgs/Imu),
   NavSatFix (encode), :class:`Payloads` (messages stored back to back);
 * :mod:`.variable` -- the variable-layout messages read or written in series: std_msgs/String,
   flight_fdi_msgs/FilterState (leading fields, or every field), nav_msgs/Odometry;
@@ -33,7 +34,7 @@ Every codec is tested against rosbags' serializer (and the per-message ones agai
 in ``test/bagio/test_bagio_cdr.py`` and ``test/nodes/test_wire.py``.
 """
 from .series import (IMU, NAVSATFIX, TWIST_COV_STAMPED, TWIST_STAMPED, Payloads, decode,
-                     encode, encode_doubles, encode_navsatfix, rows, supported)
+                     decode_doubles, encode, encode_doubles, encode_navsatfix, rows, supported)
 from .variable import (FILTER_STATE, LINEAR_COV, ODOMETRY, STRING, FilterStateRecord,
                        decode_filter_state_x, decode_filter_states, decode_odometry,
                        decode_string, encode_odometry)
@@ -41,6 +42,6 @@ from .message import WireError, header_bytes, header_stamp_ns
 
 __all__ = ["FILTER_STATE", "IMU", "LINEAR_COV", "NAVSATFIX", "ODOMETRY", "STRING",
            "TWIST_COV_STAMPED", "TWIST_STAMPED", "FilterStateRecord", "Payloads", "WireError",
-           "decode", "decode_filter_state_x", "decode_filter_states", "decode_odometry",
+           "decode", "decode_doubles", "decode_filter_state_x", "decode_filter_states", "decode_odometry",
            "decode_string", "encode", "encode_doubles", "encode_navsatfix", "encode_odometry",
            "header_bytes", "header_stamp_ns", "rows", "supported"]

@@ -37,8 +37,8 @@ NAVSATFIX = "sensor_msgs/msg/NavSatFix"
 
 #: number of doubles after the header for each supported type
 _DOUBLES = {TWIST_STAMPED: 6, TWIST_COV_STAMPED: 6 + 36}
-#: header + doubles types that are only encoded here
-_ENCODE_ONLY = {IMU: 4 + 9 + 3 + 9 + 3 + 9}
+#: other types made of a header and doubles (encode_doubles / decode_doubles only)
+_HEADER_DOUBLES = {IMU: 4 + 9 + 3 + 9 + 3 + 9}
 _NS = 1_000_000_000
 
 
@@ -109,7 +109,7 @@ def encode_doubles(msgtype: str, stamp_ns: np.ndarray, frame_id: str,
                    values: np.ndarray) -> list[bytes]:
     """Serialize a type made of a header and doubles; ``values`` (N, number of doubles) in
     declaration order (e.g. Imu: orientation x y z w, its covariance, angular_velocity, ...)."""
-    ndouble = _DOUBLES.get(msgtype, _ENCODE_ONLY.get(msgtype))
+    ndouble = _DOUBLES.get(msgtype, _HEADER_DOUBLES.get(msgtype))
     if ndouble is None:
         raise BagError(f"fast CDR encoding does not support {msgtype!r}")
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64).reshape(-1)
@@ -206,10 +206,27 @@ def decode(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryview]",
     cov_cols = list(cov_cols)
     if any(not 0 <= c < 6 for c in twist_cols) or any(not 0 <= c < 36 for c in cov_cols):
         raise BagError("decode: twist columns must be in 0..5 and covariance columns in 0..35")
+    stamp_ns, values = decode_doubles(msgtype, payloads, twist_cols + [6 + c for c in cov_cols],
+                                      what)
+    twist = values[:, :len(twist_cols)]
+    cov_out = values[:, len(twist_cols):] if has_cov else None
+    return stamp_ns, twist, cov_out
+
+
+def decode_doubles(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryview]",
+                   cols: Sequence[int], what: str = "message") -> tuple[np.ndarray, np.ndarray]:
+    """(stamp_ns (N,) int64, the doubles at ``cols`` (N, len(cols))) of a series of a type made
+    of a header and doubles (the twists, sensor_msgs/Imu: 37 doubles in declaration order).
+    Raises BagError naming ``what`` when a message is too short or malformed."""
+    ndouble = _DOUBLES.get(msgtype, _HEADER_DOUBLES.get(msgtype))
+    if ndouble is None:
+        raise BagError(f"fast CDR decoding does not support {msgtype!r}")
+    cols = [int(c) for c in cols]
+    if any(not 0 <= c < ndouble for c in cols):
+        raise BagError(f"decode {msgtype}: columns must be in 0..{ndouble - 1}")
     if not isinstance(payloads, Payloads):
         payloads = Payloads.from_list(payloads)
     n = len(payloads)
-    cols = twist_cols + [6 + c for c in cov_cols]
     stamp_ns = np.zeros(n, np.int64)
     values = np.zeros((n, len(cols)))
     # in blocks: the gathers index with (messages x bytes) int64 arrays, which for a 10-hour
@@ -218,9 +235,7 @@ def decode(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryview]",
         b = min(n, a + _BLOCK)
         stamp_ns[a:b], values[a:b] = _decode_block(
             msgtype, payloads.buf, payloads.starts[a:b], payloads.lengths[a:b], cols, what, a)
-    twist = values[:, :len(twist_cols)]
-    cov_out = values[:, len(twist_cols):] if has_cov else None
-    return stamp_ns, twist, cov_out
+    return stamp_ns, values
 
 
 #: messages decoded per block
@@ -231,7 +246,7 @@ def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np
                   cols: list[int], what: str, first: int) -> tuple[np.ndarray, np.ndarray]:
     """(stamp_ns, the doubles at ``cols``) of messages ``first`` ... of a series."""
     n = starts.size
-    ndouble = _DOUBLES[msgtype]
+    ndouble = _DOUBLES.get(msgtype, _HEADER_DOUBLES.get(msgtype))
     if n == 0:
         return np.zeros(0, np.int64), np.zeros((0, len(cols)))
     if lengths.min() < 16:
