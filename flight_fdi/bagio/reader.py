@@ -27,6 +27,7 @@ from .typestore import get_typestore
 
 # --------------------------------------------------------------------------- opening a bag
 
+
 def open_bag(path: str | Path):
     """An open rosbags Reader of the bag at ``path`` (close it); BagError when it cannot be."""
     from rosbags.rosbag2 import Reader
@@ -64,6 +65,7 @@ def bag_topics(path: str | Path) -> dict[str, str]:
 
 
 def topic_list(topics: dict[str, str]) -> str:
+    """The topic names for an error message ("none" when there are none)."""
     return ", ".join(sorted(topics)) or "none"
 
 
@@ -72,7 +74,6 @@ def topic_list(topics: dict[str, str]) -> str:
 @dataclass
 class RawSeries:
     """Raw messages of one topic in receive-time order."""
-
 
     log_ns: np.ndarray
     payloads: cdr.Payloads
