@@ -75,7 +75,6 @@ import math
 import sys
 from typing import Any
 
-import numpy as np
 from rclpy.exceptions import NameValidationException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -85,15 +84,12 @@ from ..core.actuator import MEASUREMENTS, ActuatorConfig
 from ..core.errors import CoreError
 from ..core.kalman import GateConfig
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
-from ..core.refsync import ReferenceSync
-from ..core.references import ReferenceConfig
 from ..core.timeline import StampLine
 from . import attitude_mode, convert, filter_diag, ins3d_mode
 from .convert import VELOCITY_TYPES
-from .filter_parts import Channel as _Channel, Reference as _Reference
+from .filter_parts import Channel as _Channel, reference_topics  # noqa: F401 (re-exported)
 from .filter_velocity import VelocityMode
 from .qos import INPUT_QOS_CHOICES, input_profile, output_qos
-from . import diagnostics as diag
 from .clockutil import ClockReader
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters, fail
@@ -341,13 +337,6 @@ def build_model(values: dict[str, Any]) -> Any:
     return model.with_R([[values["reference_variance"]]]) if name != "ins_channel" else model
 
 
-def reference_topics(values: dict[str, Any]) -> list[str]:
-    """The reference topics: ``reference_topics`` without its empty entries, or else
-    ``[reference_topic]``."""
-    named = [t for t in values["reference_topics"] if t]
-    return named if named else [values["reference_topic"]]
-
-
 def validate(values: dict[str, Any]) -> None:
     """Cross-field checks of FILTER_PARAMS (ParameterError naming the parameter)."""
     if values["alarm_m"] > values["alarm_n"]:
@@ -401,70 +390,7 @@ class FilterNode(VelocityMode, Node):
             self.attitude = attitude_mode.AttitudeMode(self, self.model, self.gate, qos)
             return
         self.attitude = None
-        axes = sorted(p["channels"], key=convert.AXIS_INDEX.__getitem__)
-        self._axes = np.array([convert.AXIS_INDEX[a] for a in axes])
-        self._axes_list = self._axes.tolist()
-        self._h = np.asarray(self.model.H, dtype=float)
-        self._h_list = self._h.reshape(-1).tolist()
-        # published: filter steps published (one Innovation and one FilterState each)
-        self.counters = diag.Counters(("received_ins", "received_reference", "published",
-                                       "time_jump_resets"))
-
-        ref_key = "reference_topics" if any(p["reference_topics"]) else "reference_topic"
-        self.ins_name = self._resolve("ins_topic", p["ins_topic"])
-        ref_names = [self._resolve(ref_key, topic) for topic in reference_topics(p)]
-        if self.ins_name in ref_names:
-            fail(ref_key, p[ref_key], f"a topic other than ins_topic (both resolve to "
-                 f"{self.ins_name})")
-        if len(set(ref_names)) != len(ref_names):
-            fail(ref_key, p[ref_key], f"distinct topics (they resolve to {ref_names})")
-        self.refs = [_Reference(k, nm) for k, nm in enumerate(ref_names)]
-        # grouping of the reference samples into updates, INS interpolation (core.refsync)
-        self.sync = ReferenceSync(len(self.refs), p["reference_sync_tolerance_s"],
-                                  p["reference_sync_wait_s"], p["max_gap_s"], p["buffer_s"],
-                                  on_drop=lambda reason, detail, n: self._drop(reason, detail,
-                                                                               n=n))
-        self._ins_line = self._stamp_line()
-        self._frame = p["frame_id"]
-        for ref in self.refs:
-            ref.line = self._stamp_line()
-        self.ref_name = ref_names[0]
-        self.redundant = len(self.refs) > 1
-        if self.redundant:
-            try:
-                self.ref_config = ReferenceConfig(mode=p["reference_mode"],
-                                                  anomaly_variance=p["anomaly_variance"],
-                                                  readmit_after_s=p["readmit_after_s"])
-            except CoreError as exc:  # the table's checks should make this unreachable
-                raise ParameterError(f"invalid reference parameters: {exc}") from None
-            self.channels = [_Channel(a, k, self.model, self.gate, ref_names, self.ref_config)
-                             for k, a in enumerate(axes)]
-        else:
-            self.ref_config = None
-            self.channels = [_Channel(a, k, self.model, self.gate) for k, a in enumerate(axes)]
-        self._subscribe_inputs()
-        self._row_names = [self.ref_name]
-
-        self._create_outputs(len(self.channels))
-
-        self.inputs = diag.InputMonitor(self._now, [self.ins_name] + ref_names,
-                                        window_s=p["rate_window_s"],
-                                        stale_after_s=p["stale_after_s"])
-        self.diagnostics = diag.DiagnosticsTimer(self, p["diagnostics_period_s"],
-                                                 self.diagnostic_statuses)
-        stamp = self.get_clock().now().to_msg()
-        for ch in self.channels:
-            self.pub_model.publish(convert.model_info_msg(stamp, ch.name, self.model, self.gate,
-                                                         frame_id=p["frame_id"]))
-        refs_text = ", ".join(ref_names)
-        if self.redundant:
-            refs_text += (f" (redundant: mode {p['reference_mode']}, readmit after "
-                          f"{p['readmit_after_s']} s)")
-        self.get_logger().info(
-            f"filtering channels {', '.join(axes)} with model {self.model.name} "
-            f"(gate {self.gate.rule}, alarm {self.gate.alarm_m} of {self.gate.alarm_n}, "
-            f"action {self.gate.action}); inputs {self.ins_name}, {refs_text} "
-            f"(input_qos {p['input_qos']}: {self.subs.reliability(self.ins_name)})")
+        self._setup_velocity_mode(qos)
 
     def _create_outputs(self, n_channels: int) -> None:
         """The publishers of both modes: fdi/innovation, fdi/state, fdi/model (latched)."""

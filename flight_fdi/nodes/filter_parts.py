@@ -69,3 +69,10 @@ def count_step(ch: Any, t: float, res: Any, now: float) -> None:
         ch.counters.inc("gated")
         if not res.fused:
             ch.counters.inc("rejected")
+
+
+def reference_topics(values: dict[str, Any]) -> list[str]:
+    """The reference topics: ``reference_topics`` without its empty entries, or else
+    ``[reference_topic]``."""
+    named = [t for t in values["reference_topics"] if t]
+    return named if named else [values["reference_topic"]]
