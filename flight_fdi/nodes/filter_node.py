@@ -390,7 +390,7 @@ class FilterNode(VelocityMode, Node):
             self.attitude = attitude_mode.AttitudeMode(self, self.model, self.gate, qos)
             return
         self.attitude = None
-        self._setup_velocity_mode(qos)
+        self._setup_velocity_mode()
 
     def _create_outputs(self, n_channels: int) -> None:
         """The publishers of both modes: fdi/innovation, fdi/state, fdi/model (latched)."""

@@ -97,7 +97,7 @@ from .qos import InputSubscriptions
 class VelocityMode:
     """The INS velocity mode's methods of FilterNode (module docstring)."""
 
-    def _setup_velocity_mode(self, qos: Any) -> None:
+    def _setup_velocity_mode(self) -> None:
         """Channels, references, their synchronisation, subscriptions and outputs of the INS
         velocity mode (after the node's parameters, model and gate are set)."""
         p = self.p
