@@ -26,6 +26,7 @@ from pathlib import Path
 from flight_fdi.cli.analyze import add_gate_options
 from flight_fdi.cli.batch import add_engine_options, engine_spec
 from flight_fdi.cli.errors import CliError
+from flight_fdi.cli.montecarlo3d import add_ins3d_options, check_model, run_ins3d
 
 
 def _levels(text: str) -> tuple[float, ...]:
@@ -83,6 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the settings and metrics as one JSON object instead of tables")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_ins3d_options(p)
     p.set_defaults(func=run, gate_action="flag")
 
 
@@ -111,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
     from flight_fdi.campaign.engine import default_workers
     from flight_fdi.eval.montecarlo import format_metrics, run_study
 
+    if check_model(args) == "ins3d":
+        return run_ins3d(args)
     config = study_config(args)
     spec = engine_spec(args)
     out = _writable(args.out, "--out")

@@ -1,0 +1,257 @@
+"""Metrics of a 3-D Monte Carlo study (:mod:`flight_fdi.eval.montecarlo3d`) from its records,
+for the 3-D model and the single-axis model side by side.
+
+Outcome of one flight for one model (:func:`outcome`):
+
+* ``none``: no fault declared (verdict ``no_fault`` / ``insufficient_data``, isolation none);
+* ``right``: one fault isolated with confidence (isolation ``single``) naming the true sensor
+  *and* axis (the kind -- step or ramp -- is scored separately: ``right_kind``);
+* ``wrong``: isolated with confidence, but another sensor or another axis (on a nominal flight:
+  any confident isolation -- a *false isolation*);
+* ``ambiguous``: a fault declared but no single sensor named (isolation ``ambiguous``: two
+  explanations within the margin, both named; or ``unexplained``). Not a false isolation, but
+  counted: on a nominal flight it is a false *declaration*.
+
+The single-axis model works on one navigation-frame velocity channel: it can name the sensor but
+not a body axis, so for IMU faults only its right-*sensor* rate is scored (its sensor+axis rate is
+``None``); for GNSS jumps its axis is the channel (east / north) and is scored.
+
+Onset error: estimated minus true onset over the ``right`` flights (median of the absolute value
+is the issue's target, <= 5 s); magnitude error: estimated / true - 1 over the same flights.
+Smallest fault isolated in 95 %: the smallest level from which the rate of ``right`` is >= 95 %
+at that level and at every larger level (per scenario and axis).
+"""
+from __future__ import annotations
+
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from .montecarlo3d import MODELS, SCENARIOS
+
+ISOLATION_LEVEL = 0.95
+OUTCOMES = ("none", "right", "wrong", "ambiguous")
+
+
+def outcome(record: dict, model: str) -> str:
+    """The outcome of ``model`` on this flight (see the module docstring)."""
+    d = record[model]
+    iso = d.get("isolation", "none")
+    if d["verdict"] in ("no_fault", "insufficient_data") or iso == "none":
+        return "none"
+    if iso != "single":
+        return "ambiguous"
+    if record["sensor"] is None:
+        return "wrong"
+    if d["sensor"] != record["sensor"]:
+        return "wrong"
+    if axis_scored(record, model) and d["axis"] != record["axis"]:
+        return "wrong"
+    return "right"
+
+
+def axis_scored(record: dict, model: str) -> bool:
+    """Whether ``model``'s axis can be judged on this flight (not the single-axis model on a
+    body-axis IMU fault)."""
+    return not (model == "single_axis" and record["sensor"] in ("accelerometer", "gyro"))
+
+
+def named(record: dict, model: str) -> bool:
+    """The true sensor and axis are isolated, or among the candidates of an ambiguous result."""
+    oc = outcome(record, model)
+    if oc == "right":
+        return True
+    if oc != "ambiguous":
+        return False
+    scored = axis_scored(record, model)
+    return any(c.get("sensor") == record["sensor"]
+               and (not scored or c.get("axis") == record["axis"])
+               for c in record[model].get("candidates", []))
+
+
+def _stats(values: Iterable[float | None]) -> dict:
+    v = np.asarray([x for x in values if x is not None], dtype=float)
+    if v.size == 0:
+        return {"n": 0, "median": None, "median_abs": None, "p05": None, "p95": None}
+    return {"n": int(v.size), "median": float(np.median(v)),
+            "median_abs": float(np.median(np.abs(v))), "p05": float(np.percentile(v, 5)),
+            "p95": float(np.percentile(v, 95))}
+
+
+def _rate(num: int, den: int) -> float | None:
+    return num / den if den else None
+
+
+def rates(records: Sequence[dict], model: str) -> dict:
+    """Counts and rates of the outcomes, onset and magnitude errors of ``model``."""
+    n = len(records)
+    oc = [outcome(r, model) for r in records]
+    right = [r for r, o in zip(records, oc) if o == "right"]
+    scored = all(axis_scored(r, model) for r in records) if records else True
+    out: dict[str, Any] = {"n": n, **{o: oc.count(o) for o in OUTCOMES}}
+    out["right_rate"] = _rate(oc.count("right"), n) if scored else None
+    out["right_sensor_rate"] = _rate(sum(o in ("right", "wrong") and r[model]["sensor"] ==
+                                         r["sensor"] for r, o in zip(records, oc)), n)
+    out["wrong_rate"] = _rate(oc.count("wrong"), n)
+    out["ambiguous_rate"] = _rate(oc.count("ambiguous"), n)
+    out["missed_rate"] = _rate(oc.count("none"), n)
+    out["named_rate"] = _rate(sum(named(r, model) for r in records), n) if scored else None
+    out["right_kind"] = sum(r[model]["kind"] == r["kind"] for r in right)
+    out["onset_error_s"] = _stats(None if r[model]["onset_s"] is None
+                                  else r[model]["onset_s"] - r["onset_s"] for r in right)
+    out["magnitude_error"] = _stats(None if r[model]["magnitude"] is None or not r["magnitude"]
+                                    else r[model]["magnitude"] / r["magnitude"] - 1.0
+                                    for r in right)
+    return out
+
+
+def nominal_rates(records: Sequence[dict], model: str) -> dict:
+    """False isolation (a confident sensor on a nominal flight), false declaration (any fault
+    declared, ambiguous included) and ambiguous counts on the nominal flights."""
+    nom = [r for r in records if r["scenario"] == "nominal"]
+    oc = [outcome(r, model) for r in nom]
+    n = len(nom)
+    return {"n": n, "false_isolations": oc.count("wrong"),
+            "false_isolation_rate": _rate(oc.count("wrong"), n),
+            "ambiguous": oc.count("ambiguous"),
+            "false_declaration_rate": _rate(n - oc.count("none"), n),
+            "isolated_as": _count(r[model]["sensor"] for r, o in zip(nom, oc) if o == "wrong")}
+
+
+def _count(items: Iterable[Any]) -> dict:
+    out: dict[str, int] = {}
+    for it in items:
+        out[str(it)] = out.get(str(it), 0) + 1
+    return out
+
+
+def by_level(records: Sequence[dict], model: str, scenario: str) -> list[dict]:
+    """Per axis and level of ``scenario``: n and the rates of :func:`rates`."""
+    rows = []
+    rs = [r for r in records if r["scenario"] == scenario]
+    for axis in SCENARIOS[scenario][4]:
+        for level in sorted({r["level"] for r in rs if r["axis"] == axis}):
+            sel = [r for r in rs if r["axis"] == axis and r["level"] == level]
+            x = rates(sel, model)
+            rows.append({"axis": axis, "level": level, "n": x["n"],
+                         "right_rate": x["right_rate"], "right_sensor_rate":
+                         x["right_sensor_rate"], "ambiguous_rate": x["ambiguous_rate"],
+                         "wrong_rate": x["wrong_rate"],
+                         "onset_error_median_abs_s": x["onset_error_s"]["median_abs"]})
+    return rows
+
+
+def smallest_isolated(rows: Sequence[dict], key: str = "right_rate",
+                      level: float = ISOLATION_LEVEL) -> float | None:
+    """Smallest level from which ``key`` >= ``level`` there and at every larger level."""
+    best = None
+    for row in sorted(rows, key=lambda r: r["level"], reverse=True):
+        if row[key] is None or row[key] < level:
+            break
+        best = row["level"]
+    return best
+
+
+def summarize(records: Sequence[dict]) -> dict:
+    """All metrics of a 3-D study, per model present in the records."""
+    records = sorted(records, key=lambda r: r["index"])
+    models = [m for m in MODELS if records and all(m in r for r in records)]
+    scenarios = [s for s in SCENARIOS if any(r["scenario"] == s for r in records)]
+    out: dict[str, Any] = {"flights": _count(r["scenario"] for r in records),
+                           "models": models,
+                           "stand_in": any(r["ins3d"].get("stand_in") for r in records)}
+    for m in models:
+        per: dict[str, Any] = {"nominal": nominal_rates(records, m), "scenarios": {},
+                               "by_level": {}, "smallest_isolated_95": {}}
+        for s in scenarios:
+            rs = [r for r in records if r["scenario"] == s]
+            per["scenarios"][s] = {
+                "all": rates(rs, m),
+                "in_turn": rates([r for r in rs if r["onset_in_turn"]], m),
+                "straight": rates([r for r in rs if r["onset_in_turn"] is False], m)}
+            rows = by_level(records, m, s)
+            per["by_level"][s] = rows
+            key = "right_rate" if rows and rows[0]["right_rate"] is not None \
+                else "right_sensor_rate"
+            per["smallest_isolated_95"][s] = {
+                axis: smallest_isolated([r for r in rows if r["axis"] == axis], key)
+                for axis in SCENARIOS[s][4] if any(r["axis"] == axis for r in rows)}
+        out[m] = per
+    return out
+
+
+# --------------------------------------------------------------------------- text
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f} %"
+
+
+def _num(x: float | None, spec: str = ".2f") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def format_metrics(metrics: dict) -> str:
+    """Markdown tables: nominal flights, per scenario (both models), smallest isolated."""
+    models = metrics["models"]
+    lines = ["flights: " + ", ".join(f"{v} {k}" for k, v in metrics["flights"].items())]
+    if metrics.get("stand_in"):
+        lines.append("NOTE: the 3-D post-flight isolator was not available; the 3-D column is "
+                     "the forward gate's alarm (declares, names nothing)")
+    lines += ["", "nominal flights:", "",
+              "| model | n | false isolation | ambiguous / unexplained | any fault declared |",
+              "|---|---|---|---|---|"]
+    for m in models:
+        nr = metrics[m]["nominal"]
+        lines.append(f"| {m} | {nr['n']} | {_pct(nr['false_isolation_rate'])} "
+                     f"({nr['false_isolations']}) | {nr['ambiguous']} | "
+                     f"{_pct(nr['false_declaration_rate'])} |")
+    lines += ["", "faulty flights (right = isolated, right sensor and axis; single-axis: sensor "
+              "only for IMU faults):", "",
+              "| scenario | model | n | right sensor+axis | right sensor | ambiguous | "
+              "named | wrong (confident) | missed | median abs onset err s | "
+              "median magnitude err | right in turn | right straight |",
+              "|---" * 13 + "|"]
+    for s in SCENARIOS:
+        for m in models:
+            if s not in metrics[m]["scenarios"]:
+                continue
+            x = metrics[m]["scenarios"][s]
+            a = x["all"]
+            key = "right_rate" if a["right_rate"] is not None else "right_sensor_rate"
+            lines.append(
+                f"| {s} | {m} | {a['n']} | {_pct(a['right_rate'])} | "
+                f"{_pct(a['right_sensor_rate'])} | {_pct(a['ambiguous_rate'])} | "
+                f"{_pct(a['named_rate'])} | {_pct(a['wrong_rate'])} | {_pct(a['missed_rate'])} | "
+                f"{_num(a['onset_error_s']['median_abs'])} | "
+                f"{_pct(a['magnitude_error']['median'])} | "
+                f"{_pct(x['in_turn'][key])} ({x['in_turn']['n']}) | "
+                f"{_pct(x['straight'][key])} ({x['straight']['n']}) |")
+    lines += ["", "by axis and level (rate of right sensor+axis; single-axis: right sensor):",
+              "", "| scenario | axis | level | " + " | ".join(f"{m} n / right" for m in models)
+              + " |", "|---" * (3 + len(models)) + "|"]
+    for s in SCENARIOS:
+        if not models or s not in metrics[models[0]]["by_level"]:
+            continue
+        unit = SCENARIOS[s][5]
+        rows = {m: metrics[m]["by_level"][s] for m in models}
+        for i, row in enumerate(rows[models[0]]):
+            cells = []
+            for m in models:
+                rr = rows[m][i]
+                v = rr["right_rate"] if rr["right_rate"] is not None else rr["right_sensor_rate"]
+                cells.append(f"{rr['n']} / {_pct(v)}")
+            lines.append(f"| {s} | {row['axis']} | {row['level']:g} {unit} | "
+                         + " | ".join(cells) + " |")
+    lines += ["", f"smallest fault isolated in >= {100 * ISOLATION_LEVEL:.0f} % (at that level "
+              "and every larger one of the study):"]
+    for m in models:
+        for s, per in metrics[m]["smallest_isolated_95"].items():
+            unit = SCENARIOS[s][5]
+            parts = [f"{ax} " + ("not reached" if v is None else f"{v:g} {unit}")
+                     for ax, v in per.items()]
+            lines.append(f"  {m}, {s}: " + ", ".join(parts))
+    return "\n".join(lines)
+
+
+__all__ = ["ISOLATION_LEVEL", "OUTCOMES", "axis_scored", "by_level", "format_metrics", "named",
+           "nominal_rates", "outcome", "rates", "smallest_isolated", "summarize"]
