@@ -1,0 +1,203 @@
+#!/usr/bin/env python3
+"""Regenerate the evaluation of the 3-D model (docs/ins3d_eval.md, issue 15 item 5).
+
+Runs the studies below (each through ``flight-fdi montecarlo --model ins3d``'s code, on the
+campaign engine with ``--jobs`` workers; seeded, so the numbers depend only on the options) and
+writes their JSON to ``--out`` (default out/ins3d_eval/), then renders the generated sections of
+docs/ins3d_eval.md from whatever JSON files exist (``--render-only``: no new runs). A study that
+was cut short leaves no JSON; its section says so.
+
+Studies (``--only`` picks some):
+
+* ``nominal``: ``--nominal`` nominal flights (default 200), ``random`` profile (one seeded
+  trajectory per flight), ``--duration`` s (default 1200), navigation grade: false isolation;
+* ``faults``: ``--per-scenario`` flights (default 30) of each fault scenario (accelerometer and
+  gyro steps and ramps on x/y/z, GNSS jumps east/north; onsets uniform in 10-80 % of the
+  flight), ``cruise_turns`` (turns at 300 s and 985 s, a climb at 620 s), both models;
+* ``ladder``: the smallest accelerometer / gyro step isolated in 95 % per axis, per grade
+  (``--ladder-grades``; ``--ladder-runs`` flights per rung), cruise_turns, 3-D model only.
+
+Progress goes to stderr (one tqdm bar per study) and to ``<out>/progress.log``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import re
+import sys
+import time
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+DOC = REPO / "docs" / "ins3d_eval.md"
+STUDIES = ("nominal", "faults", "ladder")
+
+
+def log(out: pathlib.Path, text: str) -> None:
+    line = f"{time.strftime('%H:%M:%S')} {text}"
+    print(line, file=sys.stderr, flush=True)
+    with (out / "progress.log").open("a", encoding="utf-8") as f:
+        f.write(line + "\n")
+
+
+def run_nominal(args, out: pathlib.Path) -> None:
+    from flight_fdi.eval.montecarlo3d import Study3DConfig, run_study
+
+    cfg = Study3DConfig(nominal=args.nominal, per_scenario=0, duration_s=args.duration,
+                        profile="random", seed=args.seed)
+    stream = (out / "nominal.jsonl").open("w", encoding="utf-8")
+    done = [0]
+
+    def on_record(rec: dict) -> None:
+        stream.write(json.dumps(rec) + "\n")
+        stream.flush()
+        done[0] += 1
+        if done[0] % 10 == 0:
+            log(out, f"nominal: {done[0]}/{args.nominal} flights")
+
+    with stream:
+        res = run_study(cfg, jobs=args.jobs, progress=True, on_record=on_record)
+    (out / "nominal.json").write_text(json.dumps(res.to_dict(), indent=1) + "\n")
+
+
+def run_faults(args, out: pathlib.Path) -> None:
+    from flight_fdi.eval.montecarlo3d import Study3DConfig, run_study
+
+    cfg = Study3DConfig(nominal=0, per_scenario=args.per_scenario, duration_s=args.duration,
+                        profile="cruise_turns", seed=args.seed + 1)
+    res = run_study(cfg, jobs=args.jobs, progress=True)
+    (out / "faults.json").write_text(json.dumps(res.to_dict(), indent=1) + "\n")
+
+
+def run_ladder_study(args, out: pathlib.Path) -> None:
+    from flight_fdi.eval.ladder3d import run_ladder
+    from flight_fdi.eval.montecarlo3d import Study3DConfig
+
+    cfg = Study3DConfig(nominal=0, per_scenario=1, duration_s=args.duration,
+                        profile="cruise_turns", seed=args.seed + 2)
+    grades = tuple(g for g in args.ladder_grades.split(",") if g)
+    lad = run_ladder(cfg, grades, runs=args.ladder_runs, rungs=args.ladder_rungs,
+                     jobs=args.jobs, progress=True)
+    (out / "ladder.json").write_text(json.dumps({"config": cfg.describe(), "ladder": lad},
+                                                indent=1) + "\n")
+
+
+def _load(out: pathlib.Path, name: str) -> dict | None:
+    p = out / f"{name}.json"
+    return json.loads(p.read_text()) if p.exists() else None
+
+
+def _partial(out: pathlib.Path, name: str) -> int:
+    p = out / f"{name}.jsonl"
+    return sum(1 for _ in p.open()) if p.exists() else 0
+
+
+def section_nominal(out: pathlib.Path) -> str:
+    from flight_fdi.eval.metrics3d import summarize
+
+    doc = _load(out, "nominal")
+    if doc is None:
+        n = _partial(out, "nominal")
+        if not n:
+            return "_Not run._"
+        recs = [json.loads(s) for s in (out / "nominal.jsonl").open()]
+        m = summarize(recs)
+        head = f"**Partial: {n} flights finished before the run was stopped.**\n\n"
+    else:
+        m, head = doc["metrics"], _settings(doc) + "\n\n"
+    lines = [head, "| model | nominal flights | false isolation (confident sensor) | "
+             "ambiguous / unexplained | any fault declared | named as |", "|---|---|---|---|---|---|"]
+    for model in m["models"]:
+        x = m[model]["nominal"]
+        lines.append(f"| {model} | {x['n']} | {_pct(x['false_isolation_rate'])} "
+                     f"({x['false_isolations']}) | {x['ambiguous']} | "
+                     f"{_pct(x['false_declaration_rate'])} | "
+                     f"{', '.join(f'{k} {v}' for k, v in x['isolated_as'].items()) or '-'} |")
+    return "\n".join(lines)
+
+
+def section_faults(out: pathlib.Path) -> str:
+    from flight_fdi.eval.metrics3d import format_metrics
+
+    doc = _load(out, "faults")
+    if doc is None:
+        return "_Not run._"
+    text = format_metrics(doc["metrics"])
+    # the nominal table of the fault study is empty (no nominal flights): drop it
+    text = re.sub(r"nominal flights:\n\n(\|.*\n)+\n", "", text)
+    return _settings(doc) + "\n\n" + text
+
+
+def section_ladder(out: pathlib.Path) -> str:
+    from flight_fdi.eval.ladder3d import format_ladder
+
+    doc = _load(out, "ladder")
+    if doc is None:
+        return "_Not run._"
+    lad = doc["ladder"]
+    return (f"Seed {lad['seed']}, {lad['elapsed_s'] / 60:.0f} min on the shared machine.\n\n"
+            + format_ladder(lad))
+
+
+def _settings(doc: dict) -> str:
+    c = doc["config"]
+    return (f"Settings: {sum(doc['metrics']['flights'].values())} flights of "
+            f"{c['duration_s']:g} s, profile `{c['profile']}`, grade {c['grade']}, seed "
+            f"{c['seed']}, GNSS latency {1000 * c['gnss_latency_s']:g} ms + Markov noise, "
+            f"onsets in {c['onset_window'][0]:g}-{c['onset_window'][1]:g} of the flight; "
+            f"{doc['elapsed_s'] / 60:.1f} min on {doc['engine']}.")
+
+
+def _pct(x) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f} %"
+
+
+def render(out: pathlib.Path) -> None:
+    text = DOC.read_text()
+    for name, fn in (("nominal", section_nominal), ("faults", section_faults),
+                     ("ladder", section_ladder)):
+        begin, end = f"<!-- BEGIN GENERATED {name} -->", f"<!-- END GENERATED {name} -->"
+        if begin not in text:
+            continue
+        a, rest = text.split(begin, 1)
+        _, b = rest.split(end, 1)
+        text = f"{a}{begin}\n{fn(out)}\n{end}{b}"
+    DOC.write_text(text)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default=str(REPO / "out" / "ins3d_eval"))
+    ap.add_argument("--only", default=",".join(STUDIES), help="studies to run (comma list)")
+    ap.add_argument("--nominal", type=int, default=200)
+    ap.add_argument("--per-scenario", type=int, default=30)
+    ap.add_argument("--duration", type=float, default=1200.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--ladder-grades", default="navigation,tactical,mems")
+    ap.add_argument("--ladder-runs", type=int, default=10)
+    ap.add_argument("--ladder-rungs", type=int, default=4)
+    ap.add_argument("--render-only", action="store_true")
+    args = ap.parse_args()
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if not args.render_only:
+        runners = {"nominal": run_nominal, "faults": run_faults, "ladder": run_ladder_study}
+        for name in args.only.split(","):
+            if name not in runners:
+                ap.error(f"unknown study {name!r}; choose from {', '.join(STUDIES)}")
+            log(out, f"{name}: start")
+            t0 = time.perf_counter()
+            runners[name](args, out)
+            log(out, f"{name}: done in {(time.perf_counter() - t0) / 60:.1f} min")
+            render(out)
+    render(out)
+    print(f"rendered {DOC.relative_to(REPO)} from {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
