@@ -108,11 +108,12 @@ def section_nominal(out: pathlib.Path) -> str:
     else:
         m, head = doc["metrics"], _settings(doc) + "\n\n"
     lines = [head, "| model | nominal flights | false isolation (confident sensor) | "
-             "ambiguous / unexplained | any fault declared | named as |", "|---|---|---|---|---|---|"]
+             "ambiguous / unexplained | declared, no sensor (seed method) | any fault declared "
+             "| named as |", "|---|---|---|---|---|---|---|"]
     for model in m["models"]:
         x = m[model]["nominal"]
         lines.append(f"| {model} | {x['n']} | {_pct(x['false_isolation_rate'])} "
-                     f"({x['false_isolations']}) | {x['ambiguous']} | "
+                     f"({x['false_isolations']}) | {x['ambiguous']} | {x['unnamed']} | "
                      f"{_pct(x['false_declaration_rate'])} | "
                      f"{', '.join(f'{k} {v}' for k, v in x['isolated_as'].items()) or '-'} |")
     return "\n".join(lines)

@@ -10,7 +10,9 @@ Outcome of one flight for one model (:func:`outcome`):
   any confident isolation -- a *false isolation*);
 * ``ambiguous``: a fault declared but no single sensor named (isolation ``ambiguous``: two
   explanations within the margin, both named; or ``unexplained``). Not a false isolation, but
-  counted: on a nominal flight it is a false *declaration*.
+  counted: on a nominal flight it is a false *declaration*;
+* ``unnamed``: GLR isolates nothing but the verdict still declares a fault (the seed method's
+  chi-square episode: ``failure`` / ``glitch`` without a sensor). Also a declaration.
 
 The single-axis model works on one navigation-frame velocity channel: it can name the sensor but
 not a body axis, so for IMU faults only its right-*sensor* rate is scored (its sensor+axis rate is
@@ -27,18 +29,20 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .montecarlo3d import MODELS, SCENARIOS
+from .montecarlo3d import DECLARED, MODELS, SCENARIOS
 
 ISOLATION_LEVEL = 0.95
-OUTCOMES = ("none", "right", "wrong", "ambiguous")
+OUTCOMES = ("none", "right", "wrong", "ambiguous", "unnamed")
 
 
 def outcome(record: dict, model: str) -> str:
     """The outcome of ``model`` on this flight (see the module docstring)."""
     d = record[model]
     iso = d.get("isolation", "none")
-    if d["verdict"] in ("no_fault", "insufficient_data") or iso == "none":
+    if d["verdict"] not in DECLARED:
         return "none"
+    if iso == "none":
+        return "unnamed"
     if iso != "single":
         return "ambiguous"
     if record["sensor"] is None:
@@ -95,6 +99,7 @@ def rates(records: Sequence[dict], model: str) -> dict:
     out["wrong_rate"] = _rate(oc.count("wrong"), n)
     out["ambiguous_rate"] = _rate(oc.count("ambiguous"), n)
     out["missed_rate"] = _rate(oc.count("none"), n)
+    out["unnamed_rate"] = _rate(oc.count("unnamed"), n)
     out["named_rate"] = _rate(sum(named(r, model) for r in records), n) if scored else None
     out["right_kind"] = sum(r[model]["kind"] == r["kind"] for r in right)
     out["onset_error_s"] = _stats(None if r[model]["onset_s"] is None
@@ -113,7 +118,7 @@ def nominal_rates(records: Sequence[dict], model: str) -> dict:
     n = len(nom)
     return {"n": n, "false_isolations": oc.count("wrong"),
             "false_isolation_rate": _rate(oc.count("wrong"), n),
-            "ambiguous": oc.count("ambiguous"),
+            "ambiguous": oc.count("ambiguous"), "unnamed": oc.count("unnamed"),
             "false_declaration_rate": _rate(n - oc.count("none"), n),
             "isolated_as": _count(r[model]["sensor"] for r, o in zip(nom, oc) if o == "wrong")}
 
@@ -198,19 +203,19 @@ def format_metrics(metrics: dict) -> str:
         lines.append("NOTE: the 3-D post-flight isolator was not available; the 3-D column is "
                      "the forward gate's alarm (declares, names nothing)")
     lines += ["", "nominal flights:", "",
-              "| model | n | false isolation | ambiguous / unexplained | any fault declared |",
-              "|---|---|---|---|---|"]
+              "| model | n | false isolation | ambiguous / unexplained | declared, no sensor "
+              "(seed method) | any fault declared |", "|---|---|---|---|---|---|"]
     for m in models:
         nr = metrics[m]["nominal"]
         lines.append(f"| {m} | {nr['n']} | {_pct(nr['false_isolation_rate'])} "
-                     f"({nr['false_isolations']}) | {nr['ambiguous']} | "
+                     f"({nr['false_isolations']}) | {nr['ambiguous']} | {nr['unnamed']} | "
                      f"{_pct(nr['false_declaration_rate'])} |")
     lines += ["", "faulty flights (right = isolated, right sensor and axis; single-axis: sensor "
               "only for IMU faults):", "",
               "| scenario | model | n | right sensor+axis | right sensor | ambiguous | "
-              "named | wrong (confident) | missed | median abs onset err s | "
-              "median magnitude err | right in turn | right straight |",
-              "|---" * 13 + "|"]
+              "named | wrong (confident) | declared, no sensor | missed | "
+              "median abs onset err s | median magnitude err | right in turn | right straight |",
+              "|---" * 14 + "|"]
     for s in SCENARIOS:
         for m in models:
             if s not in metrics[m]["scenarios"]:
@@ -221,7 +226,8 @@ def format_metrics(metrics: dict) -> str:
             lines.append(
                 f"| {s} | {m} | {a['n']} | {_pct(a['right_rate'])} | "
                 f"{_pct(a['right_sensor_rate'])} | {_pct(a['ambiguous_rate'])} | "
-                f"{_pct(a['named_rate'])} | {_pct(a['wrong_rate'])} | {_pct(a['missed_rate'])} | "
+                f"{_pct(a['named_rate'])} | {_pct(a['wrong_rate'])} | {_pct(a['unnamed_rate'])} | "
+                f"{_pct(a['missed_rate'])} | "
                 f"{_num(a['onset_error_s']['median_abs'])} | "
                 f"{_pct(a['magnitude_error']['median'])} | "
                 f"{_pct(x['in_turn'][key])} ({x['in_turn']['n']}) | "

@@ -47,6 +47,8 @@ def test_outcomes_wrong_axis_is_wrong_and_ambiguous_is_counted():
     assert outcome(accel(0, dec()), "ins3d") == "none"
     # a verdict without a fault is 'none' whatever the isolation field says
     assert outcome(accel(0, dec("insufficient_data", "single", "gyro", "x")), "ins3d") == "none"
+    # the seed method's episode without a GLR sensor: declared, nothing named
+    assert outcome(accel(0, dec("failure", "none")), "ins3d") == "unnamed"
 
 
 def test_single_axis_is_scored_on_the_sensor_for_body_axis_faults_only():
@@ -82,12 +84,12 @@ def test_rates_on_a_hand_made_set():
 def test_nominal_flights_false_isolation_versus_declaration():
     nom = [rec(i, "nominal", d) for i, d in enumerate(
         [dec(), dec(), single("gyro", "z"), dec("ambiguous", "ambiguous"),
-         dec("ambiguous", "unexplained")])]
+         dec("ambiguous", "unexplained"), dec("glitch", "none")])]
     x = nominal_rates(nom, "ins3d")
-    assert x["n"] == 5 and x["false_isolations"] == 1
-    assert x["false_isolation_rate"] == pytest.approx(0.2)
-    assert x["ambiguous"] == 2
-    assert x["false_declaration_rate"] == pytest.approx(0.6)
+    assert x["n"] == 6 and x["false_isolations"] == 1
+    assert x["false_isolation_rate"] == pytest.approx(1 / 6)
+    assert x["ambiguous"] == 2 and x["unnamed"] == 1
+    assert x["false_declaration_rate"] == pytest.approx(4 / 6)
     assert x["isolated_as"] == {"gyro": 1}
 
 
