@@ -10,12 +10,16 @@ was cut short leaves no JSON; its section says so.
 Studies (``--only`` picks some):
 
 * ``nominal``: ``--nominal`` nominal flights (default 200), ``random`` profile (one seeded
-  trajectory per flight), ``--duration`` s (default 1200), navigation grade: false isolation;
+  trajectory per flight), ``--nominal-duration`` s (default 900), navigation grade: false
+  isolation of both models;
 * ``faults``: ``--per-scenario`` flights (default 30) of each fault scenario (accelerometer and
   gyro steps and ramps on x/y/z, GNSS jumps east/north; onsets uniform in 10-80 % of the
   flight), ``cruise_turns`` (turns at 300 s and 985 s, a climb at 620 s), both models;
-* ``ladder``: the smallest accelerometer / gyro step isolated in 95 % per axis, per grade
-  (``--ladder-grades``; ``--ladder-runs`` flights per rung), cruise_turns, 3-D model only.
+* ``ladder``: the smallest accelerometer / gyro step isolated in 95 % per axis, navigation grade
+  (``--ladder-runs`` flights per rung, default 10; ``--ladder-rungs``), cruise_turns of
+  ``--duration`` s, 3-D model only;
+* ``ladder_grades``: the same for the other presets (``--ladder-grades``, default
+  tactical,mems; ``--grades-runs`` flights per rung, default 5; ``--grades-rungs``, default 3).
 
 Progress goes to stderr (one tqdm bar per study) and to ``<out>/progress.log``.
 """
@@ -32,7 +36,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 DOC = REPO / "docs" / "ins3d_eval.md"
-STUDIES = ("nominal", "faults", "ladder")
+STUDIES = ("nominal", "faults", "ladder", "ladder_grades")
 
 
 def log(out: pathlib.Path, text: str) -> None:
@@ -45,8 +49,8 @@ def log(out: pathlib.Path, text: str) -> None:
 def run_nominal(args, out: pathlib.Path) -> None:
     from flight_fdi.eval.montecarlo3d import Study3DConfig, run_study
 
-    cfg = Study3DConfig(nominal=args.nominal, per_scenario=0, duration_s=args.duration,
-                        profile="random", seed=args.seed)
+    cfg = Study3DConfig(nominal=args.nominal, per_scenario=0,
+                        duration_s=args.nominal_duration, profile="random", seed=args.seed)
     stream = (out / "nominal.jsonl").open("w", encoding="utf-8")
     done = [0]
 
@@ -71,17 +75,24 @@ def run_faults(args, out: pathlib.Path) -> None:
     (out / "faults.json").write_text(json.dumps(res.to_dict(), indent=1) + "\n")
 
 
-def run_ladder_study(args, out: pathlib.Path) -> None:
+def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs: int) -> None:
     from flight_fdi.eval.ladder3d import run_ladder
     from flight_fdi.eval.montecarlo3d import Study3DConfig
 
     cfg = Study3DConfig(nominal=0, per_scenario=1, duration_s=args.duration,
                         profile="cruise_turns", seed=args.seed + 2)
+    lad = run_ladder(cfg, grades, runs=runs, rungs=rungs, jobs=args.jobs, progress=True)
+    (out / f"{name}.json").write_text(json.dumps({"config": cfg.describe(), "ladder": lad},
+                                                 indent=1) + "\n")
+
+
+def run_ladder_study(args, out: pathlib.Path) -> None:
+    _ladder(args, out, "ladder", ("navigation",), args.ladder_runs, args.ladder_rungs)
+
+
+def run_ladder_grades(args, out: pathlib.Path) -> None:
     grades = tuple(g for g in args.ladder_grades.split(",") if g)
-    lad = run_ladder(cfg, grades, runs=args.ladder_runs, rungs=args.ladder_rungs,
-                     jobs=args.jobs, progress=True)
-    (out / "ladder.json").write_text(json.dumps({"config": cfg.describe(), "ladder": lad},
-                                                indent=1) + "\n")
+    _ladder(args, out, "ladder_grades", grades, args.grades_runs, args.grades_rungs)
 
 
 def _load(out: pathlib.Path, name: str) -> dict | None:
@@ -134,12 +145,16 @@ def section_faults(out: pathlib.Path) -> str:
 def section_ladder(out: pathlib.Path) -> str:
     from flight_fdi.eval.ladder3d import format_ladder
 
-    doc = _load(out, "ladder")
-    if doc is None:
-        return "_Not run._"
-    lad = doc["ladder"]
-    return (f"Seed {lad['seed']}, {lad['elapsed_s'] / 60:.0f} min on the shared machine.\n\n"
-            + format_ladder(lad))
+    parts = []
+    for name in ("ladder", "ladder_grades"):
+        doc = _load(out, name)
+        if doc is None:
+            parts.append(f"_{name}: not run._")
+            continue
+        lad = doc["ladder"]
+        parts.append(f"Seed {lad['seed']}, {lad['elapsed_s'] / 60:.1f} min on the shared "
+                     f"machine.\n\n" + format_ladder(lad))
+    return "\n\n".join(parts)
 
 
 def _settings(doc: dict) -> str:
@@ -176,17 +191,21 @@ def main() -> int:
     ap.add_argument("--nominal", type=int, default=200)
     ap.add_argument("--per-scenario", type=int, default=30)
     ap.add_argument("--duration", type=float, default=1200.0)
+    ap.add_argument("--nominal-duration", type=float, default=900.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--ladder-grades", default="navigation,tactical,mems")
     ap.add_argument("--ladder-runs", type=int, default=10)
     ap.add_argument("--ladder-rungs", type=int, default=4)
+    ap.add_argument("--ladder-grades", default="tactical,mems")
+    ap.add_argument("--grades-runs", type=int, default=5)
+    ap.add_argument("--grades-rungs", type=int, default=3)
     ap.add_argument("--render-only", action="store_true")
     args = ap.parse_args()
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if not args.render_only:
-        runners = {"nominal": run_nominal, "faults": run_faults, "ladder": run_ladder_study}
+        runners = {"nominal": run_nominal, "faults": run_faults, "ladder": run_ladder_study,
+                   "ladder_grades": run_ladder_grades}
         for name in args.only.split(","):
             if name not in runners:
                 ap.error(f"unknown study {name!r}; choose from {', '.join(STUDIES)}")

@@ -61,9 +61,10 @@ def test_records_do_not_depend_on_the_worker_count():
     assert set(r["single_axis"]["channels"]) == {"east", "north"}
 
 
-def test_ladder_climbs_down_until_a_rung_falls_short(monkeypatch):
-    """The rungs run until the right rate drops below 95 %; the smallest level is the last
-    passing rung; a group whose top rung fails reports none."""
+def test_ladder_climbs_down_while_it_passes_and_up_while_it_fails(monkeypatch):
+    """From a passing top the rungs go down until the right rate drops below 95 % (the smallest
+    level is the last passing rung); from a failing top they go up until one passes; a group
+    that never passes reports none."""
     calls = []
 
     def fake_run_cases(cases, config, jobs=1, progress=False, on_record=None, scheduler=None,
@@ -71,8 +72,9 @@ def test_ladder_climbs_down_until_a_rung_falls_short(monkeypatch):
         calls.append(len(cases))
         out = []
         for c in cases:
-            # accelerometer: isolated down to 0.25 mg; gyro: never on z
-            ok = (c.level >= 0.25) if c.scenario == "accel_step" else c.axis != "z"
+            # accelerometer: isolated down to 0.25 mg; gyro x/y from 0.8 deg/h up; z never
+            ok = (c.level >= 0.25) if c.scenario == "accel_step" else \
+                (c.axis != "z" and c.level >= 0.8)
             iso = {"verdict": "failure", "isolation": "single", "sensor": c.sensor,
                    "axis": c.axis, "kind": c.kind, "onset_s": c.onset_s,
                    "magnitude": c.magnitude, "candidates": []}
@@ -86,9 +88,15 @@ def test_ladder_climbs_down_until_a_rung_falls_short(monkeypatch):
     acc = by[("accel_step", "x")]
     assert [r["level"] for r in acc["rungs"]] == [1.0, 0.5, 0.25, 0.125]
     assert acc["smallest_95"] == 0.25 and not acc["bottom_reached"]
-    assert by[("gyro_step", "z")]["smallest_95"] is None
-    assert len(by[("gyro_step", "z")]["rungs"]) == 1
+    assert acc["direction"] == "down" and acc["rungs"][3]["wrong"] == 4
     gx = by[("gyro_step", "x")]
-    assert gx["smallest_95"] == 0.025 and gx["bottom_reached"]
-    assert calls == [6 * 4, 5 * 4, 5 * 4, 5 * 4]       # gyro z stopped after the first rung
-    assert "not reached (> 0.2 deg/h)" in ladder3d.format_ladder(lad)
+    assert gx["direction"] == "up"
+    assert [r["level"] for r in gx["rungs"]] == [0.2, 0.4, 0.8]
+    assert gx["smallest_95"] == 0.8
+    gz = by[("gyro_step", "z")]
+    assert [r["level"] for r in gz["rungs"]] == [0.2, 0.4, 0.8, 1.6]
+    assert gz["smallest_95"] is None
+    assert calls == [6 * 4, 6 * 4, 6 * 4, 4 * 4]     # gyro x/y stop once they pass at 0.8
+    text = ladder3d.format_ladder(lad)
+    assert "| navigation | gyro_step | z | not reached (> 1.6 deg/h) |" in text
+    assert "| navigation | accel_step | y | 0.25 mg |" in text
