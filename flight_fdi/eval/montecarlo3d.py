@@ -240,6 +240,8 @@ def decision(post: dict) -> dict:
 
     fault = post.get("fault")
     out = {"verdict": post["verdict"], "isolation": post.get("isolation", "none"),
+           "ambiguity_resolved_s": post.get("ambiguity_resolved_s"),
+           "element": post.get("element"),
            "sensor": None, "axis": None, "kind": None, "onset_s": None, "magnitude": None,
            "statistic": None, "threshold": None,
            "candidates": [brief(c) for c in post.get("candidates") or []]}
@@ -253,21 +255,14 @@ def decision(post: dict) -> dict:
 
 
 def ins3d_post_flight(flight, config: Study3DConfig, grade: str) -> tuple[dict, dict]:
-    """(post_flight section, extras) of the 3-D analysis of one flight."""
+    """(post_flight section, in-flight alarm count) of the 3-D analysis of one flight."""
     from flight_fdi.bagio.ins3d_input import from_flight
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
 
     inp = from_flight(flight)
     an = analyze_ins3d(inp.steps, inp.refs, grade=grade, rows=config.rows,
-                       gate=config.analysis.gate)
-    alarms = len(an.summary()["alarms_raised_s"])
-    if hasattr(an, "post_flight_dict"):
-        return an.post_flight_dict(), {"alarms": alarms, "stand_in": False}
-    # stand-in until the post-flight isolator is merged: an alarm of the forward gate is a
-    # declared fault that names nothing
-    verdict = "ambiguous" if alarms else "no_fault"
-    return ({"verdict": verdict, "isolation": "unexplained" if alarms else "none",
-             "fault": None, "candidates": []}, {"alarms": alarms, "stand_in": True})
+                       gate=config.analysis.gate, with_observability=False)
+    return an.post_flight_dict(), {"alarms": len(an.summary()["alarms_raised_s"])}
 
 
 def single_axis_channels(flight, config: Study3DConfig) -> dict[str, dict]:
