@@ -58,11 +58,12 @@ def flight_input(duration_s: float, jitter_ms: float, seed: int = 1):
 
 
 def project(inp, grade: str = "navigation") -> tuple[float, object]:
-    """(wall s, analysis) of the project's 3-D analysis of the input."""
+    """(wall s, analysis) of the project's 3-D analysis of the input: forward filter, backward
+    information filter, two-filter chi^2 with the seed method, GLR isolation, the post_flight
+    section (the observability Gramian, a report item, is left out)."""
     t0 = time.perf_counter()
-    an = analyze_ins3d(inp.steps, inp.refs, grade=grade, rows=2)
-    if hasattr(an, "post_flight_dict"):
-        an.post_flight_dict()
+    an = analyze_ins3d(inp.steps, inp.refs, grade=grade, rows=2, with_observability=False)
+    an.post_flight_dict()
     return time.perf_counter() - t0, an
 
 
@@ -135,11 +136,10 @@ def compare(label: str, span_s: float, jitter_ms: float, grade: str, repeat: int
     fwd = run_forward(model, steps, refs, P0=P0)
     m = min(nu_fp.shape[0], fwd.nu.shape[0])
     rel = float(np.max(np.abs(nu_fp[:m] - fwd.nu[:m])) / np.max(np.abs(fwd.nu[:m])))
-    post = hasattr(an, "post_flight_dict")
     print(f"{label}: {span_s:.0f} s, {len(inp.steps)} INS steps at 100 Hz -> {k} filter steps, "
           f"{refs.t.size} GNSS updates, {model.n} states; best of {repeat}")
-    print(f"  project analyze_ins3d ({'forward, backward, chi2, GLR' if post else 'forward + observability only: the post-flight isolator is not merged'})"
-          f": {wall_ours:.3f} s ({1e6 * wall_ours / k:.1f} us/step)")
+    print(f"  project analyze_ins3d (forward, backward, chi2, GLR, post_flight): "
+          f"{wall_ours:.3f} s ({1e6 * wall_ours / k:.1f} us/step)")
     print(f"  FilterPy filter + RTS (Phi_k, Q_k given): {wall_fp:.3f} s "
           f"({1e6 * wall_fp / k:.1f} us/step); innovations vs the project's forward filter: "
           f"max rel. difference {rel:.1e}")
@@ -150,22 +150,30 @@ def compare(label: str, span_s: float, jitter_ms: float, grade: str, repeat: int
     print(f"  ratio FilterPy / project: {ratio:.1f}x filter + RTS only, {ratio_all:.1f}x with "
           f"Phi_k, Q_k (target >= {TARGET_RATIO:g}x) -> "
           f"{'PASS' if ratio >= TARGET_RATIO else 'FAIL'}")
-    return {"ratio": ratio, "ratio_with_phi": ratio_all, "ours_per_step": wall_ours / k, "same_filter": rel < 1e-6,
-            "post_flight": post}
+    return {"ratio": ratio, "ratio_with_phi": ratio_all, "ours_per_step": wall_ours / k,
+            "same_filter": rel < 1e-6}
 
 
 def two_hours(flight_s: float, full: bool, grade: str) -> None:
-    dur = 7200.0 if full else flight_s
-    t0 = time.perf_counter()
-    inp = flight_input(dur, 0.0)
-    sim = time.perf_counter() - t0
-    wall, an = project(inp, grade)
-    k = len(inp.steps)
-    scaled = wall * 720000 / k
-    what = "measured" if full else f"measured on {dur:.0f} s ({k} steps) and scaled x{720000 / k:.1f}"
-    print(f"2-hour flight (720 000 steps at 100 Hz, 72 000 GNSS updates), {what}: "
-          f"{scaled:.2f} s (simulation {sim:.1f} s, not counted) -> "
-          f"{'PASS' if scaled <= TARGET_2H_S else 'FAIL'} (target <= {TARGET_2H_S:g} s)")
+    """The 2-hour flight: measured (``full``), or measured on ``flight_s`` / 2 and ``flight_s``
+    and extrapolated (linearly, and with the exponent the two lengths show)."""
+    if full:
+        inp = flight_input(7200.0, 0.0)
+        wall, _ = project(inp, grade)
+        print(f"2-hour flight (720 000 INS steps at 100 Hz, 72 000 GNSS updates), measured: "
+              f"{wall:.2f} s -> {'PASS' if wall <= TARGET_2H_S else 'FAIL'} "
+              f"(target <= {TARGET_2H_S:g} s)")
+        return
+    walls = [project(flight_input(d, 0.0), grade)[0] for d in (flight_s / 2, flight_s)]
+    p = float(np.log2(walls[1] / walls[0]))
+    lin = walls[1] * 7200.0 / flight_s
+    powr = walls[1] * (7200.0 / flight_s) ** max(p, 1.0)
+    print(f"2-hour flight (720 000 INS steps at 100 Hz, 72 000 GNSS updates), not run whole: "
+          f"{flight_s / 2:.0f} s took {walls[0]:.2f} s, {flight_s:.0f} s took {walls[1]:.2f} s "
+          f"(growth exponent {p:.2f}); scaled to 7200 s: {lin:.1f} s linearly"
+          + (f", {powr:.1f} s with the exponent" if p > 1.05 else "")
+          + f" -> {'PASS' if max(lin, powr) <= TARGET_2H_S else 'FAIL'} "
+          f"(target <= {TARGET_2H_S:g} s; --full runs the whole flight)")
 
 
 def main() -> int:
