@@ -19,7 +19,10 @@ Studies (``--only`` picks some):
   (``--ladder-runs`` flights per rung, default 10; ``--ladder-rungs``), cruise_turns of
   ``--duration`` s, 3-D model only;
 * ``ladder_grades``: the same for the other presets (``--ladder-grades``, default
-  tactical,mems; ``--grades-runs`` flights per rung, default 5; ``--grades-rungs``, default 3).
+  tactical,mems; ``--grades-runs`` flights per rung, default 5; ``--grades-rungs``, default 3);
+* ``latency``: a GNSS receiver with ``--latency-ms`` (default 80) of latency instead of 20:
+  ``--latency-nominal`` nominal flights (default 50, random profile) and ``--latency-per``
+  flights (default 12) of accelerometer steps, gyro steps and GNSS jumps (cruise_turns).
 
 Progress goes to stderr (one tqdm bar per study) and to ``<out>/progress.log``.
 """
@@ -36,7 +39,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 DOC = REPO / "docs" / "ins3d_eval.md"
-STUDIES = ("nominal", "faults", "ladder", "ladder_grades")
+STUDIES = ("nominal", "faults", "ladder", "ladder_grades", "latency")
 
 
 def commit() -> str:
@@ -88,6 +91,27 @@ def run_faults(args, out: pathlib.Path) -> None:
                         profile="cruise_turns", seed=args.seed + 1)
     res = run_study(cfg, jobs=args.jobs, progress=True)
     _save(out, "faults", res.to_dict())
+
+
+def run_latency(args, out: pathlib.Path) -> None:
+    from flight_fdi.eval.metrics3d import summarize
+    from flight_fdi.eval.montecarlo3d import Study3DConfig, run_study
+
+    lat = args.latency_ms / 1000.0
+    nom = run_study(Study3DConfig(nominal=args.latency_nominal, per_scenario=0,
+                                  duration_s=args.nominal_duration, profile="random",
+                                  gnss_latency_s=lat, seed=args.seed + 3),
+                    jobs=args.jobs, progress=True)
+    flt = run_study(Study3DConfig(nominal=0, per_scenario=args.latency_per,
+                                  scenarios=("accel_step", "gyro_step", "ref_jump"),
+                                  duration_s=args.duration, profile="cruise_turns",
+                                  gnss_latency_s=lat, seed=args.seed + 4),
+                    jobs=args.jobs, progress=True)
+    recs = nom.records + [{**r, "index": r["index"] + len(nom.records)} for r in flt.records]
+    doc = {"config": {"nominal": nom.config.describe(), "faults": flt.config.describe()},
+           "latency_ms": args.latency_ms, "elapsed_s": nom.elapsed_s + flt.elapsed_s,
+           "metrics": summarize(recs), "flights": recs}
+    _save(out, "latency", doc)
 
 
 def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs: int) -> None:
@@ -172,6 +196,21 @@ def section_ladder(out: pathlib.Path) -> str:
     return "\n\n".join(parts)
 
 
+def section_latency(out: pathlib.Path) -> str:
+    from flight_fdi.eval.metrics3d import format_metrics
+
+    doc = _load(out, "latency")
+    if doc is None:
+        return "_Not run._"
+    c = doc["config"]
+    return (f"GNSS latency {doc['latency_ms']:g} ms (the model estimates it as a state): "
+            f"{c['nominal']['nominal']} nominal flights of {c['nominal']['duration_s']:g} s "
+            f"(`random`, seed {c['nominal']['seed']}) and {c['faults']['per_scenario']} flights "
+            f"per fault scenario of {c['faults']['duration_s']:g} s (`cruise_turns`, seed "
+            f"{c['faults']['seed']}); {doc['elapsed_s'] / 60:.1f} min; code "
+            f"{doc.get('commit', '?')}.\n\n" + format_metrics(doc["metrics"]))
+
+
 def _settings(doc: dict) -> str:
     c = doc["config"]
     return (f"Settings: {sum(doc['metrics']['flights'].values())} flights of "
@@ -188,7 +227,7 @@ def _pct(x) -> str:
 def render(out: pathlib.Path) -> None:
     text = DOC.read_text()
     for name, fn in (("nominal", section_nominal), ("faults", section_faults),
-                     ("ladder", section_ladder)):
+                     ("ladder", section_ladder), ("latency", section_latency)):
         begin, end = f"<!-- BEGIN GENERATED {name} -->", f"<!-- END GENERATED {name} -->"
         if begin not in text:
             continue
@@ -214,13 +253,16 @@ def main() -> int:
     ap.add_argument("--ladder-grades", default="tactical,mems")
     ap.add_argument("--grades-runs", type=int, default=5)
     ap.add_argument("--grades-rungs", type=int, default=3)
+    ap.add_argument("--latency-ms", type=float, default=80.0)
+    ap.add_argument("--latency-nominal", type=int, default=50)
+    ap.add_argument("--latency-per", type=int, default=12)
     ap.add_argument("--render-only", action="store_true")
     args = ap.parse_args()
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if not args.render_only:
         runners = {"nominal": run_nominal, "faults": run_faults, "ladder": run_ladder_study,
-                   "ladder_grades": run_ladder_grades}
+                   "ladder_grades": run_ladder_grades, "latency": run_latency}
         for name in args.only.split(","):
             if name not in runners:
                 ap.error(f"unknown study {name!r}; choose from {', '.join(STUDIES)}")
