@@ -153,7 +153,8 @@ def section_nominal(out: pathlib.Path) -> str:
             return "_Not run._"
         recs = [json.loads(s) for s in (out / "nominal.jsonl").open()]
         m = summarize(recs)
-        head = f"**Partial: {n} flights finished before the run was stopped.**\n\n"
+        head = (f"**Partial: {n} of the planned flights had finished when this was rendered "
+                f"(the run did not complete).**\n\n")
     else:
         m, head = doc["metrics"], _settings(doc) + "\n\n"
     lines = [head, "| model | nominal flights | false isolation (confident sensor) | "
