@@ -52,8 +52,8 @@ def commit() -> str:
     return rev + ("+changes" if dirty else "")
 
 
-def _save(out: pathlib.Path, name: str, doc: dict) -> None:
-    doc["commit"] = commit()
+def _save(out: pathlib.Path, name: str, doc: dict, code: str | None = None) -> None:
+    doc["commit"] = code or commit()
     (out / f"{name}.json").write_text(json.dumps(doc, indent=1) + "\n")
 
 
@@ -81,7 +81,7 @@ def run_nominal(args, out: pathlib.Path) -> None:
 
     with stream:
         res = run_study(cfg, jobs=args.jobs, progress=True, on_record=on_record)
-    _save(out, "nominal", res.to_dict())
+    _save(out, "nominal", res.to_dict(), args.code)
 
 
 def run_faults(args, out: pathlib.Path) -> None:
@@ -90,7 +90,7 @@ def run_faults(args, out: pathlib.Path) -> None:
     cfg = Study3DConfig(nominal=0, per_scenario=args.per_scenario, duration_s=args.duration,
                         profile="cruise_turns", seed=args.seed + 1)
     res = run_study(cfg, jobs=args.jobs, progress=True)
-    _save(out, "faults", res.to_dict())
+    _save(out, "faults", res.to_dict(), args.code)
 
 
 def run_latency(args, out: pathlib.Path) -> None:
@@ -111,7 +111,7 @@ def run_latency(args, out: pathlib.Path) -> None:
     doc = {"config": {"nominal": nom.config.describe(), "faults": flt.config.describe()},
            "latency_ms": args.latency_ms, "elapsed_s": nom.elapsed_s + flt.elapsed_s,
            "metrics": summarize(recs), "flights": recs}
-    _save(out, "latency", doc)
+    _save(out, "latency", doc, args.code)
 
 
 def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs: int) -> None:
@@ -121,7 +121,7 @@ def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs:
     cfg = Study3DConfig(nominal=0, per_scenario=1, duration_s=args.duration,
                         profile="cruise_turns", seed=args.seed + 2)
     lad = run_ladder(cfg, grades, runs=runs, rungs=rungs, jobs=args.jobs, progress=True)
-    _save(out, name, {"config": cfg.describe(), "ladder": lad})
+    _save(out, name, {"config": cfg.describe(), "ladder": lad}, args.code)
 
 
 def run_ladder_study(args, out: pathlib.Path) -> None:
@@ -267,7 +267,8 @@ def main() -> int:
         for name in args.only.split(","):
             if name not in runners:
                 ap.error(f"unknown study {name!r}; choose from {', '.join(STUDIES)}")
-            log(out, f"{name}: start")
+            args.code = commit()
+            log(out, f"{name}: start (code {args.code})")
             t0 = time.perf_counter()
             runners[name](args, out)
             log(out, f"{name}: done in {(time.perf_counter() - t0) / 60:.1f} min")
