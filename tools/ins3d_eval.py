@@ -156,7 +156,7 @@ def section_nominal(out: pathlib.Path) -> str:
         head = (f"**Partial: {n} of the planned flights had finished when this was rendered "
                 f"(the run did not complete).**\n\n")
     else:
-        m, head = doc["metrics"], _settings(doc) + "\n\n"
+        m, head = summarize(doc["flights"]), _settings(doc) + "\n\n"
     lines = [head, "| model | nominal flights | false isolation (confident sensor) | "
              "ambiguous / unexplained | declared, no sensor (seed method) | any fault declared "
              "| named as |", "|---|---|---|---|---|---|---|"]
@@ -170,12 +170,12 @@ def section_nominal(out: pathlib.Path) -> str:
 
 
 def section_faults(out: pathlib.Path) -> str:
-    from flight_fdi.eval.metrics3d import format_metrics
+    from flight_fdi.eval.metrics3d import format_metrics, summarize
 
     doc = _load(out, "faults")
     if doc is None:
         return "_Not run._"
-    text = format_metrics(doc["metrics"])
+    text = format_metrics(summarize(doc["flights"]))
     # the nominal table of the fault study is empty (no nominal flights): drop it
     text = re.sub(r"nominal flights:\n\n(\|.*\n)+\n", "", text)
     return _settings(doc) + "\n\n" + text
@@ -198,7 +198,7 @@ def section_ladder(out: pathlib.Path) -> str:
 
 
 def section_latency(out: pathlib.Path) -> str:
-    from flight_fdi.eval.metrics3d import format_metrics
+    from flight_fdi.eval.metrics3d import format_metrics, summarize
 
     doc = _load(out, "latency")
     if doc is None:
@@ -209,7 +209,7 @@ def section_latency(out: pathlib.Path) -> str:
             f"(`random`, seed {c['nominal']['seed']}) and {c['faults']['per_scenario']} flights "
             f"per fault scenario of {c['faults']['duration_s']:g} s (`cruise_turns`, seed "
             f"{c['faults']['seed']}); {doc['elapsed_s'] / 60:.1f} min; code "
-            f"{doc.get('commit', '?')}.\n\n" + format_metrics(doc["metrics"]))
+            f"{doc.get('commit', '?')}.\n\n" + format_metrics(summarize(doc["flights"])))
 
 
 def _settings(doc: dict) -> str:

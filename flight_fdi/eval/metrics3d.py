@@ -19,7 +19,8 @@ not a body axis, so for IMU faults only its right-*sensor* rate is scored (its s
 ``None``); for GNSS jumps its axis is the channel (east / north) and is scored.
 
 Onset error: estimated minus true onset over the ``right`` flights (median of the absolute value
-is the issue's target, <= 5 s); magnitude error: estimated / true - 1 over the same flights.
+is the issue's target, <= 5 s); magnitude error: estimated / true - 1 over the right flights
+whose kind is right too (a ramp reported as a step has a magnitude in other units).
 Smallest fault isolated in 95 %: the smallest level from which the rate of ``right`` is >= 95 %
 at that level and at every larger level (per scenario and axis).
 """
@@ -102,11 +103,12 @@ def rates(records: Sequence[dict], model: str) -> dict:
     out["unnamed_rate"] = _rate(oc.count("unnamed"), n)
     out["named_rate"] = _rate(sum(named(r, model) for r in records), n) if scored else None
     out["right_kind"] = sum(r[model]["kind"] == r["kind"] for r in right)
+    out["right_kind_rate"] = _rate(out["right_kind"], n) if scored else None
     out["onset_error_s"] = _stats(None if r[model]["onset_s"] is None
                                   else r[model]["onset_s"] - r["onset_s"] for r in right)
     out["magnitude_error"] = _stats(None if r[model]["magnitude"] is None or not r["magnitude"]
                                     else r[model]["magnitude"] / r["magnitude"] - 1.0
-                                    for r in right)
+                                    for r in right if r[model]["kind"] == r["kind"])
     return out
 
 
@@ -209,9 +211,9 @@ def format_metrics(metrics: dict) -> str:
     lines += ["", "faulty flights (right = isolated, right sensor and axis; single-axis: sensor "
               "only for IMU faults):", "",
               "| scenario | model | n | right sensor+axis | right sensor | ambiguous | "
-              "named | wrong (confident) | declared, no sensor | missed | "
-              "median abs onset err s | median magnitude err | right in turn | right straight |",
-              "|---" * 14 + "|"]
+              "named | wrong (confident) | declared, no sensor | missed | right sensor+axis+kind "
+              "| median abs onset err s | median magnitude err | right in turn | right straight |",
+              "|---" * 15 + "|"]
     for s in SCENARIOS:
         for m in models:
             if s not in metrics[m]["scenarios"]:
@@ -223,7 +225,7 @@ def format_metrics(metrics: dict) -> str:
                 f"| {s} | {m} | {a['n']} | {_pct(a['right_rate'])} | "
                 f"{_pct(a['right_sensor_rate'])} | {_pct(a['ambiguous_rate'])} | "
                 f"{_pct(a['named_rate'])} | {_pct(a['wrong_rate'])} | {_pct(a['unnamed_rate'])} | "
-                f"{_pct(a['missed_rate'])} | "
+                f"{_pct(a['missed_rate'])} | {_pct(a['right_kind_rate'])} | "
                 f"{_num(a['onset_error_s']['median_abs'])} | "
                 f"{_pct(a['magnitude_error']['median'])} | "
                 f"{_pct(x['in_turn'][key])} ({x['in_turn']['n']}) | "
