@@ -221,6 +221,20 @@ def _strongest_episode(t: np.ndarray, J: np.ndarray, viol_k: np.ndarray, full: i
     return max(episodes, key=lambda ep: float(J[ep[2]])) if episodes else None
 
 
+def _diagnosis_config(config: DiagnosisConfig | None, settings: dict) -> DiagnosisConfig:
+    """``config``, or a DiagnosisConfig of the keyword ``settings`` (CoreError when invalid)."""
+    if config is None:
+        try:
+            config = DiagnosisConfig(**settings)
+        except TypeError as exc:
+            raise CoreError(f"diagnose: {exc}") from None
+    elif settings:
+        raise CoreError("diagnose: give either config or keyword settings, not both")
+    if not isinstance(config, DiagnosisConfig):
+        raise CoreError(f"diagnose: config must be a DiagnosisConfig, got {type(config).__name__}")
+    return config
+
+
 def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
              config: DiagnosisConfig | None = None, **settings: Any) -> SeedDiagnosis:
     """The seed method over a record: J, its element terms, the Fisher statistics, a verdict.
@@ -254,15 +268,7 @@ def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
     * verdict: Fisher violated on the episode's element -> ``failure`` (J and F together);
       only on other elements -> ``ambiguous``; on none -> ``glitch`` (J alone).
     """
-    if config is None:
-        try:
-            config = DiagnosisConfig(**settings)
-        except TypeError as exc:
-            raise CoreError(f"diagnose: {exc}") from None
-    elif settings:
-        raise CoreError("diagnose: give either config or keyword settings, not both")
-    if not isinstance(config, DiagnosisConfig):
-        raise CoreError(f"diagnose: config must be a DiagnosisConfig, got {type(config).__name__}")
+    config = _diagnosis_config(config, settings)
     n = model.n
     N = len(fwd.t)
     if len(bwd.t) != N:

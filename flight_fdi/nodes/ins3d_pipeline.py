@@ -15,17 +15,11 @@ of the replay the filter is flushed (``Ins3dMode.finish``) before the recording 
 """
 from __future__ import annotations
 
-import signal
 import time
 from pathlib import Path
 from typing import Any
 
-from flight_fdi.bagio.errors import BagError
-
-from .errors import ParameterError
-from .pipeline import (PipelineError, PipelineRun, Progress, _private_context, _spin_until,
-                       smoother_result, teardown)
-from .runner import StopSignals, make_executor
+from .pipeline import Graph, PipelineRun, Progress
 
 ACK_WINDOW = 60
 WAIT_S = 5.0
@@ -60,8 +54,6 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
     before any node exists (BagError). Leaves ``recording/`` and ``result.json`` in
     ``out_dir``."""
-    from rclpy.parameter import Parameter
-
     from flight_fdi.bagio.ins3d_input import check_topics
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.gate import GateConfig
@@ -79,74 +71,43 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recording, result_json = out / "recording", out / "result.json"
-    deadline = time.monotonic() + timeout_s
-    with StopSignals((signal.SIGINT,)) as stop, \
-            _private_context(["--log-level", log_level]) as ctx:
-        ex = make_executor(executor, ctx)
-        nodes: list[Any] = []
+    with Graph(executor, log_level, timeout_s) as g:
+        flt = g.build(FilterNode, filter_parameters3d(names, grade, rows, gate))
+        rec = g.build(RecorderNode, {"output": str(recording), "storage": storage,
+                                     "overwrite": overwrite})
+        player = g.build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
+                                     "ack_window": ACK_WINDOW, "publish_clock": False,
+                                     "topics": played})
+        g.replay(player, tick_progress)
+        c = flt.counters
+        g.spin_until(lambda: c["received_ins"] + c["received_reference"] >= player.published,
+                     "filtering the last inputs")
+        flt.ins3d.finish()
+        state, innov, model = (rec.resolve_topic_name(t) for t in
+                               ("fdi/state", "fdi/innovation", "fdi/model"))
 
-        def build(cls: Any, values: dict[str, Any], **extra: Any) -> Any:
-            try:
-                node = cls(context=ctx, start_parameter_services=False, **extra,
-                           parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
-            except ParameterError as exc:
-                raise PipelineError(f"{cls.__name__}: {exc}") from None
-            nodes.append(node)
-            ex.add_node(node)
-            return node
+        def settled() -> bool:
+            n = rec.counts()
+            return (n.get(state, 0) >= c["published_states"]
+                    and n.get(innov, 0) >= c["published"] and n.get(model, 0) >= 1)
 
-        def drop(node: Any) -> None:
-            for timer in list(node.timers):   # the events executor may still run a removed
-                timer.cancel()                # node's due timer (seen: /diagnostics)
-            ex.remove_node(node)
-            node.destroy_node()
-            nodes.remove(node)
-
-        try:
-            flt = build(FilterNode, filter_parameters3d(names, grade, rows, gate))
-            rec = build(RecorderNode, {"output": str(recording), "storage": storage,
-                                       "overwrite": overwrite})
-            player = build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
-                                       "ack_window": ACK_WINDOW, "publish_clock": False,
-                                       "topics": played})
-            _spin_until(ex, player.done.done, deadline, "replaying the bag", stop,
-                        lambda: tick_progress(player.published))
-            tick_progress(player.published)
-            if player.error:
-                raise BagError(player.error)
-            c = flt.counters
-            _spin_until(ex, lambda: c["received_ins"] + c["received_reference"]
-                        >= player.published, deadline, "filtering the last inputs", stop)
-            flt.ins3d.finish()
-            state, innov, model = (rec.resolve_topic_name(t) for t in
-                                   ("fdi/state", "fdi/innovation", "fdi/model"))
-
-            def settled() -> bool:
-                n = rec.counts()
-                return (n.get(state, 0) >= c["published_states"]
-                        and n.get(innov, 0) >= c["published"] and n.get(model, 0) >= 1)
-
-            _spin_until(ex, settled, deadline, "recording the filter's last outputs", stop)
-            replay_s = time.monotonic() - player.started_at
-            rec.close()
-            if rec.error:
-                raise PipelineError(f"recording failed: {rec.error}")
-            recorded, n_played, acks = rec.counts(), player.published, player.ack_timeouts
-            for node in (player, flt, rec):
-                drop(node)
-            t_analysis = time.monotonic()
-            result = smoother_result(build, ex, deadline, stop, AnalysisConfig(gate=gate), {
-                "bag": str(recording), "channel": "ins3d", "output_json": str(result_json),
-                "publish_smoothed": False})
-            result["bag"] = str(bag)
-            if source is not None:
-                result["source"] = source
-            write_json(result, result_json)
-            return PipelineRun(result=result, recording=recording, result_json=result_json,
-                               messages_played=n_played, recorded=recorded, replay_s=replay_s,
-                               analysis_s=time.monotonic() - t_analysis, ack_timeouts=acks)
-        finally:
-            teardown(ex, nodes)
+        g.spin_until(settled, "recording the filter's last outputs")
+        replay_s = time.monotonic() - player.started_at
+        recorded = g.close_recording(rec)
+        n_played, acks = player.published, player.ack_timeouts
+        for node in (player, flt, rec):
+            g.drop(node)
+        t_analysis = time.monotonic()
+        result = g.smoother_result(AnalysisConfig(gate=gate), {
+            "bag": str(recording), "channel": "ins3d", "output_json": str(result_json),
+            "publish_smoothed": False})
+    result["bag"] = str(bag)
+    if source is not None:
+        result["source"] = source
+    write_json(result, result_json)
+    return PipelineRun(result=result, recording=recording, result_json=result_json,
+                       messages_played=n_played, recorded=recorded, replay_s=replay_s,
+                       analysis_s=time.monotonic() - t_analysis, ack_timeouts=acks)
 
 
 __all__ = ["ACK_WINDOW", "filter_parameters3d", "run_pipeline3d"]

@@ -34,7 +34,7 @@ from __future__ import annotations
 import os
 import signal
 import time
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
@@ -180,30 +180,96 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
         executor.spin_once(timeout_sec=min(0.05, left))
 
 
-def teardown(ex: Any, nodes: list) -> None:
-    """Remove and destroy the nodes still in the graph, then shut the executor down."""
-    for node in list(nodes):
+class Graph:
+    """The pipeline's nodes on one executor in a private context (``with Graph(...) as g``):
+    :meth:`build` a node from parameters, :meth:`spin_until` a condition, :meth:`drop` a node
+    once its part is over; on exit every node left is destroyed and the executor shut down.
+    ``timeout_s`` bounds the whole run (PipelineError); Ctrl-C raises KeyboardInterrupt between
+    callbacks."""
+
+    def __init__(self, executor: str = "events", log_level: str = "warn",
+                 timeout_s: float = 600.0) -> None:
+        self.deadline = time.monotonic() + timeout_s
+        self.nodes: list[Any] = []
+        self._kind, self._log_level = executor, log_level
+        self._stack = ExitStack()
+
+    def __enter__(self) -> "Graph":
         try:
-            ex.remove_node(node)
-        except Exception:
-            pass
+            self.stop = self._stack.enter_context(StopSignals((signal.SIGINT,)))
+            self.ctx = self._stack.enter_context(
+                _private_context(["--log-level", self._log_level]))
+            self.ex = make_executor(self._kind, self.ctx)
+        except BaseException:
+            self._stack.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        try:
+            for node in list(self.nodes):
+                try:
+                    self.ex.remove_node(node)
+                except Exception:
+                    pass
+                node.destroy_node()
+            self.ex.shutdown()
+        finally:
+            self._stack.close()
+
+    def build(self, cls: Any, values: dict[str, Any], **extra: Any) -> Any:
+        """A node of class ``cls`` with parameters ``values``, added to the executor
+        (PipelineError naming the node when a parameter is refused)."""
+        from rclpy.parameter import Parameter
+
+        try:
+            node = cls(context=self.ctx, start_parameter_services=False, **extra,
+                       parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+        except ParameterError as exc:
+            raise PipelineError(f"{cls.__name__}: {exc}") from None
+        self.nodes.append(node)
+        self.ex.add_node(node)
+        return node
+
+    def drop(self, node: Any) -> None:
+        """Remove and destroy ``node``; its timers are cancelled first (the events executor may
+        still run a removed node's due timer, e.g. /diagnostics)."""
+        for timer in list(node.timers):
+            timer.cancel()
+        self.ex.remove_node(node)
         node.destroy_node()
-    ex.shutdown()
+        self.nodes.remove(node)
 
+    def spin_until(self, done: Any, what: str, tick: Any = None) -> None:
+        _spin_until(self.ex, done, self.deadline, what, self.stop, tick)
 
-def smoother_result(build: Any, ex: Any, deadline: float, stop: StopSignals, config: Any,
-                    params: dict[str, Any]) -> dict:
-    """Build the smoother node (``build(cls, params, config=...)``), spin until its analysis of
-    the recording is done and return a copy of its result (PipelineError when it failed)."""
-    from .smoother_node import SmootherNode
+    def replay(self, player: Any, progress: "Progress") -> None:
+        """Spin until ``player`` has published its whole bag (BagError when it failed)."""
+        self.spin_until(player.done.done, "replaying the bag",
+                        lambda: progress(player.published))
+        progress(player.published)
+        if player.error:
+            raise BagError(player.error)
 
-    smoother = build(SmootherNode, params, config=config)
-    _spin_until(ex, smoother.done.done, deadline, "analysing the recording", stop)
-    run = smoother.last
-    if run is None or run.error:
-        raise PipelineError(f"analysis of {params['bag']} failed: "
-                            f"{run.error if run else 'no result'}")
-    return dict(run.result)
+    def close_recording(self, rec: Any) -> dict:
+        """Close the recording; its message counts per topic."""
+        rec.close()
+        if rec.error:
+            raise PipelineError(f"recording failed: {rec.error}")
+        return rec.counts()
+
+    def smoother_result(self, config: Any, params: dict[str, Any]) -> dict:
+        """Build the smoother node, spin until its analysis of the recording is done and return
+        a copy of its result (PipelineError when it failed)."""
+        from .smoother_node import SmootherNode
+
+        smoother = self.build(SmootherNode, params, config=config)
+        self.spin_until(smoother.done.done, "analysing the recording")
+        run = smoother.last
+        if run is None or run.error:
+            raise PipelineError(f"analysis of {params['bag']} failed: "
+                                f"{run.error if run else 'no result'}")
+        return dict(run.result)
 
 
 def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "x", *,
@@ -225,8 +291,6 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     result carries the same ``input`` and ``source`` as ``flight-fdi analyze``. ``progress``: a
     stream for "replay NN %" lines per 10 % of the messages (None: silent).
     """
-    from rclpy.parameter import Parameter
-
     from flight_fdi.bagio.inputs import InputSpec
     from flight_fdi.core.analysis import AnalysisConfig
 
@@ -246,86 +310,48 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     # the inputs are usable, before anything is created (a graph never waits for bad input)
     flight, input_section = check_inputs(bag, spec, config)
     played_topics = [spec.ins_topic, *spec.reference_topics]
-    total = sum(e["messages"] for e in input_section.values())
-    tick_progress = Progress(total, progress)
+    tick_progress = Progress(sum(e["messages"] for e in input_section.values()), progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    recording = out / "recording"
-    result_json = out / "result.json"
-    deadline = time.monotonic() + timeout_s
+    recording, result_json = out / "recording", out / "result.json"
+    with Graph(executor, log_level, timeout_s) as g:
+        flt = g.build(FilterNode, filter_parameters(config, channel, model, spec, flight.topics))
+        rec = g.build(RecorderNode, {"output": str(recording), "storage": storage,
+                                     "overwrite": overwrite})
+        player = g.build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
+                                     "publish_clock": False, "topics": played_topics})
+        g.replay(player, tick_progress)
+        # the replay is over once the filter has taken every played message and the recorder
+        # holds every step the filter published (and its model): exact counts
+        topics = [rec.resolve_topic_name(t) for t in ("fdi/state", "fdi/innovation")]
+        model_topic = rec.resolve_topic_name("fdi/model")
 
-    node_kwargs = {"start_parameter_services": False}
-    with StopSignals((signal.SIGINT,)) as stop, \
-            _private_context(["--log-level", log_level]) as ctx:
-        ex = make_executor(executor, ctx)
-        nodes: list[Any] = []
+        def settled() -> bool:
+            c = flt.counters
+            if c["received_ins"] + c["received_reference"] < player.published:
+                return False
+            counts = rec.counts()
+            return (all(counts.get(t, 0) >= c["published"] for t in topics)
+                    and counts.get(model_topic, 0) >= 1)
 
-        def add(node: Any) -> Any:
-            nodes.append(node)
-            ex.add_node(node)
-            return node
-
-        def build(cls: Any, values: dict[str, Any], **extra: Any) -> Any:
-            try:
-                return add(cls(context=ctx, **node_kwargs, **extra,
-                               parameter_overrides=[Parameter(k, value=v)
-                                                    for k, v in values.items()]))
-            except ParameterError as exc:
-                raise PipelineError(f"{cls.__name__}: {exc}") from None
-
-        try:
-            flt = build(FilterNode, filter_parameters(config, channel, model, spec,
-                                                      flight.topics))
-            rec = build(RecorderNode, {"output": str(recording), "storage": storage,
-                                       "overwrite": overwrite})
-            player = build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
-                                       "publish_clock": False, "topics": played_topics})
-            _spin_until(ex, player.done.done, deadline, "replaying the bag", stop,
-                        lambda: tick_progress(player.published))
-            tick_progress(player.published)
-            if player.error:
-                raise BagError(player.error)
-            # the replay is over once the filter has taken every played message and the
-            # recorder holds every step the filter published (and its model): exact counts
-            topics = [rec.resolve_topic_name(t) for t in ("fdi/state", "fdi/innovation")]
-            model_topic = rec.resolve_topic_name("fdi/model")
-
-            def settled() -> bool:
-                c = flt.counters
-                if c["received_ins"] + c["received_reference"] < player.published:
-                    return False
-                counts = rec.counts()
-                return (all(counts.get(t, 0) >= c["published"] for t in topics)
-                        and counts.get(model_topic, 0) >= 1)
-
-            _spin_until(ex, settled, deadline, "recording the filter's last outputs", stop)
-            replay_s = time.monotonic() - player.started_at
-            rec.close()
-            if rec.error:
-                raise PipelineError(f"recording failed: {rec.error}")
-            recorded = rec.counts()
-            played, ack_timeouts = player.published, player.ack_timeouts
+        g.spin_until(settled, "recording the filter's last outputs")
+        replay_s = time.monotonic() - player.started_at
+        recorded = g.close_recording(rec)
+        played, ack_timeouts = player.published, player.ack_timeouts
+        for node in (player, flt, rec):
+            g.drop(node)
+        t_analysis = time.monotonic()
+        result = g.smoother_result(config, {
+            "bag": str(recording), "channel": channel, "output_json": str(result_json),
             # analyze's t0: the earliest usable INS / reference stamp
-            flight_start = flight.t0_ns * 1e-9
-            for node in (player, flt, rec):
-                ex.remove_node(node)
-                node.destroy_node()
-                nodes.remove(node)
-
-            t_analysis = time.monotonic()
-            result = smoother_result(build, ex, deadline, stop, config, {
-                "bag": str(recording), "channel": channel, "output_json": str(result_json),
-                "flight_start_s": flight_start, "publish_smoothed": False})
-            result["bag"] = str(bag)  # the input, as flight-fdi analyze names it
-            result["input"] = input_section
-            result["source"] = spec.describe()
-            write_json(result, result_json)
-            return PipelineRun(result=result, recording=recording, result_json=result_json,
-                               messages_played=played, recorded=recorded, replay_s=replay_s,
-                               analysis_s=time.monotonic() - t_analysis,
-                               ack_timeouts=ack_timeouts)
-        finally:
-            teardown(ex, nodes)
+            "flight_start_s": flight.t0_ns * 1e-9, "publish_smoothed": False})
+    result["bag"] = str(bag)  # the input, as flight-fdi analyze names it
+    result["input"] = input_section
+    result["source"] = spec.describe()
+    write_json(result, result_json)
+    return PipelineRun(result=result, recording=recording, result_json=result_json,
+                       messages_played=played, recorded=recorded, replay_s=replay_s,
+                       analysis_s=time.monotonic() - t_analysis, ack_timeouts=ack_timeouts)
 
 
 def run_pipeline(bag: str | Path, out_dir: str | Path, channel: str = "x", **kwargs: Any) -> dict:
