@@ -108,7 +108,7 @@ def check_topics(path: str | Path, topics: dict[str, str] | None = None) -> dict
     """The contract topic names (TOPICS overridden by ``topics``) after checking that the bag
     has each of them with the right type (BagError, one line, naming what is wrong; a bag of
     the single-axis simulator is recognised and said so)."""
-    from .reader import _topic_list, bag_topics
+    from .reader import bag_topics, topic_list
     names = {**TOPICS, **(topics or {})}
     if len(set(names.values())) != len(names):
         raise BagError(f"the ins3d input topics must be distinct, got {sorted(names.values())}")
@@ -118,7 +118,7 @@ def check_topics(path: str | Path, topics: dict[str, str] | None = None) -> dict
         hint = (" -- a single-axis bag? --model ins3d needs the 3-D contract (docs/sim3d.md)"
                 if names["ins_imu"] in missing and names["ins_velocity"] in have else "")
         raise BagError(f"bag '{path}': no topic {', '.join(missing)} (topics: "
-                       f"{_topic_list(have)}){hint}")
+                       f"{topic_list(have)}){hint}")
     for k, v in names.items():
         if have[v] != TYPES[k]:
             raise BagError(f"bag '{path}': {v} carries {have[v]}, expected {TYPES[k]}")
