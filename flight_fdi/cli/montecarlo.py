@@ -102,7 +102,7 @@ def study_config(args: argparse.Namespace):
                        analysis=analysis)
 
 
-def _writable(path: str | None, option: str) -> Path | None:
+def writable(path: str | None, option: str) -> Path | None:
     out = Path(path) if path else None
     if out is not None and not out.parent.is_dir():
         raise CliError(f"{option}: cannot write {out}: directory '{out.parent}' does not exist")
@@ -117,25 +117,32 @@ def run(args: argparse.Namespace) -> int:
         return run_ins3d(args)
     config = study_config(args)
     spec = engine_spec(args)
-    out = _writable(args.out, "--out")
+    out = writable(args.out, "--out")
     with open_records(args, config.describe()) as records:
         result = run_study(config, jobs=spec.workers or default_workers(),
                            progress=not args.no_progress,
                            on_record=records.write if records else None,
                            scheduler=spec.scheduler, done=records.done if records else None)
+    emit_result(result, out, args.json, format_metrics(result.metrics),
+                f"{len(result.records)} flights of {config.duration_s:g} s in "
+                f"{result.elapsed_s:.1f} s on {result.engine}"
+                + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
+                + (f"; full result in {out}" if out else "")
+                + (f"; records in {args.records}" if args.records else ""))
+    return 0
+
+
+def emit_result(result, out: Path | None, as_json: bool, table: str, summary: str) -> None:
+    """A study's output (both models): the full result to ``--out``; on stdout ``--json``'s
+    document, or the metrics ``table`` and a ``summary`` line."""
     if out is not None:
         out.write_text(json.dumps(result.to_dict(with_records=True), indent=1) + "\n")
-    if args.json:
+    if as_json:
         json.dump(result.to_dict(with_records=False), sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     else:
-        print(format_metrics(result.metrics))
-        print(f"\n{len(result.records)} flights of {config.duration_s:g} s in "
-              f"{result.elapsed_s:.1f} s on {result.engine}"
-              + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
-              + (f"; full result in {out}" if out else "")
-              + (f"; records in {args.records}" if args.records else ""))
-    return 0
+        print(table)
+        print(f"\n{summary}")
 
 
 def open_records(args: argparse.Namespace, study: dict):
@@ -143,7 +150,7 @@ def open_records(args: argparse.Namespace, study: dict):
     ``--records``): resumes from it unless ``--restart``. Any study's CLI can use it."""
     from flight_fdi.eval.records import RecordsFile
 
-    path = _writable(args.records, "--records")
+    path = writable(args.records, "--records")
     if path is None:
         return contextlib.nullcontext(None)
     return RecordsFile(path, study, restart=args.restart)

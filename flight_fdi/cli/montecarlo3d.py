@@ -14,7 +14,6 @@ import argparse
 import contextlib
 import dataclasses
 import json
-import sys
 
 from flight_fdi.cli.errors import CliError
 
@@ -111,7 +110,7 @@ def run_ins3d(args: argparse.Namespace) -> int:
     """The 3-D study (or its ladder)."""
     from flight_fdi.campaign.engine import default_workers
     from flight_fdi.cli.batch import engine_spec
-    from flight_fdi.cli.montecarlo import _writable
+    from flight_fdi.cli.montecarlo import emit_result, writable
     from flight_fdi.eval.errors import EvalError
     from flight_fdi.eval.ladder3d import format_ladder, run_ladder
     from flight_fdi.eval.metrics3d import format_metrics
@@ -120,8 +119,8 @@ def run_ins3d(args: argparse.Namespace) -> int:
     config = study_config(args)
     spec = engine_spec(args)
     workers = spec.workers or default_workers()
-    out = _writable(args.out, "--out")
-    records = _writable(args.records, "--records")
+    out = writable(args.out, "--out")
+    records = writable(args.records, "--records")
     try:
         if args.ladder:
             grades = tuple(g.strip() for g in args.ladder_grades.split(",") if g.strip())
@@ -146,15 +145,9 @@ def run_ins3d(args: argparse.Namespace) -> int:
                                on_record=on_record, scheduler=spec.scheduler)
     except EvalError as exc:
         raise CliError(str(exc)) from None
-    if out is not None:
-        out.write_text(json.dumps(result.to_dict(with_records=True), indent=1) + "\n")
-    if args.json:
-        json.dump(result.to_dict(with_records=False), sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
-    else:
-        print(format_metrics(result.metrics))
-        print(f"\n{len(result.records)} flights of {config.duration_s:g} s "
-              f"({config.profile}, {config.grade}) in {result.elapsed_s:.1f} s on "
-              f"{result.engine}" + (f"; full result in {out}" if out else "")
-              + (f"; records in {records}" if records else ""))
+    emit_result(result, out, args.json, format_metrics(result.metrics),
+                f"{len(result.records)} flights of {config.duration_s:g} s "
+                f"({config.profile}, {config.grade}) in {result.elapsed_s:.1f} s on "
+                f"{result.engine}" + (f"; full result in {out}" if out else "")
+                + (f"; records in {records}" if records else ""))
     return 0
