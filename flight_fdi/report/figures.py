@@ -12,7 +12,6 @@ PNG; times on the x axes are seconds from the analysis' ``t0``.
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,9 +22,8 @@ from flight_fdi.core.models import (ATTITUDE_STATES, ATTITUDE_UNITS, DEG_PER_HOU
                                     INS_UNITS)
 from flight_fdi.eval.errors import EvalError
 
-FIGSIZE = (10.0, 8.0)
-DPI = 100
-MAX_POINTS = 8000
+from .canvas import canvas, maxpool, save, stride
+
 FLOOR = 1e-3  # lower limit of the logarithmic statistic axes
 
 #: display unit per (state element, SI unit): (label, factor from SI); others are shown in SI
@@ -57,46 +55,6 @@ class Truth:
         if name not in self.state_names:
             return None
         return self.x[:, self.state_names.index(name)]
-
-
-def _canvas(nrows: int, title: str):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=FIGSIZE, dpi=DPI)
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(nrows, 1, sharex=True, squeeze=False)[:, 0]
-    # fixed margins: a constrained layout doubles the drawing time
-    fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.07, hspace=0.12)
-    fig.suptitle(title)
-    return fig, axes
-
-
-def _save(fig: Any, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
-    return path
-
-
-def _stride(t: np.ndarray, *ys: np.ndarray):
-    """Every k-th sample so that at most MAX_POINTS remain (for smooth estimates)."""
-    k = max(1, -(-t.size // MAX_POINTS))
-    return (t[::k],) + tuple(y[::k] for y in ys)
-
-
-def _maxpool(t: np.ndarray, y: np.ndarray):
-    """The maximum of each bin so that at most MAX_POINTS remain (keeps the peaks of a
-    statistic); NaN bins stay NaN."""
-    k = -(-t.size // MAX_POINTS)
-    if k <= 1:
-        return t, y
-    nb = -(-t.size // k)
-    pad = nb * k - t.size
-    yp = np.concatenate([y, np.full(pad, np.nan)]).reshape(nb, k)
-    tp = np.concatenate([t, np.full(pad, t[-1])]).reshape(nb, k)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bins stay NaN
-        peak = np.nanmax(yp, axis=1)
-    return tp[:, 0], peak
 
 
 def _log_positive(y: np.ndarray) -> np.ndarray:
@@ -186,12 +144,12 @@ def element_figure(result: Any, k: int, path: Path, truth: Truth | None = None,
     fwd, bwd, seed = result.fwd, result.bwd, result.seed
     t = np.asarray(fwd.t) - t0
     onset = result.summary["post_flight"]["onset_s"]
-    fig, (ax1, ax2, ax3) = _canvas(3, f"{name}: error, filtered and smoothed estimates; "
+    fig, (ax1, ax2, ax3) = canvas(3, f"{name}: error, filtered and smoothed estimates; "
                                       "chi-square and Fisher tests")
-    ts, xf, xs, sf = _stride(t, fwd.x[:, k] * factor, bwd.x_s[:, k] * factor,
+    ts, xf, xs, sf = stride(t, fwd.x[:, k] * factor, bwd.x_s[:, k] * factor,
                              np.sqrt(np.maximum(fwd.P[:, k, k], 0.0)) * factor)
     if truth is not None and truth.series(name) is not None:
-        tt, xt = _stride(truth.t - t0, truth.series(name) * factor)
+        tt, xt = stride(truth.t - t0, truth.series(name) * factor)
         ax1.plot(tt, xt, color="black", lw=1.5, label="true error")
     ax1.plot(ts, xf, color="tab:blue", lw=1, label="filtered x(i/i)")
     ax1.fill_between(ts, xf - sf, xf + sf, color="tab:blue", alpha=0.15, lw=0,
@@ -204,10 +162,10 @@ def element_figure(result: Any, k: int, path: Path, truth: Truth | None = None,
 
     valid = np.asarray(seed.valid, dtype=bool)
     term = np.where(valid, seed.terms[:, k], np.nan)
-    tj, jk = _maxpool(t, term)
-    _, gk = _stride(t, np.where(valid, seed.gammas[:, k], np.nan))
+    tj, jk = maxpool(t, term)
+    _, gk = stride(t, np.where(valid, seed.gammas[:, k], np.nan))
     ax2.plot(tj, _log_positive(jk), color="tab:green", lw=1, label=f"J(i/{k + 1}) (chi-square)")
-    ax2.plot(_stride(t)[0], gk, color=THRESHOLD_COLOR, lw=1,
+    ax2.plot(stride(t)[0], gk, color=THRESHOLD_COLOR, lw=1,
              label=f"gamma_{k + 1}^2 = k + 3 sqrt(2k) (effective dof)")
     _onset_line(ax2, onset, label="isolated onset")
     ax2.set_yscale("log")
@@ -216,7 +174,7 @@ def element_figure(result: Any, k: int, path: Path, truth: Truth | None = None,
     ax2.grid(True, which="both", alpha=0.3)
 
     F = np.where(valid, seed.F[:, k], np.nan)
-    tf, fk = _maxpool(t, F)
+    tf, fk = maxpool(t, F)
     ax3.plot(tf, _log_positive(fk), color="tab:purple", lw=1,
              label=f"F_{k + 1} (Fisher, window {seed.config.fisher_window})")
     ax3.axhline(seed.eta2, color=THRESHOLD_COLOR, lw=1, label=f"eta^2 = {seed.eta2:.3g}")
@@ -229,7 +187,7 @@ def element_figure(result: Any, k: int, path: Path, truth: Truth | None = None,
     ax3.set_xlabel("time [s]")
     ax3.legend(loc="best", fontsize=8)
     ax3.grid(True, which="both", alpha=0.3)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def gate_figure(result: Any, path: Path, unit: str = "m/s") -> Path:
@@ -237,10 +195,10 @@ def gate_figure(result: Any, path: Path, unit: str = "m/s") -> Path:
     gate and the alarm episodes (drawn at least MIN_SPAN_FRACTION wide)."""
     fwd = result.fwd
     t = np.asarray(fwd.t) - result.t0
-    fig, (ax1, ax2) = _canvas(2, "in flight: innovation and the beta^2 gate")
+    fig, (ax1, ax2) = canvas(2, "in flight: innovation and the beta^2 gate")
     nu = fwd.nu[:, 0]
     s3 = 3.0 * np.sqrt(np.maximum(fwd.S[:, 0, 0], 0.0))
-    ts, nus, s3s = _stride(t, nu, s3)
+    ts, nus, s3s = stride(t, nu, s3)
     ax1.plot(ts, nus, color="tab:blue", lw=0.6, label="innovation nu")
     # both bounds as one labelled line (a NaN between them breaks it)
     ax1.plot(np.concatenate([ts, [np.nan], ts]), np.concatenate([s3s, [np.nan], -s3s]),
@@ -249,7 +207,7 @@ def gate_figure(result: Any, path: Path, unit: str = "m/s") -> Path:
     ax1.legend(loc="best", fontsize=8)
     ax1.grid(True, alpha=0.3)
 
-    tb, b2 = _maxpool(t, np.asarray(fwd.beta2, dtype=float))
+    tb, b2 = maxpool(t, np.asarray(fwd.beta2, dtype=float))
     ax2.plot(tb, _log_positive(b2), color="tab:blue", lw=0.6, label="beta^2 = nu^2 / S")
     ax2.axhline(float(fwd.threshold[0]), color=THRESHOLD_COLOR, lw=1,
                 label=f"gate {float(fwd.threshold[0]):.3g}")
@@ -260,7 +218,7 @@ def gate_figure(result: Any, path: Path, unit: str = "m/s") -> Path:
     ax2.set_xlabel("time [s]")
     ax2.legend(loc="best", fontsize=8)
     ax2.grid(True, which="both", alpha=0.3)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def chi2_figure(result: Any, path: Path) -> Path:
@@ -269,10 +227,10 @@ def chi2_figure(result: Any, path: Path) -> Path:
     seed = result.seed
     t = np.asarray(seed.t) - result.t0
     valid = np.asarray(seed.valid, dtype=bool)
-    fig, (ax,) = _canvas(1, "post flight: chi-square statistic J of the two-filter residual")
-    tj, J = _maxpool(t, np.where(valid, seed.J, np.nan))
+    fig, (ax,) = canvas(1, "post flight: chi-square statistic J of the two-filter residual")
+    tj, J = maxpool(t, np.where(valid, seed.J, np.nan))
     ax.plot(tj, _log_positive(J), color="tab:green", lw=1, label="J(i)")
-    ts, g = _stride(t, np.where(valid, seed.gamma2, np.nan))
+    ts, g = stride(t, np.where(valid, seed.gamma2, np.nan))
     ax.plot(ts, g, color=THRESHOLD_COLOR, lw=1, label="gamma^2 = n + 3 sqrt(2n)")
     _exceed_spans(ax, t, np.where(valid, seed.J, np.nan), np.where(valid, seed.gamma2, np.nan),
                   "J > gamma^2 (before a step too: the backward filter carries it)")
@@ -287,13 +245,13 @@ def chi2_figure(result: Any, path: Path) -> Path:
     ax.set_xlabel("time [s]")
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def glr_figure(result: Any, path: Path) -> Path:
     """The GLR statistic l(theta, h) over the onset theta for every hypothesis h."""
     glr = result.glr
-    fig, (ax,) = _canvas(1, "post flight: GLR statistic over the onset time")
+    fig, (ax,) = canvas(1, "post flight: GLR statistic over the onset time")
     for i, (h, (tc, lc)) in enumerate(glr.curves.items()):
         tc = np.asarray(tc, dtype=float) - result.t0
         ax.plot(tc, _log_positive(lc), lw=1, label=h, **hypothesis_style(h, i))
@@ -307,5 +265,5 @@ def glr_figure(result: Any, path: Path) -> Path:
     ax.set_xlabel("onset time theta [s]")
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
-    return _save(fig, path)
+    return save(fig, path)
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from flight_fdi.core.models import DEG_PER_HOUR, G0
 
-from .figures import _canvas, _maxpool, _save, _stride
+from .canvas import canvas, maxpool, save, stride
 from .html import CSS, _clean, _num, _table
 
 AXES = ("x", "y", "z")
@@ -55,7 +55,7 @@ def _finish(fig: Any, axes: tuple, res: dict, path: Path) -> Path:
         _onset(ax, res)
         ax.legend(loc="upper left", fontsize=8)
         ax.grid(alpha=0.3)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def _glr_step(ax: Any, res: dict, sensor: str, axis: str, unit: str, t: np.ndarray) -> None:
@@ -78,22 +78,22 @@ def axis_figure(analysis: Any, res: dict, axis: str, path: Path,
     j = AXES.index(axis)
     smooth = analysis.bias_estimates() if getattr(analysis, "backward", None) is not None \
         else None
-    fig, (a1, a2) = _canvas(2, f"body axis {axis}: estimated vs true sensor error")
+    fig, (a1, a2) = canvas(2, f"body axis {axis}: estimated vs true sensor error")
     for ax, state, sensor, key, scale, unit in (
             (a1, f"ba_{axis}", "accelerometer", f"accel_error_{axis}", MG, "mg"),
             (a2, f"bg_{axis}", "gyro", f"gyro_error_{axis}", DEG_PER_HOUR, "deg/h")):
         _turns(ax, man)
         i = names.index(state)
-        t, x = _stride(fwd.t, fwd.x[:, i] / scale)
+        t, x = stride(fwd.t, fwd.x[:, i] / scale)
         ax.plot(t, x, color="#7fa7cf", lw=0.9, label=f"forward filter {state}")
         if smooth is not None:
-            t, x, sd = _stride(smooth["t"], smooth[sensor][:, j] / scale,
+            t, x, sd = stride(smooth["t"], smooth[sensor][:, j] / scale,
                                smooth[f"{sensor}_sd"][:, j] / scale)
             ax.fill_between(t, x - sd, x + sd, color="#9ecae1", alpha=0.5, lw=0,
                             label="1 sigma (smoothed)")
             ax.plot(t, x, color="#1f5fa0", lw=1.4, label="smoothed (two-filter)")
         if truth is not None and key in truth:
-            tt, y = _stride(truth["t"], truth[key] / scale)
+            tt, y = stride(truth["t"], truth[key] / scale)
             ax.plot(tt, y, color="k", lw=1, ls=":", label="true (bias + SF/misalignment + fault)")
         _glr_step(ax, res, sensor, axis, unit, fwd.t)
         _onset(ax, res)
@@ -101,15 +101,15 @@ def axis_figure(analysis: Any, res: dict, axis: str, path: Path,
         ax.legend(loc="upper left", fontsize=8)
         ax.grid(alpha=0.3)
     a2.set_xlabel("time [s]")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def gate_figure3d(analysis: Any, res: dict, path: Path) -> Path:
     """beta^2 (total and per row) over the updates, the gates and the alarms."""
     fwd = analysis.forward
-    fig, (a1, a2) = _canvas(2, "in flight: the beta^2 gate (forward filter)")
+    fig, (a1, a2) = canvas(2, "in flight: the beta^2 gate (forward filter)")
     _turns(a1, res["ins3d"]["manoeuvres"])
-    t, b = _maxpool(fwd.t_ref, fwd.beta2)
+    t, b = maxpool(fwd.t_ref, fwd.beta2)
     a1.semilogy(t, np.maximum(b, 1e-6), lw=0.8, color="#1f5fa0", label="beta^2")
     a1.axhline(fwd.threshold, color="#c03030", lw=1, label=f"gate {fwd.threshold:.3g}")
     for k, a in enumerate(res["in_flight"]["alarms"]):
@@ -118,7 +118,7 @@ def gate_figure3d(analysis: Any, res: dict, path: Path) -> Path:
     a1.set_ylabel("beta^2 (rows together)")
     _turns(a2, res["ins3d"]["manoeuvres"])
     for j, row in enumerate(("east", "north", "up")[:fwd.beta2_row.shape[1]]):
-        t, b = _maxpool(fwd.t_ref, fwd.beta2_row[:, j])
+        t, b = maxpool(fwd.t_ref, fwd.beta2_row[:, j])
         a2.semilogy(t, np.maximum(b, 1e-6), lw=0.7, label=row)
     a2.axhline(fwd.threshold_row, color="#c03030", lw=1, label=f"row gate {fwd.threshold_row:.3g}")
     a2.set_ylabel("beta^2 per row")
@@ -135,11 +135,11 @@ def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
         return None
     glr = res["post_flight"].get("glr") or {}
     bold = {glr.get("hypothesis"), glr.get("runner_up")}
-    fig, (a1, a2) = _canvas(2, "after the flight: two-filter chi-square and GLR statistics")
+    fig, (a1, a2) = canvas(2, "after the flight: two-filter chi-square and GLR statistics")
     _turns(a1, res["ins3d"]["manoeuvres"])
-    t, J = _maxpool(np.asarray(seed.t, dtype=float), np.asarray(seed.J, dtype=float))
+    t, J = maxpool(np.asarray(seed.t, dtype=float), np.asarray(seed.J, dtype=float))
     a1.semilogy(t, np.maximum(J, 1e-3), lw=0.7, color="#1f5fa0", label="J (two-filter chi^2)")
-    t, g = _stride(np.asarray(seed.t, dtype=float), np.asarray(seed.gamma2, dtype=float))
+    t, g = stride(np.asarray(seed.t, dtype=float), np.asarray(seed.gamma2, dtype=float))
     a1.semilogy(t, g, color="#c03030", lw=1, label="bound gamma^2 (effective dof)")
     a1.set_ylabel("chi-square J")
     _turns(a2, res["ins3d"]["manoeuvres"])
@@ -147,7 +147,7 @@ def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
     for name, c in curves.items():
         if c.hypothesis.kind == "outliers" or not c.t.size:
             continue
-        t, y = _maxpool(np.asarray(c.t, dtype=float), np.asarray(c.stat, dtype=float))
+        t, y = maxpool(np.asarray(c.t, dtype=float), np.asarray(c.stat, dtype=float))
         strong = name in bold
         a2.plot(t, y, lw=1.4 if strong else 0.5, alpha=1.0 if strong else 0.5,
                 label=name if strong else None)

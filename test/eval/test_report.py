@@ -150,13 +150,13 @@ def drawn(monkeypatch, analysed, tmp_path):
     from flight_fdi.report import figures
 
     got = {}
-    save = figures._save
+    save = figures.save
 
     def keep(fig, path):
         got[path.stem] = fig
         return save(fig, path)
 
-    monkeypatch.setattr(figures, "_save", keep)
+    monkeypatch.setattr(figures, "save", keep)
     _, res, truth = analysed
     figures.element_figure(res, 2, tmp_path / "element.png", truth=truth)
     figures.gate_figure(res, tmp_path / "gate.png")
