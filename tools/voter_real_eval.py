@@ -83,7 +83,7 @@ def judge(events, onset, imu, qname):
     return ok, first[0] - onset
 
 
-def evaluate(data, alpha, margin, onset, confirm_s, cases=(), **calib):
+def evaluate(data, alpha, margin, onset, confirm_s, cases=(), nominal_only=False, **calib):
     confirm = max(1, int(math.ceil(confirm_s * RATE)))
     res = {"nominal": [], "faults": {}}
     for day in DAYS:
@@ -97,7 +97,7 @@ def evaluate(data, alpha, margin, onset, confirm_s, cases=(), **calib):
             res["nominal"].append({"recording": name, "day": day, "decisions": int(len(status)),
                                    "below_sum3": float(np.mean(status > 0)) if len(status) else 0,
                                    "isolations": len(events)})
-            if t[-1] < onset + 5.0:
+            if nominal_only or t[-1] < onset + 5.0:
                 continue
             todo = [("gyro z stuck at zero", "stuck", 0, 0, "gyro_z"),
                      ("gyro z bias step 50 deg/h", "gyro_step", 50, 0, "gyro_z"),
@@ -151,6 +151,9 @@ def main() -> int:
     ap.add_argument("--baseline", choices=("learn", "grow"), default="learn")
     ap.add_argument("--no-linear", action="store_true",
                     help="calibrate without the per-pair linear model (core/voter_linear.py)")
+    ap.add_argument("--offset-blocks", type=int, default=1, metavar="B",
+                    help="offset = median of B block means of the learning window (1: mean)")
+    ap.add_argument("--nominal-only", action="store_true", help="no fault runs")
     ap.add_argument("--cases", default="", help="comma-separated substrings of the fault "
                     "labels to run (default all)")
     ap.add_argument("--json", action="store_true")
@@ -161,7 +164,8 @@ def main() -> int:
         return 1
     res = evaluate(load(root), a.alpha, a.margin, a.onset, a.confirm_s,
                    cases=[c for c in a.cases.split(",") if c], baseline=a.baseline,
-                   linear=not a.no_linear)
+                   linear=not a.no_linear, offset_blocks=a.offset_blocks,
+                   nominal_only=a.nominal_only)
     print(json.dumps(res, indent=1) if a.json else markdown(res))
     return 0
 

@@ -66,6 +66,7 @@ class VoterModel:
     mounting: Mapping[str, Any] | None = None
     baseline: str = "learn"             # offset: "learn" (first learn_s) or "grow" (step detector)
     linear: Mapping[str, Any] | None = None   # per-pair linear model (core/voter_linear.py)
+    offset_blocks: int = 1              # offset: median of this many block means of the window
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -83,6 +84,7 @@ class VoterModel:
             tau = d.pop("time_offsets_s", [0.0, 0.0, 0.0])
             tau = None if tau is None else tuple(float(v) for v in tau)
             baseline = d.pop("baseline", "learn")
+            blocks = d.pop("offset_blocks", 1)
         except (TypeError, ValueError):
             raise CoreError(f"{source}: prefilter, learn_s, track_tau_s, max_lag_s and "
                             "time_offsets_s must be numbers") from None
@@ -99,6 +101,9 @@ class VoterModel:
         if tau is None and learn <= 0:
             raise CoreError(f"{source}: estimating the time offsets needs a learning phase "
                             "(learn_s > 0)")
+        if isinstance(blocks, bool) or not isinstance(blocks, (int, float)) \
+                or blocks != int(blocks) or not 1 <= blocks <= 1000:
+            raise CoreError(f"{source}: offset_blocks must be an integer >= 1, got {blocks!r}")
         if baseline not in BASELINES:
             raise CoreError(f"{source}: baseline must be one of {', '.join(BASELINES)}, "
                             f"got {baseline!r}")
@@ -107,7 +112,8 @@ class VoterModel:
                             "and replaces the offset tracking (track_tau_s 0)")
         mounting = check_mounting(d.pop("mounting", None), source)
         linear = voter_linear.check(d.pop("linear", None), source)
-        return cls(int(prefilter), learn, track, tau, max_lag, mounting, baseline, linear, d)
+        return cls(int(prefilter), learn, track, tau, max_lag, mounting, baseline, linear,
+                   int(blocks), d)
 
     def to_dict(self) -> dict[str, Any]:
         return {"prefilter": self.prefilter, "learn_s": self.learn_s,
@@ -115,7 +121,8 @@ class VoterModel:
                 "time_offsets_s": None if self.time_offsets_s is None
                 else list(self.time_offsets_s),
                 "max_lag_s": self.max_lag_s, "mounting": self.mounting,
-                "baseline": self.baseline, "linear": self.linear, **dict(self.extra)}
+                "baseline": self.baseline, "linear": self.linear,
+                "offset_blocks": self.offset_blocks, **dict(self.extra)}
 
 
 class Persistence:
@@ -198,6 +205,15 @@ def select(isolated: Sequence[int], current: int, avoid: set[int] = frozenset())
         if free:
             return free[0]
     return current
+
+
+def block_median(rows: np.ndarray, blocks: int) -> np.ndarray:
+    """The offset learnt from the window ``rows`` (n, ...): the median of the means of ``blocks``
+    contiguous blocks (1: the window mean). A transient in part of the learning phase (the
+    first second of some real flights, docs/voter_real.md) then does not shift the offset."""
+    if blocks <= 1 or rows.shape[0] < blocks:
+        return rows.mean(axis=0)
+    return np.median(np.stack([b.mean(axis=0) for b in np.array_split(rows, blocks)]), axis=0)
 
 
 def _tail_means(tail: np.ndarray, new: np.ndarray, width: int) -> np.ndarray:
@@ -337,10 +353,15 @@ class VoterCore:
         if self.model.baseline == "grow":
             return self._decide_step(idx, t, pf, end)
         stat = _tail_means(self._s_tail, pf, N)
+        keep = t >= self.model.learn_s - 1e-9 if self.model.learn_s > 0 else np.ones(t.size, bool)
+        if self.offset is None and self.model.offset_blocks > 1 and np.any(keep) \
+                and self.model.learn_s > 0:
+            j0 = int(np.argmax(keep))
+            self.offset = block_median(np.concatenate([self._s_tail, pf[:j0 + 1]])[-N:],
+                                       self.model.offset_blocks)
         self._s_tail = np.concatenate([self._s_tail, pf])[-(N - 1):] if N > 1 else self._s_tail
         self._next = end
         self._trim()
-        keep = t >= self.model.learn_s - 1e-9 if self.model.learn_s > 0 else np.ones(t.size, bool)
         return self._decide(idx[keep], t[keep], stat[keep])
 
     def _trim(self) -> None:

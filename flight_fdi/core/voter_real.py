@@ -72,7 +72,7 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
                          min_segment_s: float = 2.0, min_recordings: int = 5,
                          quantities: Sequence[str] = QUANTITIES, names: Sequence[str] = (),
                          symmetric: bool = True, baseline: str = "learn",
-                         linear: bool = True) -> tuple[ThresholdTable, dict[str, Any]]:
+                         linear: bool = True, offset_blocks: int = 1) -> tuple[ThresholdTable, dict[str, Any]]:
     """Threshold table from nominal recordings ``[(stamp_ns (T,), P (T, 6, 3)), ...]``."""
     if len(recordings) < 2:
         raise CoreError(f"calibration needs at least 2 recordings, got {len(recordings)}")
@@ -102,7 +102,8 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
     model = VoterModel.from_dict({"prefilter": prefilter, "learn_s": learn_s,
                                   "track_tau_s": track_tau_s, "time_offsets_s": None,
                                   "max_lag_s": max_lag_s, "mounting": mounting,
-                                  "baseline": baseline, "linear": lin}, "calibration")
+                                  "baseline": baseline, "linear": lin,
+                                  "offset_blocks": offset_blocks}, "calibration")
     series, offsets = [], []
     for ns, P in recordings:
         t, dev, core = deviations(ns, P, model, window, rate_hz, quantities)
