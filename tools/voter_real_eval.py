@@ -28,6 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from flight_fdi.cli.imu_csv import read_csv  # noqa: E402
+from flight_fdi.cli.voter_calibrate import SEQ_DRIFT, SEQ_MARGIN, parse_drift  # noqa: E402
 from flight_fdi.core.voter_core import DEFAULT_CONFIRM_S, VoterCore  # noqa: E402
 from flight_fdi.core.voter_real import calibrate_recordings  # noqa: E402
 from flight_fdi.core.voting import QUANTITIES  # noqa: E402
@@ -151,8 +152,14 @@ def main() -> int:
     ap.add_argument("--baseline", choices=("learn", "grow"), default="learn")
     ap.add_argument("--no-linear", action="store_true",
                     help="calibrate without the per-pair linear model (core/voter_linear.py)")
-    ap.add_argument("--offset-blocks", type=int, default=1, metavar="B",
+    ap.add_argument("--offset-blocks", type=int, default=5, metavar="B",
                     help="offset = median of B block means of the learning window (1: mean)")
+    ap.add_argument("--no-sequential", action="store_true",
+                    help="without the CUSUM sequential detector (core/voter_sequential.py)")
+    ap.add_argument("--seq-drift", default=SEQ_DRIFT, metavar="GYRO_DPH,ACCEL",
+                    help=f"CUSUM drift nu: gyro in deg/h, accel in m/s^2, off: none on that "
+                    f"sensor (default {SEQ_DRIFT})")
+    ap.add_argument("--seq-margin", type=float, default=SEQ_MARGIN)
     ap.add_argument("--nominal-only", action="store_true", help="no fault runs")
     ap.add_argument("--cases", default="", help="comma-separated substrings of the fault "
                     "labels to run (default all)")
@@ -165,7 +172,8 @@ def main() -> int:
     res = evaluate(load(root), a.alpha, a.margin, a.onset, a.confirm_s,
                    cases=[c for c in a.cases.split(",") if c], baseline=a.baseline,
                    linear=not a.no_linear, offset_blocks=a.offset_blocks,
-                   nominal_only=a.nominal_only)
+                   nominal_only=a.nominal_only, sequential=None if a.no_sequential
+                   or a.baseline == "grow" else parse_drift(a.seq_drift), sequential_margin=a.seq_margin)
     print(json.dumps(res, indent=1) if a.json else markdown(res))
     return 0
 

@@ -27,6 +27,9 @@ from pathlib import Path
 #: 002's experiment); tactical and mems = the turn-on bias, white noise, scale factor and pulse
 #: of flight_fdi.sim.imu3d's grades (their bias instability has no counterpart in this model)
 GRADES = ("navigation", "tactical", "mems")
+#: the sequential detector's defaults (chosen leave-one-day-out, docs/voter_real.md)
+SEQ_DRIFT = "off,0.025"
+SEQ_MARGIN = 3.0
 
 
 def grade_params(name: str) -> dict[str, float]:
@@ -172,6 +175,19 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="recordings: offset model -- learn: the first --learn seconds; grow: "
                         "the step detector's baseline, every earlier healthy sample "
                         "(docs/voter_real.md; default learn)")
+    p.add_argument("--offset-blocks", type=int, default=5, metavar="B",
+                   help="recordings: the learnt offset is the median of B block means of the "
+                        "learning phase (1: its mean; default 5, docs/voter_real.md)")
+    p.add_argument("--no-sequential", action="store_true",
+                   help="recordings: without the CUSUM sequential detector on the pair "
+                        "residuals (default: with it, on the fixed offset model -- not with "
+                        "--baseline grow or --track; thresholds from the same recordings)")
+    p.add_argument("--seq-drift", default=SEQ_DRIFT, metavar="GYRO,ACCEL",
+                   help="recordings: CUSUM drift nu, gyro in deg/h and accel in m/s^2, 'off': "
+                        f"no CUSUM on that sensor (default {SEQ_DRIFT})")
+    p.add_argument("--seq-margin", type=float, default=SEQ_MARGIN, metavar="F",
+                   help="recordings: CUSUM thresholds = F x the largest nominal statistic "
+                        f"(default {SEQ_MARGIN:g})")
     p.add_argument("--no-linear", action="store_true",
                    help="recordings: no per-pair linear model (lever arm, scale; fitted and "
                         "kept per quantity where it lowers the held-out residual)")
@@ -189,6 +205,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_imu_options(p)
     add_calibration_options(p)
     p.set_defaults(func=run)
+
+
+def parse_drift(text: str) -> dict[str, float]:
+    """--seq-drift GYRO_DPH,ACCEL -> {quantity: drift in SI units} ('off': left out)."""
+    from flight_fdi.cli.errors import CliError
+    from flight_fdi.core.voting import QUANTITIES
+
+    parts = [v.strip().lower() for v in text.split(",")]
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        gyro, accel = (None if v == "off" else float(v) for v in parts)
+    except ValueError:
+        raise CliError(f"--seq-drift must be GYRO_DEG_H,ACCEL (numbers or off), got {text!r}"
+                       ) from None
+    if any(v is not None and not (math.isfinite(v) and v >= 0) for v in (gyro, accel)):
+        raise CliError(f"--seq-drift must be >= 0, got {text!r}")
+    if gyro is None and accel is None:
+        raise CliError("--seq-drift: both off; use --no-sequential")
+    dph = math.pi / 180 / 3600
+    out = {q: gyro * dph for q in QUANTITIES if q.startswith("gyro") and gyro is not None}
+    out.update({q: accel for q in QUANTITIES if q.startswith("accel") and accel is not None})
+    return out
 
 
 def parse_quantities(text: str) -> tuple[str, ...]:
@@ -290,6 +329,12 @@ def run_bags(args: argparse.Namespace, out: Path, quantities) -> int:
     from flight_fdi.core.voter_real import calibrate_recordings
     from flight_fdi.core.voting import save_table
 
+    _check_int(args.offset_blocks, "--offset-blocks")
+    if not args.seq_margin >= 1:
+        raise CliError(f"--seq-margin must be >= 1, got {args.seq_margin!r}")
+    # the CUSUM runs against the fixed offset of the learning phase only
+    fixed = args.baseline == "learn" and args.track == 0
+    drift = None if args.no_sequential or not fixed else parse_drift(args.seq_drift)
     for name in ("learn", "margin", "track"):
         v = getattr(args, name)
         if not math.isfinite(v) or v < 0:
@@ -312,11 +357,12 @@ def run_bags(args: argparse.Namespace, out: Path, quantities) -> int:
         track_tau_s=args.track, margin=max(1.0, args.margin), ks_alpha=args.ks_alpha,
         method=args.method, n_segments=args.segments, quantities=quantities,
         names=[str(b) for b in args.from_bags], baseline=args.baseline,
-        linear=not args.no_linear)
+        linear=not args.no_linear, offset_blocks=args.offset_blocks, sequential=drift,
+        sequential_margin=args.seq_margin)
     save_table(table, out)
     info = summary(table, time.perf_counter() - start, str(out))
     info.update({"recordings": len(recs), "time_offsets_s": meta["time_offsets_s"],
-                 "mounting": meta["mounting"]})
+                 "mounting": meta["mounting"], "sequential": meta["sequential"]})
     if args.json:
         print(json.dumps(info, indent=1))
         return 0
@@ -333,4 +379,10 @@ def run_bags(args: argparse.Namespace, out: Path, quantities) -> int:
         ups = [float(table.entries[q][p][2].max()) / unit for p in ("x1", "x2", "x3")]
         print(f"  {q:<8} largest upper bound x1/x2/x3: "
               + " / ".join(f"{u:.4g}" for u in ups) + f" {uname}")
+    seq = meta["sequential"]
+    for q, h in (seq or {}).get("threshold", {}).items():
+        unit, uname = (1.0, "m/s^2") if q.startswith("accel") else (math.pi / 180 / 3600,
+                                                                   "deg/h")
+        print(f"  {q:<8} CUSUM drift {seq['drift'][q] / unit:.4g} {uname}, thresholds x1/x2/x3 "
+              + " / ".join(f"{v / unit:.4g}" for v in h) + f" {uname} s")
     return 0

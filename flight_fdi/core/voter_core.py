@@ -43,7 +43,7 @@ import numpy as np
 
 from .errors import CoreError
 from .voter_align import check_mounting, correct_mounting, delay, estimate_time_offsets
-from . import voter_linear
+from . import voter_linear, voter_sequential
 from .voter_kernel import step_deviation, tail_means
 from .voting import QUANTITIES, SINGLE_FAULT, HEALTHY, MARGINAL, ThresholdTable, vote_array
 
@@ -67,6 +67,7 @@ class VoterModel:
     baseline: str = "learn"             # offset: "learn" (first learn_s) or "grow" (step detector)
     linear: Mapping[str, Any] | None = None   # per-pair linear model (core/voter_linear.py)
     offset_blocks: int = 1              # offset: median of this many block means of the window
+    sequential: Mapping[str, Any] | None = None   # CUSUM section (core/voter_sequential.py)
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -112,8 +113,12 @@ class VoterModel:
                             "and replaces the offset tracking (track_tau_s 0)")
         mounting = check_mounting(d.pop("mounting", None), source)
         linear = voter_linear.check(d.pop("linear", None), source)
+        sequential = voter_sequential.check(d.pop("sequential", None), source)
+        if sequential and (baseline != "learn" or track > 0 or learn <= 0):
+            raise CoreError(f"{source}: the sequential detector needs the fixed offset of a "
+                            "learning phase (baseline learn, learn_s > 0, track_tau_s 0)")
         return cls(int(prefilter), learn, track, tau, max_lag, mounting, baseline, linear,
-                   int(blocks), d)
+                   int(blocks), sequential, d)
 
     def to_dict(self) -> dict[str, Any]:
         return {"prefilter": self.prefilter, "learn_s": self.learn_s,
@@ -122,7 +127,8 @@ class VoterModel:
                 else list(self.time_offsets_s),
                 "max_lag_s": self.max_lag_s, "mounting": self.mounting,
                 "baseline": self.baseline, "linear": self.linear,
-                "offset_blocks": self.offset_blocks, **dict(self.extra)}
+                "offset_blocks": self.offset_blocks, "sequential": self.sequential,
+                **dict(self.extra)}
 
 
 class Persistence:
@@ -239,6 +245,7 @@ class Decisions:
     lower: np.ndarray          # (m, Q, 3) bounds in force
     upper: np.ndarray
     events: list = field(default_factory=list)   # (t_flight, quantity index, old, new)
+    cusum: np.ndarray | None = None    # (m, Q, 3) signed CUSUM statistic (sequential detector)
 
     def __len__(self) -> int:
         return int(self.index.size)
@@ -283,6 +290,8 @@ class VoterCore:
         self._n_learn = 0
         self._w_prev: np.ndarray | None = None      # mean rate before the batch (linear model)
         self.decisions = 0
+        self.cusum = (voter_sequential.Cusum(self.model.sequential, table.quantities,
+                                             self.rate_hz) if self.model.sequential else None)
 
     # ------------------------------------------------------------------ input
     def push(self, stamp_ns: Any, P: Any) -> Decisions:
@@ -362,7 +371,7 @@ class VoterCore:
         self._s_tail = np.concatenate([self._s_tail, pf])[-(N - 1):] if N > 1 else self._s_tail
         self._next = end
         self._trim()
-        return self._decide(idx[keep], t[keep], stat[keep])
+        return self._decide(idx[keep], t[keep], stat[keep], pf[keep])
 
     def _trim(self) -> None:
         """Drop raw triples no later interpolation needs."""
@@ -378,7 +387,8 @@ class VoterCore:
             self.offset = stat[0].copy() if self.model.learn_s > 0 else np.zeros(stat.shape[1:])
         return stat - self.offset
 
-    def _decide(self, idx: np.ndarray, t: np.ndarray, stat: np.ndarray) -> Decisions:
+    def _decide(self, idx: np.ndarray, t: np.ndarray, stat: np.ndarray, pf: np.ndarray
+                ) -> Decisions:
         if not idx.size:
             return self._empty()
         lo, up = self.table.bounds_at(t)
@@ -386,10 +396,14 @@ class VoterCore:
             return self._decide_tracking(idx, t, stat, lo, up)
         dev = self._deviation(stat)
         eps = (dev >= lo) & (dev <= up)
+        g = None
+        if self.cusum is not None:      # the sequential detector on the sample residual
+            g, ok = self.cusum.step(pf - self.offset)
+            eps &= ok
         status, faulty, _ = vote_array(eps)
         isolated, events = self._persist(t, status, faulty)
         self.decisions += idx.size
-        return Decisions(idx, t, dev, eps, status, faulty, isolated, lo, up, events)
+        return Decisions(idx, t, dev, eps, status, faulty, isolated, lo, up, events, g)
 
     def _decide_step(self, idx: np.ndarray, t: np.ndarray, pf: np.ndarray, end: int
                      ) -> Decisions:
@@ -454,4 +468,4 @@ class VoterCore:
         z3 = np.zeros((0, Q, 3))
         z = np.zeros((0, Q), dtype=np.int8)
         return Decisions(np.zeros(0, np.int64), np.zeros(0), z3, z3.astype(bool), z, z, z,
-                         z3, z3)
+                         z3, z3, cusum=None if self.cusum is None else z3)

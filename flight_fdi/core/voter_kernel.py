@@ -87,3 +87,30 @@ def step_deviation(tail: np.ndarray, new: np.ndarray, start: int, width: int, n_
             if not inside[j, c]:
                 healthy[quantity[c]] = False
     return dev, inside
+
+
+@njit(cache=True)
+def cusum(e: np.ndarray, drift: np.ndarray, h: np.ndarray, dt: float, g_pos: np.ndarray,
+          g_neg: np.ndarray, peak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two-sided CUSUM of the residuals ``e`` (m, C) for a mean shift (Page's test):
+
+        g+_t = max(0, g+_(t-1) + (e_t - nu) dt),   g-_t = max(0, g-_(t-1) + (-e_t - nu) dt)
+
+    ``drift`` nu (C,) and thresholds ``h`` (C,) per column (in the residual's unit x s);
+    ``g_pos``/``g_neg``/``peak`` (C,) are the state, updated in place (``peak``: the largest
+    g so far). Returns the signed statistic (m, C) (g+ if g+ >= g-, else -g-) and the flags
+    max(g+, g-) <= h (inside: no alarm)."""
+    m, C = e.shape
+    g = np.empty((m, C))
+    inside = np.ones((m, C), dtype=np.bool_)
+    for j in range(m):
+        for c in range(C):
+            gp = max(0.0, g_pos[c] + (e[j, c] - drift[c]) * dt)
+            gn = max(0.0, g_neg[c] + (-e[j, c] - drift[c]) * dt)
+            g_pos[c], g_neg[c] = gp, gn
+            top = max(gp, gn)
+            g[j, c] = gp if gp >= gn else -gn
+            if top > peak[c]:
+                peak[c] = top
+            inside[j, c] = top <= h[c]
+    return g, inside

@@ -33,7 +33,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import CoreError
-from . import voter_linear
+from . import voter_linear, voter_sequential
 from .voter_align import align_times, correct_mounting, estimate_mounting, \
     estimate_time_offsets, mounting_summary
 from .voter_core import VoterCore, VoterModel
@@ -72,7 +72,9 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
                          min_segment_s: float = 2.0, min_recordings: int = 5,
                          quantities: Sequence[str] = QUANTITIES, names: Sequence[str] = (),
                          symmetric: bool = True, baseline: str = "learn",
-                         linear: bool = True, offset_blocks: int = 1) -> tuple[ThresholdTable, dict[str, Any]]:
+                         linear: bool = True, offset_blocks: int = 5,
+                         sequential: dict[str, float] | None = None,
+                         sequential_margin: float = 1.5) -> tuple[ThresholdTable, dict[str, Any]]:
     """Threshold table from nominal recordings ``[(stamp_ns (T,), P (T, 6, 3)), ...]``."""
     if len(recordings) < 2:
         raise CoreError(f"calibration needs at least 2 recordings, got {len(recordings)}")
@@ -103,12 +105,20 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
                                   "track_tau_s": track_tau_s, "time_offsets_s": None,
                                   "max_lag_s": max_lag_s, "mounting": mounting,
                                   "baseline": baseline, "linear": lin,
-                                  "offset_blocks": offset_blocks}, "calibration")
-    series, offsets = [], []
+                                  "offset_blocks": offset_blocks,
+                                  "sequential": voter_sequential.open_section(sequential)
+                                  if sequential else None}, "calibration")
+    series, offsets, peaks = [], [], []
     for ns, P in recordings:
         t, dev, core = deviations(ns, P, model, window, rate_hz, quantities)
         series.append((t, dev))
         offsets.append(core.offset)
+        if core.cusum is not None:
+            peaks.append(core.cusum.peak.reshape(len(quantities), 3))
+    if sequential:     # the CUSUM thresholds from the same nominal recordings
+        hours = sum(float(t[-1] - t[0]) for t, _ in series if t.size) / 3600.0
+        model = VoterModel.from_dict({**model.to_dict(), "sequential": voter_sequential.thresholds(
+            peaks, quantities, sequential, sequential_margin, hours)}, "calibration")
     t_bins, lo, up, normal, pval = _binned_bounds(series, alpha, learn_s, bin_s, ks_alpha,
                                                   method, min_recordings)
     entries: dict[str, dict[str, tuple]] = {}
@@ -130,6 +140,7 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
             "min_recordings": min_recordings,
             "time_offsets_s": {n: np.round(tau, 5).tolist() for n, tau in zip(names, taus)},
             "mounting": mounting_summary(mounting), "linear": lin_report,
+            "sequential": model.sequential,
             "offsets": {"mean": off.mean(axis=0), "min": off.min(axis=0),
                         "max": off.max(axis=0)}}
     table = ThresholdTable(tuple(quantities), int(window), float(rate_hz), float(alpha),
