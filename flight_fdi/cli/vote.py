@@ -102,7 +102,9 @@ def summarize(core, parts, shift: float, data=None) -> dict[str, Any]:
            "table": {"alpha": core.table.alpha, "window": core.table.window,
                      "rate_hz": core.table.rate_hz, "learn_s": core.model.learn_s,
                      "prefilter": core.model.prefilter, "baseline": core.model.baseline,
-                     "linear": sorted((core.model.linear or {}).get("coef", {}))}}
+                     "linear": sorted((core.model.linear or {}).get("coef", {})),
+                     "offset_blocks": core.model.offset_blocks,
+                     "sequential": sorted((core.model.sequential or {}).get("threshold", {}))}}
     if data is not None:
         out["triples"] = int(data.stamp_ns.size)
         out["dropped"] = {k: v for k, v in data.dropped.items() if v}
@@ -162,7 +164,8 @@ def print_text(res: dict[str, Any]) -> None:
         print(f"mounting {key}: rotation {m['rotation_deg']} deg, scale {m['scale_pct']} %")
     tab = res["table"]
     print(f"offset baseline: {tab['baseline']}; linear model on: "
-          + (", ".join(tab["linear"]) or "-"))
+          + (", ".join(tab["linear"]) or "-") + "; sequential detector on: "
+          + (", ".join(tab["sequential"]) or "-"))
     print("status (share of decisions): " + ", ".join(
         f"{k} {100 * v:.2f}%" for k, v in res["fraction_by_status"].items()))
     for q, runs in res["timeline"].items():
