@@ -407,17 +407,26 @@ def excerpt():
     return ns[:N_SAMPLES], P[:N_SAMPLES]
 
 
-@pytest.mark.parametrize("stuck", [False, True])
-def test_node_equals_offline_engine_on_real_data(ros, excerpt, stuck):
+SEQ_TABLE = REAL / "thresholds_seq_without_vertical_path_9.json"
+
+
+@pytest.mark.parametrize("stuck, table_file", [(False, REAL_TABLE), (True, REAL_TABLE),
+                                               ("accel", SEQ_TABLE)])
+def test_node_equals_offline_engine_on_real_data(ros, excerpt, stuck, table_file):
+    """Also with the sequential detector (SEQ_TABLE): an accel x step of 0.07 m/s^2 in IMU3
+    from 6 s, which only its CUSUM isolates on this excerpt (test_voter_sequential.py)."""
     ns, P = excerpt
     if stuck:
         P = P.copy()
-        P[(ns - ns[0]) * 1e-9 >= 8.0, 2, 2] = 0.0          # IMU3 gyro z stuck from 8 s
+        if stuck == "accel":
+            P[(ns - ns[0]) * 1e-9 >= 6.0, 3, 2] += 0.07     # IMU3 accel x +0.07 m/s^2 from 6 s
+        else:
+            P[(ns - ns[0]) * 1e-9 >= 8.0, 2, 2] = 0.0      # IMU3 gyro z stuck from 8 s
     from flight_fdi.core.voting import load_table
 
-    table = load_table(REAL_TABLE)
+    table = load_table(table_file)
     core, t, status, events = run(table, ns, P)
-    rig = Rig(ros, REAL_TABLE, status_every=1, confirm_s=CONFIRM / 120.0 - 1e-6,
+    rig = Rig(ros, table_file, status_every=1, confirm_s=CONFIRM / 120.0 - 1e-6,
               match_tolerance_s=0.001)
     rig.play(messages(ns, P))
     rig.wait_outputs(N_SAMPLES)
@@ -428,7 +437,9 @@ def test_node_equals_offline_engine_on_real_data(ros, excerpt, stuck):
     assert np.allclose(node.core.tau, core.tau)
     iso = [(q, new) for _, q, _, new in events if new]
     assert node.counters["isolations"] == len(iso)
-    if stuck:
+    if stuck == "accel":
+        assert iso == [(3, 3)] and node.latched[3] == 3 and node.selected == 1
+    elif stuck:
         assert iso == [(2, 3)] and node.latched[2] == 3 and node.selected == 1
         frames = [m.header.frame_id for m in rig.voted]
         assert set(frames) == {"imu1"}
