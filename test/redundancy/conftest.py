@@ -2,6 +2,8 @@
 IMU simulator, and simulated three-IMU bags (nominal and faulty)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from flight_fdi.core.voting_calib import calibrate
@@ -35,6 +37,21 @@ def table_file(small_calibration, tmp_path_factory):
     path = tmp_path_factory.mktemp("voter") / "thresholds.json"
     save_table(small_calibration[2].table, path)
     return path
+
+
+MIMU = Path(__file__).parent / "data" / "mimu"
+
+
+@pytest.fixture(scope="session")
+def mimu_excerpt():
+    """(stamp_ns (T,), P (T, 6, 3)) of the 15-s real excerpt (data/mimu, CC BY 4.0)."""
+    import numpy as np
+
+    from flight_fdi.cli.imu_csv import read_csv
+
+    t, _ = read_csv(MIMU / "IMU_1.csv.gz")
+    P = np.stack([read_csv(MIMU / f"IMU_{k}.csv.gz")[1] for k in (1, 2, 3)], axis=-1)
+    return np.round((1.7e9 + t) * 1e9).astype(np.int64), P
 
 
 def flight(seed: int, *faults: str):

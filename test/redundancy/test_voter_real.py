@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flight_fdi.cli.imu_csv import read_csv
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.voter_align import (align_times, correct_mounting, delay,
                                          estimate_mounting, estimate_time_offsets)
@@ -28,11 +27,9 @@ CONFIRM = 60   # 0.5 s
 
 
 @pytest.fixture(scope="module")
-def rec():
+def rec(mimu_excerpt):
     """(stamp_ns (T,), P (T, 6, 3)) of the 15-s excerpt."""
-    t, _ = read_csv(DATA / "IMU_1.csv.gz")
-    P = np.stack([read_csv(DATA / f"IMU_{k}.csv.gz")[1] for k in (1, 2, 3)], axis=-1)
-    return np.round((1.7e9 + t) * 1e9).astype(np.int64), P
+    return mimu_excerpt
 
 
 @pytest.fixture(scope="module")

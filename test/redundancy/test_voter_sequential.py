@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from flight_fdi.cli.errors import CliError
-from flight_fdi.cli.imu_csv import read_csv
 from flight_fdi.cli.voter_calibrate import parse_drift
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.voter_core import VoterCore, VoterModel, block_median
@@ -20,21 +19,14 @@ from flight_fdi.core.voter_kernel import cusum
 from flight_fdi.core.voter_sequential import Cusum, check, thresholds
 from flight_fdi.core.voting import QUANTITIES, load_table, table_from_dict
 
-DATA = Path(__file__).parent / "data" / "mimu"
-SEQ_TABLE = DATA / "thresholds_seq_without_vertical_path_9.json"
+SEQ_TABLE = Path(__file__).parent / "data" / "mimu" / "thresholds_seq_without_vertical_path_9.json"
 DPH = math.pi / 180 / 3600
 CONFIRM = 60   # 0.5 s
 
 
 @pytest.fixture(scope="module")
-def rec():
-    t, _ = read_csv(DATA / "IMU_1.csv.gz")
-    P = np.stack([read_csv(DATA / f"IMU_{k}.csv.gz")[1] for k in (1, 2, 3)], axis=-1)
-    return np.round((1.7e9 + t) * 1e9).astype(np.int64), P
-
-
-@pytest.fixture(scope="module")
 def table():
+    """Calibrated on the 17 other recordings with the defaults (robust offset, CUSUM)."""
     return load_table(SEQ_TABLE)
 
 
@@ -130,8 +122,8 @@ def test_validation():
 
 # ------------------------------------------------------------------------ the real excerpt
 
-def test_nominal_excerpt_is_not_faulted(rec, table):
-    ns, P = rec
+def test_nominal_excerpt_is_not_faulted(mimu_excerpt, table):
+    ns, P = mimu_excerpt
     core, cat, iso = run(table, ns, P)
     assert iso == [] and np.mean(cat("status") > 0) <= 0.01
     assert core.model.sequential and set(core.model.sequential["threshold"]) == {
@@ -143,10 +135,10 @@ def test_nominal_excerpt_is_not_faulted(rec, table):
 
 
 @pytest.mark.parametrize("imu", [2, 3])
-def test_accel_step_isolated_by_the_sequential_detector(rec, table, imu):
+def test_accel_step_isolated_by_the_sequential_detector(mimu_excerpt, table, imu):
     """0.07 m/s^2 on accel x from 6 s (9 s of post-fault data): the CUSUM isolates the right IMU
     within the excerpt; the window bounds alone (same table without it) see nothing."""
-    ns, P = rec
+    ns, P = mimu_excerpt
     t = (ns - ns[0]) * 1e-9
     Pf = P.copy()
     Pf[t >= 6.0, 3, imu - 1] += 0.07
@@ -158,8 +150,8 @@ def test_accel_step_isolated_by_the_sequential_detector(rec, table, imu):
     assert iso == []
 
 
-def test_sequential_detector_is_batch_invariant(rec, table):
-    ns, P = rec
+def test_sequential_detector_is_batch_invariant(mimu_excerpt, table):
+    ns, P = mimu_excerpt
     Pf = P.copy()
     Pf[(ns - ns[0]) * 1e-9 >= 6.0, 3, 1] += 0.07
     _, whole, ev1 = run(table, ns, Pf)
@@ -169,11 +161,11 @@ def test_sequential_detector_is_batch_invariant(rec, table):
     assert ev1 == ev2
 
 
-def test_startup_transient_does_not_shift_the_offset(rec, table):
+def test_startup_transient_does_not_shift_the_offset(mimu_excerpt, table):
     """vertical/path_9 starts with IMU3's gyro z ~400 deg/h off for about a second: the mean of
     the first 5 s carries a fifth of it into the offset and every later decision; the median of
     the five 1-s block means does not."""
-    ns, P = rec
+    ns, P = mimu_excerpt
     dev = {}
     for blocks in (1, 5):
         _, cat, _ = run(without_sequential(table, offset_blocks=blocks), ns, P)
