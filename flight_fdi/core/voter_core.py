@@ -15,7 +15,9 @@ Per matched triple (IMU1..IMU3 samples of one instant; ``P`` rows (6 quantities,
    means are compiled kernels (:mod:`flight_fdi.core.voter_kernel`).
 3. **Per-unit offset model**: real units disagree by constant offsets far larger than a fault.
    Each pair's nominal offset b is the statistic at the end of the **learning phase** (the first
-   ``learn_s`` seconds of the flight, no decisions during it); with ``track_tau_s`` > 0 it then
+   ``learn_s`` seconds of the flight, no decisions during it) -- with ``offset_blocks`` B > 1
+   the median of the means of B blocks of that window instead (:func:`block_median`: robust
+   to a transient at the start of a recording); with ``track_tau_s`` > 0 it then
    follows the statistic with a first-order filter of that time constant, frozen whenever a
    quantity is not healthy (a fault is not learnt). The thresholds bound the deviation
    statistic - b, so a constant offset is not a fault and a sudden change is. ``learn_s`` 0:
@@ -23,7 +25,9 @@ Per matched triple (IMU1..IMU3 samples of one instant; ``P`` rows (6 quantities,
    detector): b is the mean of every earlier sample admitted while its quantity was healthy
    (:func:`flight_fdi.core.voter_kernel.step_deviation`).
 4. **Vote**: eps_k = deviation of x_k inside the table's bounds at the flight time, the seed's
-   truth table (:func:`flight_fdi.core.voting.vote_array`).
+   truth table (:func:`flight_fdi.core.voting.vote_array`). With a ``sequential`` section the
+   CUSUM of each pair's sample residual (prefiltered difference - b) must also be below its
+   threshold (:mod:`flight_fdi.core.voter_sequential`).
 5. **Persistence** (:class:`Persistence`): a single fault naming IMU k on a quantity for
    ``confirm`` consecutive decisions isolates IMU k there; isolations latch (sticky) and are
    released after ``release_after_windows`` complete windows of healthy votes in a row; the

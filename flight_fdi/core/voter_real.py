@@ -10,8 +10,9 @@ lengths and trajectories, and their units disagree by offsets that change from d
    :mod:`flight_fdi.core.voter_linear`) is fitted on the aligned, mounting-corrected recordings
    and kept for the quantities where it lowers the held-out residual;
 2. every recording is run through the voter's own statistic (:class:`VoterCore`: alignment,
-   prefilter, window mean, the per-unit offset learnt in the first ``learn_s`` seconds), which
-   gives the deviation of each pair from its learnt offset at every sample after the learning;
+   prefilter, window mean, the per-unit offset learnt in the first ``learn_s`` seconds as the
+   median of ``offset_blocks`` block means), which gives the deviation of each pair from its
+   learnt offset at every sample after the learning;
 3. the seed's procedure on those deviations: the flight time is cut into bins of ``bin_s``; the
    deviations of all recordings in a bin are the sample of that time step (the recordings play the
    part of the seed's Monte Carlo flights, the samples of a bin widen the sample); per bin and
@@ -22,6 +23,10 @@ lengths and trajectories, and their units disagree by offsets that change from d
 4. with ``symmetric`` each bound becomes +- the larger of the two (a set of recordings may drift
    one way; another day's may drift the other), and the bounds are multiplied by ``margin`` (>= 1; recordings of other days spread more than the
    calibration set: a margin chosen on held-out days, docs/voter_real.md).
+
+5. with ``sequential`` ({quantity: drift nu}) the same pass runs the CUSUM of each pair
+   (:mod:`flight_fdi.core.voter_sequential`) without alarms; its thresholds are
+   ``sequential_margin`` x the largest statistic of the recordings.
 
 The result is a :class:`~flight_fdi.core.voting.ThresholdTable` with a ``model`` section
 (:class:`~flight_fdi.core.voter_core.VoterModel`) that ``flight-fdi vote`` and ``voter_node`` use.
@@ -83,17 +88,7 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
     if learn_s <= 0:
         raise CoreError("calibration from recordings needs a learning phase (learn_s > 0)")
     names = list(names) or [f"recording {i + 1}" for i in range(len(recordings))]
-    taus, aligned = [], []
-    for (ns, P), name in zip(recordings, names):
-        P = np.asarray(P, dtype=float)
-        t = (np.asarray(ns) - ns[0]) * 1e-9
-        n = int(np.searchsorted(t, learn_s))
-        try:
-            tau, _ = estimate_time_offsets(P[:n], rate_hz, max_lag_s, prefilter)
-        except CoreError as exc:
-            raise CoreError(f"{name}: {exc}") from None
-        taus.append(tau)
-        aligned.append(align_times(P, tau, rate_hz))
+    taus, aligned = _aligned(recordings, names, rate_hz, learn_s, max_lag_s, prefilter)
     mounting = estimate_mounting(aligned, rate_hz) if estimate_mount else None
     lin, lin_report = None, {}
     if linear and len(recordings) < 3:
@@ -146,6 +141,23 @@ def calibrate_recordings(recordings: Sequence[tuple[Any, Any]], alpha: float, ra
     table = ThresholdTable(tuple(quantities), int(window), float(rate_hz), float(alpha),
                            float(t_bins[-1] + bin_s), entries, stats, meta, model.to_dict())
     return table, meta
+
+
+def _aligned(recordings, names, rate_hz, learn_s, max_lag_s, prefilter):
+    """Per recording: the time offsets estimated over the learning phase, and the recording
+    moved onto IMU1's time with them."""
+    taus, aligned = [], []
+    for (ns, P), name in zip(recordings, names):
+        P = np.asarray(P, dtype=float)
+        t = (np.asarray(ns) - ns[0]) * 1e-9
+        n = int(np.searchsorted(t, learn_s))
+        try:
+            tau, _ = estimate_time_offsets(P[:n], rate_hz, max_lag_s, prefilter)
+        except CoreError as exc:
+            raise CoreError(f"{name}: {exc}") from None
+        taus.append(tau)
+        aligned.append(align_times(P, tau, rate_hz))
+    return taus, aligned
 
 
 def _binned_bounds(series, alpha, learn_s, bin_s, ks_alpha, method, min_recordings):
