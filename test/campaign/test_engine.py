@@ -133,11 +133,22 @@ def test_a_raising_callback_cancels_the_remaining_tasks(dask_cluster):
         assert engine.client.run_on_scheduler(_scheduler_tasks) == 0
 
 
-def test_chunks_of_tasks_give_the_same_outcomes_one_by_one(dask_cluster):
-    from flight_fdi.campaign.engine import auto_chunk
+def test_guided_chunks_are_large_first_and_single_at_the_end():
+    from flight_fdi.campaign.engine import MAX_CHUNK, guided_chunks
 
-    assert auto_chunk(50, 2) == 1 and auto_chunk(10_000, 2) == 8 and auto_chunk(200, 2) == 3
+    for n, threads in [(0, 1), (1, 1), (9, 2), (50, 1), (50, 2), (10_000, 2), (777, 64)]:
+        sizes = list(guided_chunks(n, threads))
+        assert sum(sizes) == n and all(1 <= s <= MAX_CHUNK for s in sizes)
+        assert sizes == sorted(sizes, reverse=True)
+        assert sizes[-threads:] == [1] * min(threads, n)  # the workers end together
+    assert len(list(guided_chunks(50, 1))) == 15 and len(list(guided_chunks(50, 2))) == 25
+    assert len(list(guided_chunks(10_000, 2))) < 10_000 / MAX_CHUNK + 20
+
+
+def test_chunks_of_tasks_give_the_same_outcomes_one_by_one(dask_cluster):
     with Engine(EngineSpec(scheduler=dask_cluster)) as engine:
         out = engine.run(square_or_fail, list(range(40)), chunk=3, window=3)
+        guided = engine.run(square_or_fail, list(range(200)))  # chunks of 8 down to 1
     pids = check_outcomes(out, 40)  # errors stay per task inside a chunk
     assert len(pids) == 2
+    assert len(check_outcomes(guided, 200)) == 2
