@@ -4,14 +4,14 @@ single-axis model on the same flights beside it (flight_fdi/eval/montecarlo3d.py
 
 The options shared with the single-axis study keep their meaning: --nominal, --per-fault (here:
 flights per fault scenario), --duration, --onset, --seed, --jobs / --workers / --scheduler,
---out, --records, --json, --no-progress; the gate options and --glr-p-false-alarm configure the
+--out, --records (and --restart: the records file resumes the 3-D study exactly as the
+single-axis one), --json, --no-progress; the gate options and --glr-p-false-alarm configure the
 single-axis analysis (the gate also the 3-D forward filter). --accel-levels / --gyro-levels set
 the body-axis step levels when given.
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import json
 
@@ -110,44 +110,52 @@ def run_ins3d(args: argparse.Namespace) -> int:
     """The 3-D study (or its ladder)."""
     from flight_fdi.campaign.engine import default_workers
     from flight_fdi.cli.batch import engine_spec
-    from flight_fdi.cli.montecarlo import emit_result, writable
+    from flight_fdi.cli.montecarlo import emit_result, open_records, writable
     from flight_fdi.eval.errors import EvalError
-    from flight_fdi.eval.ladder3d import format_ladder, run_ladder
     from flight_fdi.eval.metrics3d import format_metrics
-    from flight_fdi.eval.montecarlo3d import run_study
+    from flight_fdi.eval.montecarlo3d import run_study, study_settings
 
     config = study_config(args)
     spec = engine_spec(args)
     workers = spec.workers or default_workers()
     out = writable(args.out, "--out")
-    records = writable(args.records, "--records")
+    if args.ladder:
+        return _ladder(args, config, workers, spec.scheduler, out)
     try:
-        if args.ladder:
-            grades = tuple(g.strip() for g in args.ladder_grades.split(",") if g.strip())
-            ladder = run_ladder(config, grades, runs=args.ladder_runs, rungs=args.ladder_rungs,
-                                jobs=workers, progress=not args.no_progress,
-                                scheduler=spec.scheduler)
-            doc = {"model": "ins3d", "config": config.describe(), "ladder": ladder}
-            if out is not None:
-                out.write_text(json.dumps(doc, indent=1) + "\n")
-            print(json.dumps(doc) if args.json else format_ladder(ladder))
-            return 0
-        with contextlib.ExitStack() as stack:
-            on_record = None
-            if records is not None:
-                stream = stack.enter_context(records.open("w", encoding="utf-8"))
-
-                def on_record(rec: dict) -> None:
-                    stream.write(json.dumps(rec, allow_nan=False) + "\n")
-                    stream.flush()
-
+        with open_records(args, study_settings(config)) as records:
             result = run_study(config, jobs=workers, progress=not args.no_progress,
-                               on_record=on_record, scheduler=spec.scheduler)
+                               on_record=records.write if records else None,
+                               scheduler=spec.scheduler,
+                               done=records.done if records else None)
     except EvalError as exc:
         raise CliError(str(exc)) from None
     emit_result(result, out, args.json, format_metrics(result.metrics),
                 f"{len(result.records)} flights of {config.duration_s:g} s "
                 f"({config.profile}, {config.grade}) in {result.elapsed_s:.1f} s on "
-                f"{result.engine}" + (f"; full result in {out}" if out else "")
-                + (f"; records in {records}" if records else ""))
+                f"{result.engine}"
+                + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
+                + (f"; full result in {out}" if out else "")
+                + (f"; records in {args.records}" if args.records else ""))
+    return 0
+
+
+def _ladder(args: argparse.Namespace, config, workers: int, scheduler: str | None,
+            out) -> int:
+    """``--ladder``: the smallest body-axis step isolated in 95 % per sensor and axis."""
+    from flight_fdi.eval.errors import EvalError
+    from flight_fdi.eval.ladder3d import format_ladder, run_ladder
+
+    if args.records:
+        raise CliError("--records streams a study's flights; --ladder runs several studies "
+                       "and does not take it")
+    grades = tuple(g.strip() for g in args.ladder_grades.split(",") if g.strip())
+    try:
+        ladder = run_ladder(config, grades, runs=args.ladder_runs, rungs=args.ladder_rungs,
+                            jobs=workers, progress=not args.no_progress, scheduler=scheduler)
+    except EvalError as exc:
+        raise CliError(str(exc)) from None
+    doc = {"model": "ins3d", "config": config.describe(), "ladder": ladder}
+    if out is not None:
+        out.write_text(json.dumps(doc, indent=1) + "\n")
+    print(json.dumps(doc) if args.json else format_ladder(ladder))
     return 0

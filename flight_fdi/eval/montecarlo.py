@@ -58,6 +58,7 @@ from .decisions import (AMBIGUOUS, DETECTORS, FAULT_KINDS, ISOLATION_LEVEL,  # n
                         _stats, declared, glr_class, isolated, predicted_class)
 from .errors import EvalError
 from .parallel import parallel_map
+from .records import recorded_flights
 from .study_metrics import (by_level, confusion_matrix, error_rates,  # noqa: F401
                             smallest_isolated, summarize, type_errors)
 from .study_report import format_metrics  # noqa: F401
@@ -312,11 +313,5 @@ def _warm_worker() -> None:
 def _recorded(cases: list[FlightCase], done: Mapping[int, dict]) -> dict[int, dict]:
     """The records of ``done`` that belong to this study's flights (same index, kind and
     simulator seed); anything else means the records are of another study."""
-    kept = {}
-    for i, rec in done.items():
-        case = cases[i] if isinstance(i, int) and 0 <= i < len(cases) else None
-        if case is None or rec.get("sim_seed") != case.sim_seed or rec.get("kind") != case.kind:
-            raise EvalError(f"recorded flight {i!r} is not a flight of this study (another "
-                            "seed or plan)")
-        kept[i] = rec
-    return kept
+    return recorded_flights(done, {c.index: {"sim_seed": c.sim_seed, "kind": c.kind}
+                                   for c in cases})

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -350,10 +350,12 @@ class Study3DResult:
     jobs: int
     engine: str = ""
     ladder: dict | None = None
+    resumed: int = 0  # records taken from an earlier, interrupted run (not run again)
 
     def to_dict(self, with_records: bool = True) -> dict:
         d = {"model": "ins3d", "config": self.config.describe(), "jobs": self.jobs,
-             "engine": self.engine, "elapsed_s": self.elapsed_s, "metrics": self.metrics}
+             "engine": self.engine, "elapsed_s": self.elapsed_s, "resumed": self.resumed,
+             "metrics": self.metrics}
         if self.ladder is not None:
             d["ladder"] = self.ladder
         if with_records:
@@ -374,20 +376,38 @@ def run_cases(cases: list[Case3D], config: Study3DConfig, jobs: int = 1, progres
     return sorted(recs, key=lambda r: r["index"])
 
 
+def study_settings(config: Study3DConfig) -> dict:
+    """The settings a records file of this study holds in its header (``--records``): the
+    model, then :meth:`Study3DConfig.describe`."""
+    return {"model": "ins3d", **config.describe()}
+
+
 def run_study(config: Study3DConfig, jobs: int = 1, progress: bool = False,
               on_record: Callable[[dict], None] | None = None,
-              scheduler: str | None = None) -> Study3DResult:
-    """Every flight of the study on the campaign engine, then the metrics."""
+              scheduler: str | None = None,
+              done: Mapping[int, dict] | None = None) -> Study3DResult:
+    """Every flight of the study on the campaign engine, then the metrics. ``on_record``: called
+    with each new record as it arrives (e.g. to stream it to disk); ``done``: records of this
+    study already made, by flight index (a resumed study,
+    :class:`~flight_fdi.eval.records.RecordsFile`): those flights are not run again."""
     from .metrics3d import summarize
+    from .records import recorded_flights
 
     if not isinstance(config, Study3DConfig):
         raise EvalError(f"run_study: config must be a Study3DConfig, got {type(config).__name__}")
     start = time.perf_counter()
+    cases = plan_study(config)
+    kept = recorded_flights(done or {}, {
+        c.index: {"scenario": c.scenario, "sim_seed": c.sim_seed, "traj_seed": c.traj_seed}
+        for c in cases})
     info: dict = {}
-    records = run_cases(plan_study(config), config, jobs, progress, on_record, scheduler, info)
+    records = run_cases([c for c in cases if c.index not in kept], config, jobs, progress,
+                        on_record, scheduler, info)
+    records = sorted(records + list(kept.values()), key=lambda r: r["index"])
     return Study3DResult(config, records, summarize(records), time.perf_counter() - start,
-                         info.get("workers", 1), info.get("engine", ""))
+                         info.get("workers", 1), info.get("engine", ""), resumed=len(kept))
 
 
 __all__ = ["Case3D", "DEFAULT_LEVELS", "SCENARIOS", "Study3DConfig", "Study3DResult",
-           "combine_channels", "decision", "plan_study", "run_case", "run_cases", "run_study"]
+           "combine_channels", "decision", "plan_study", "run_case", "run_cases", "run_study",
+           "study_settings"]

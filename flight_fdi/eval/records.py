@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 from .errors import EvalError
 
@@ -30,6 +30,33 @@ FORMAT = "flight_fdi.study/1"
 def _plain(doc: Any) -> Any:
     """``doc`` as it reads back from JSON (tuples -> lists...)."""
     return json.loads(json.dumps(doc, allow_nan=False))
+
+
+def _differences(study: dict, other: Any) -> str:
+    """The settings in which two studies differ (the model first; at most 6 named)."""
+    other = other if isinstance(other, dict) else {}
+    changed = sorted((k for k in set(study) | set(other) if study.get(k) != other.get(k)),
+                     key=lambda k: (k != "model", k))
+    if not changed:
+        return "its settings"
+    named = [f"model ({other.get('model', 'channel')}, not {study.get('model', 'channel')})"
+             if k == "model" else k for k in changed[:6]]
+    return ", ".join(named) + (f" and {len(changed) - 6} more" if len(changed) > 6 else "")
+
+
+def recorded_flights(done: Mapping[Any, dict], plan: Mapping[int, dict]) -> dict[int, dict]:
+    """The records of ``done`` (a resumed study's, by flight index) checked against the study's
+    ``plan`` (flight index -> the fields its record must hold, e.g. its kind and simulator
+    seed): a record of a flight the study does not have, or with other values, means the file
+    is of another study or plan -- an error, never a wrong result."""
+    kept = {}
+    for i, rec in done.items():
+        want = plan.get(i) if isinstance(i, int) else None
+        if want is None or any(rec.get(k) != v for k, v in want.items()):
+            raise EvalError(f"recorded flight {i!r} is not a flight of this study (another "
+                            "seed or plan)")
+        kept[i] = rec
+    return kept
 
 
 class RecordsFile:
@@ -91,11 +118,9 @@ class RecordsFile:
             raise EvalError(f"{self.path} is not a study records file of this version (no "
                             f"'{FORMAT}' header line); use another file or restart it")
         if head.get("study") != self.study:
-            changed = sorted(k for k in set(self.study) | set(head.get("study") or {})
-                             if self.study.get(k) != (head.get("study") or {}).get(k))
             raise EvalError(f"{self.path} holds the records of another study (differs in "
-                            f"{', '.join(changed) or 'its settings'}); use another file or "
-                            "restart it")
+                            f"{_differences(self.study, head.get('study'))}); use another file "
+                            "or restart it")
         if not complete:
             return 0
         offset = len(complete[0]) + 1

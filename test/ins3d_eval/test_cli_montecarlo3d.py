@@ -42,7 +42,8 @@ def test_tiny_study_json_and_records(tmp_path, capsys):
     assert doc["config"]["levels"] == {"gyro_step": [0.2]}
     assert doc["metrics"]["flights"] == {"nominal": 1, "gyro_step": 1}
     assert doc["metrics"]["models"] == ["ins3d"]
-    lines = [json.loads(s) for s in records.read_text().splitlines()]
+    header, *lines = [json.loads(s) for s in records.read_text().splitlines()]
+    assert header["study"]["model"] == "ins3d"  # the study's settings (resume: --records)
     assert sorted(r["index"] for r in lines) == [0, 1]
     full = json.loads(out.read_text())
     assert [r["scenario"] for r in full["flights"]] == ["nominal", "gyro_step"]
