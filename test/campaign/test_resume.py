@@ -4,6 +4,7 @@ process and on 2 Dask workers); the records file's header, a cut last line, anot
 from __future__ import annotations
 
 import json
+from functools import partial
 
 import pytest
 
@@ -12,14 +13,13 @@ from flight_fdi.eval.errors import EvalError
 from flight_fdi.eval.montecarlo import StudyConfig, run_study
 from flight_fdi.eval.records import FORMAT, RecordsFile
 
+from resume_helpers import interrupted_file as interrupted
+from resume_helpers import lines
+
 STUDY = StudyConfig(nominal=3, per_fault=3, accel_levels_mg=(2.0, 10.0),
                     gyro_levels_deg_h=(5.0, 30.0), duration_s=120.0, seed=11)
 CLI = ["montecarlo", "--nominal", "3", "--per-fault", "3", "--accel-levels", "2,10",
        "--gyro-levels", "5,30", "--duration", "120", "--seed", "11", "--no-progress"]
-
-
-class Interrupt(Exception):
-    pass
 
 
 @pytest.fixture(scope="module")
@@ -28,22 +28,7 @@ def uninterrupted():
 
 
 def interrupted_file(path, after: int) -> list[int]:
-    """Run STUDY with its records in ``path`` and stop it (as Ctrl-C would) after ``after``
-    flights; the indices recorded."""
-    seen: list[int] = []
-    with RecordsFile(path, STUDY.describe()) as rec:
-        def write_then_stop(record: dict) -> None:
-            rec.write(record)
-            seen.append(record["index"])
-            if len(seen) == after:
-                raise Interrupt
-        with pytest.raises(Interrupt):
-            run_study(STUDY, jobs=1, on_record=write_then_stop, done=rec.done)
-    return seen
-
-
-def lines(path) -> list[dict]:
-    return [json.loads(x) for x in path.read_text().splitlines()]
+    return interrupted(path, STUDY.describe(), partial(run_study, STUDY, jobs=1), after)
 
 
 def test_cli_resume_runs_only_the_missing_flights_and_equals_an_uninterrupted_run(

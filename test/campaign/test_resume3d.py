@@ -6,6 +6,7 @@ on 2 Dask workers; another study's file (the single-axis study's too) is refused
 from __future__ import annotations
 
 import json
+from functools import partial
 
 import pytest
 
@@ -13,6 +14,9 @@ from flight_fdi.cli.main import main
 from flight_fdi.eval.errors import EvalError
 from flight_fdi.eval.montecarlo3d import Study3DConfig, run_study, study_settings
 from flight_fdi.eval.records import FORMAT, RecordsFile
+
+from resume_helpers import interrupted_file as interrupted
+from resume_helpers import lines
 
 STUDY = Study3DConfig(nominal=2, per_scenario=1, scenarios=("gyro_step", "accel_step",
                                                             "ref_jump"),
@@ -23,32 +27,13 @@ CLI = ["montecarlo", "--model", "ins3d", "--nominal", "2", "--per-fault", "1",
 N = 5
 
 
-class Interrupt(Exception):
-    pass
-
-
 @pytest.fixture(scope="module")
 def uninterrupted():
     return run_study(STUDY, jobs=1)
 
 
 def interrupted_file(path, after: int) -> list[int]:
-    """Run STUDY with its records in ``path``, stopped (as Ctrl-C would) after ``after``
-    flights; the indices recorded."""
-    seen: list[int] = []
-    with RecordsFile(path, study_settings(STUDY)) as rec:
-        def write_then_stop(record: dict) -> None:
-            rec.write(record)
-            seen.append(record["index"])
-            if len(seen) == after:
-                raise Interrupt
-        with pytest.raises(Interrupt):
-            run_study(STUDY, jobs=1, on_record=write_then_stop, done=rec.done)
-    return seen
-
-
-def lines(path) -> list[dict]:
-    return [json.loads(x) for x in path.read_text().splitlines()]
+    return interrupted(path, study_settings(STUDY), partial(run_study, STUDY, jobs=1), after)
 
 
 def test_cli_resume_runs_only_the_missing_flights_and_equals_an_uninterrupted_run(
