@@ -35,6 +35,18 @@ class Ins3dInput:
     refs: RefRows
     q: np.ndarray          # (K+1, 4) INS q_b^n (w, x, y, z) at the step boundaries
     t0_ns: int = 0         # the stamp times are relative to (a bag: the earliest first stamp)
+    #: the simulator's description of the flight (bag metadata ``flight_fdi.sim3d``), if any
+    description: dict | None = None
+
+    def vertical(self) -> dict:
+        """The ``analyze_ins3d`` options of the INS's vertical channel: its baro loop from the
+        description (``vertical="loop"``), ``damped`` when the description says the INS has
+        another vertical channel, nothing (the analysis defaults) without a description."""
+        from ..core.ins3d.vertical import VerticalLoop
+        if self.description is None:
+            return {}
+        loop = VerticalLoop.from_description(self.description)
+        return {"vertical": "damped"} if loop is None else {"vertical": "loop", "loop": loop}
 
 
 def _interp(t_out: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -74,8 +86,10 @@ def from_flight(flight, imu_rate_hz: float = 20.0, velocity_rate_hz: float = 20.
     iv = np.arange(0, t.size, int(round(rate / velocity_rate_hz)))
     ifx = np.arange(0, t.size, int(round(rate / fix_rate_hz)))
     g = flight.gnss
-    return build_input(t[idx], ins.q[idx], f, w, t[iv], ins.v[iv], t[ifx], ins.lat[ifx],
-                       ins.h[ifx], g.t, g.v, np.broadcast_to(g.vel_var, g.v.shape))
+    out = build_input(t[idx], ins.q[idx], f, w, t[iv], ins.v[iv], t[ifx], ins.lat[ifx],
+                      ins.h[ifx], g.t, g.v, np.broadcast_to(g.vel_var, g.v.shape))
+    out.description = flight.description()
+    return out
 
 
 def truth_from_flight(flight, inp: Ins3dInput) -> dict[str, np.ndarray]:
@@ -135,7 +149,23 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dI
     *arrays, t0 = _decode({k: by_topic[v] for k, v in names.items()}, names, path)
     inp = build_input(*arrays)
     inp.t0_ns = t0
+    inp.description = sim_description(path)
     return inp
+
+
+def sim_description(path: str | Path) -> dict | None:
+    """The simulator's flight description in a bag's metadata.yaml (``custom_data``
+    ``flight_fdi.sim3d``, JSON), or None (another bag, or unreadable metadata)."""
+    import json
+
+    import yaml
+    try:
+        meta = Path(path) / "metadata.yaml"
+        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        doc = json.loads((info.get("custom_data") or {})["flight_fdi.sim3d"])
+    except Exception:  # not a directory bag, no such key, or not JSON: no description
+        return None
+    return doc if isinstance(doc, dict) else None
 
 
 def read_truth3d(path: str | Path, t0_ns: int, topic: str = TRUTH_TOPIC

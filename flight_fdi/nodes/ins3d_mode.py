@@ -13,6 +13,13 @@ A step waits for the samples it needs (the next fix: 0.2 s at 5 Hz) and for the 
 stream to pass it, at most ``ins3d_wait_s`` of IMU time. The filter starts at the first step
 (the aligned prior needs its attitude and specific force).
 
+End of input: the last steps and reference rows wait for samples that come only with later
+messages. When no message arrived on any of the four inputs for ``ins3d_end_idle_s`` (steady
+clock: a replay's stopped /clock does not stop it), the node flushes them as at the end of a
+bag (``Ins3dAssembler.finish``: the last samples clamp) and ends the record; a message after
+that starts a new record (a new filter from its first step, published with ``reset``). The
+pipeline (``nodes/ins3d_pipeline.py``) flushes at the end of its bag itself (``finish()``).
+
 Outputs (channel ``ins3d``): ``fdi/state`` (FilterState per step and per update, the layout of
 ``ins3d_recording``: the smoother re-runs the whole 3-D analysis from a recording),
 ``fdi/innovation`` (Innovation per update: nu, S, beta^2 over the rows and per row, the gate and
@@ -24,6 +31,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import time
 from types import SimpleNamespace
 from typing import Any
 
@@ -59,6 +67,11 @@ INS3D_PARAMS = (
               "ins3d mode: longest wait (in IMU stamps) of a step for the reference stream to "
               "pass it; after that a late reference sample is dropped", "s",
               min=0.0, max=60.0, min_exclusive=True),
+    ParamSpec("ins3d_end_idle_s", "double", 2.0,
+              "ins3d mode: end of input -- after this long without a message on any of the four "
+              "inputs (steady clock) the waiting steps and reference rows are flushed and the "
+              "record ends; the next message starts a new record (0: never)", "s",
+              min=0.0, max=3600.0),
 )
 INS3D_ONLY = tuple(s.name for s in INS3D_PARAMS)
 #: filter_node parameters the ins3d mode uses besides its own
@@ -118,14 +131,16 @@ class Ins3dMode:
         if len(set(self.names.values())) < 4:
             fail("imu_topic", p["imu_topic"], f"four distinct topics (they resolve to "
                  f"{sorted(self.names.values())})")
-        self.asm = Ins3dAssembler(wait_s=p["ins3d_wait_s"])
-        self.stream: Ins3dStream | None = None
-        self._held: list = []
-        self.last: Any = None
-        self.last_t: float | None = None
-        self.alarm_since: float | None = None
+        self._new_record()
         self.counters = node.counters = diag.Counters(
-            ("received_ins", "received_reference", "published", "published_states"))
+            ("received_ins", "received_reference", "published", "published_states",
+             "records_ended"))
+        self._last_msg = time.monotonic()
+        self._idle_s = float(p["ins3d_end_idle_s"])
+        if self._idle_s > 0:
+            from rclpy.clock import Clock, ClockType
+            self._idle_timer = node.create_timer(min(0.5, self._idle_s / 2.0), self._check_idle,
+                                                 clock=Clock(clock_type=ClockType.STEADY_TIME))
         node._create_outputs(1)
         cb = {"ins_imu": (Imu, self._on_imu), "ins_velocity": (TwistStamped, self._on_vel),
               "ins_fix": (NavSatFix, self._on_fix),
@@ -141,6 +156,24 @@ class Ins3dMode:
             f"ins3d mode: {model.grade.name} grade, {model.n} states, {model.rows} reference "
             f"rows; inputs {', '.join(self.names.values())} (gate {gate.rule}, alarm "
             f"{gate.alarm_m} of {gate.alarm_n}, action {gate.action})")
+
+    def _new_record(self) -> None:
+        self.asm = Ins3dAssembler(wait_s=self.p["ins3d_wait_s"])
+        self.stream: Ins3dStream | None = None
+        self._held: list = []
+        self.last: Any = None
+        self.last_t: float | None = None
+        self.alarm_since: float | None = None
+
+    def _check_idle(self) -> None:
+        """The end-of-input timer (module docstring)."""
+        if self.asm.t0_ns is not None and not self.asm.finished and \
+                time.monotonic() - self._last_msg >= self._idle_s:
+            self.finish()
+            self.counters.inc("records_ended")
+            self.node.get_logger().info(
+                f"ins3d: no input for {self._idle_s:g} s: flushed the end of the record "
+                f"(last step {self.asm.k})")
 
     # ------------------------------------------------------------------ inputs
     def _on_imu(self, m: Any) -> None:
@@ -165,6 +198,9 @@ class Ins3dMode:
         name = self.names[key]
         self.inputs.seen(name)
         self.counters.inc(counter)
+        self._last_msg = time.monotonic()
+        if self.asm.finished:                     # the record ended: this one starts anew
+            self._new_record()
         ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
         try:
             got = self.asm.add(key, ns, *values)

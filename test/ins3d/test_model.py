@@ -135,3 +135,78 @@ def test_a_wrong_sign_is_caught_by_the_truth_test():
     m = Ins3dModel.from_grade("tactical", position=True, vertical="free")
     x = propagate(m, inp.steps, tr["x"][0], tr["u_a"], -tr["u_g"])
     assert _relative_error(x, tr["x"], [3, 4, 5]) > 0.5
+
+
+def _baro_flight(seed=3, onset=400.0):
+    """Navigation grade, no white IMU noise, a constant baro error (the loop's input is then
+    known: b = h_baro - h_true), a 0.3-mg vertical accelerometer step at ``onset``."""
+    import dataclasses
+
+    from flight_fdi.sim.faults import G0, FaultSpec3D
+    from flight_fdi.sim.gnss import BaroConfig
+    from flight_fdi.sim.imu3d import GRADES
+    from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
+    from flight_fdi.sim.trajectory import TrajectoryConfig
+
+    g = dataclasses.replace(GRADES["navigation"], arw=0.0, vrw=0.0)
+    cfg = Sim3DConfig(TrajectoryConfig(profile="cruise_turns", duration_s=900.0, rate_hz=100.0),
+                      grade=g, seed=seed, baro=BaroConfig(bias=5.0, instability=0.0, white=0.0),
+                      faults=(FaultSpec3D(target="accel", type="step", start_s=onset,
+                                          magnitude=0.3e-3 * G0, axis="z"),))
+    return simulate3d(cfg)
+
+
+@pytest.mark.parametrize("position", [False, True])
+def test_vertical_loop_reproduces_the_simulators_baro_damped_channel(position):
+    """The INS's own height loop in F (``vertical="loop"``, gains from the flight's metadata):
+    with the true sensor errors and the true baro error as inputs the model reproduces the
+    simulator's vertical velocity and height errors -- the 0.3-mg vertical accelerometer step's
+    transient of 0.25 m/s that the loop's integrator then absorbs -- to 0.1 %."""
+    from flight_fdi.core.ins3d.vertical import VerticalLoop
+
+    fl = _baro_flight()
+    inp = from_flight(fl)
+    tr = truth_from_flight(fl, inp)
+    loop = VerticalLoop.from_description(fl.description(), float(fl.truth.nav.lat[0]),
+                                         float(fl.truth.nav.h[0]))
+    assert loop.tau_s == 100.0 and loop.white == 0.0 and loop.bias == 5.0
+    m = Ins3dModel.from_grade(fl.config.imu_grade, position=position, vertical="loop",
+                              loop=loop)
+    assert m.n == 15 + 2 * position and m.names[-2:] == ("int_dh", "b_aid")
+    assert m.ih == (14 if position else 12)
+    x0 = np.zeros(m.n)
+    x0[:12] = tr["x"][0, :12]
+    x0[m.ih] = tr["x"][0, 14]
+    x0[m.im - 1] = fl.aid_h[0] - fl.truth.nav.h[0]
+    x = propagate(m, inp.steps, x0, tr["u_a"], tr["u_g"])
+    dv_u, dh = tr["x"][:, 2], tr["x"][:, 14]
+    assert 0.2 < np.max(np.abs(dv_u)) < 0.3
+    assert abs(dv_u[-1]) < 0.3 * np.max(np.abs(dv_u))          # the integrator absorbs it
+    assert np.max(np.abs(x[:, 2] - dv_u)) < 1e-3 * np.max(np.abs(dv_u))
+    assert np.max(np.abs(x[:, m.ih] - dh)) < 1e-3 * np.max(np.abs(dh))
+    # the damped stand-in (dv_U a Markov state of its own) does not see the step at all
+    damped = Ins3dModel.from_grade(fl.config.imu_grade, position=position)
+    xd = propagate(damped, inp.steps, np.zeros(damped.n), tr["u_a"], tr["u_g"])
+    assert np.max(np.abs(xd[:, 2])) == 0.0
+
+
+def test_vertical_loop_parameters():
+    from flight_fdi.core.ins3d.vertical import VerticalLoop, loop_gains
+    from flight_fdi.sim.strapdown import vertical_gains
+
+    assert loop_gains(100.0, 0.8, 2000.0) == pytest.approx(vertical_gains(100.0, 0.8, 2000.0),
+                                                           rel=1e-15)
+    assert VerticalLoop.from_description({"vertical": "free"}) is None
+    with pytest.raises(CoreError):
+        VerticalLoop(tau_s=0.0)
+    m = Ins3dModel.from_grade("navigation", rows=3, vertical="loop", latency=True)
+    k1, k2, k3 = m.loop.gains()
+    F = F_matrix(m, _level_steps()[0], 0)
+    ih, js, jb = 12, 13, 14
+    assert F[ih, IV + 2] == 1.0 and F[ih, ih] == -k1 and F[ih, jb] == k1
+    assert F[IV + 2, js] == -k3 and F[js, ih] == 1.0 and F[js, jb] == -1.0
+    assert F[IV + 2, IBA + 2] == 1.0                     # level: ba_z drives dv_U
+    # the stationary variance of the aiding error is the baro's turn-on^2 + GM^2
+    inv, q = m.aid_params()
+    assert q / (2 * inv) == pytest.approx(5.0**2 + 2.0**2)
+    assert m.H().shape == (3, m.n) and m.il == m.n - 1

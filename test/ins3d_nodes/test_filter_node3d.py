@@ -87,7 +87,7 @@ def test_node_outputs_equal_the_batch_filter(ros):
 
     msgs = _as_received(topic_messages(flight(180.0)))
     node = ros.node(FilterNode, {"model": "ins3d", "input_qos": "reliable",
-                                     "input_queue_depth": 5000})
+                                     "input_queue_depth": 5000, "ins3d_end_idle_s": 0.0})
     driver = ros.node("driver")
     states = collect(ros, driver, FilterState, "fdi/state", 100000)
     innov = collect(ros, driver, Innovation, "fdi/innovation", 100000)
@@ -122,6 +122,49 @@ def test_node_outputs_equal_the_batch_filter(ros):
     statuses = {s.name: s for s in node.diagnostic_statuses()}
     assert statuses["filter_node: ins3d"].message == "filtering" or "alarm" in \
         statuses["filter_node: ins3d"].message
+
+
+def _last_states(states):
+    """The state after the last update of each boundary (a reset starts a new record)."""
+    last, k = {}, -1
+    for m in states:
+        if m.reset or m.dt > 0:
+            k += 1
+        last[k] = np.array(m.x)
+    return np.array([last[i] for i in range(k + 1)])
+
+
+@pytest.mark.timeout(300)
+def test_end_of_input_flushes_the_waiting_steps_and_a_new_record_starts(ros):
+    """Without finish(): after ins3d_end_idle_s without input the node publishes the steps and
+    rows that waited for later samples (the whole batch filter), and the next message starts a
+    new record (a reset state, the filter from its first step again)."""
+    from flight_fdi_msgs.msg import FilterState
+
+    msgs = _as_received(topic_messages(flight(60.0)))
+    node = ros.node(FilterNode, {"model": "ins3d", "input_qos": "reliable",
+                                     "input_queue_depth": 5000, "ins3d_end_idle_s": 1.0})
+    driver = ros.node("driver")
+    states = collect(ros, driver, FilterState, "fdi/state", 100000)
+    _replay(ros, node, driver, msgs)
+    inp = batch_input(msgs)
+    n_steps, n_refs = len(inp.steps), inp.refs.t.size
+    assert node.ins3d.asm.k < n_steps                   # the last steps wait for more input
+    ros.spin_until(lambda: len(states) >= n_steps + 1 + n_refs, timeout=60,
+                   what="the end-of-input flush")
+    assert node.counters["records_ended"] == 1
+    model = node.model
+    st = inp.steps
+    fwd = run_forward(model, st, inp.refs, gate=GateConfig(),
+                      P0=model.p0_aligned(st.C[0], st.f_n[0], float(st.lat[0])))
+    np.testing.assert_array_equal(_last_states(states), fwd.x)
+    # a message after the end starts a new record (here: the same flight 100 s later)
+    later = [(ns + 100 * 10**9, key, vals) for ns, key, vals in msgs[:400]]
+    n_before = len(states)
+    _replay(ros, node, driver, later)
+    ros.spin_until(lambda: any(m.reset for m in states[n_before:]), timeout=30,
+                   what="the new record's first state")
+    assert node.ins3d.asm.t0_ns == later[0][0]
 
 
 def test_bad_messages_are_counted_not_fatal(ros):

@@ -10,7 +10,7 @@ curves per hypothesis, the smoothed body-axis bias estimates with their sd, the 
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
 from .result3d import post_flight
+from .vertical import VerticalLoop
 
 
 @dataclass
@@ -113,14 +114,20 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
                   post: bool = True, max_dt: float | None = 0.1,
                   thresholds: dict[str, float] | None = None,
                   diagnosis: DiagnosisConfig | None = None,
-                  with_observability: bool = True) -> Ins3dAnalysis:
+                  with_observability: bool = True,
+                  loop: VerticalLoop | None = None) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
     simulated flight). ``max_dt``: the steps are merged onto the reference grid, at least every
     ``max_dt`` s (``data.coarsen``; None: the input grid). ``post``: also the post-flight part
     (backward sweep, seed method, GLR isolation). ``thresholds``: GLR thresholds per kind
-    (default: the grade's, ``glr3d.thresholds_for``)."""
+    (default: the grade's, ``glr3d.thresholds_for``). ``loop``: the INS height loop of
+    ``vertical="loop"`` (default: the simulator's baro loop, its gains at the first step's
+    latitude and height)."""
+    if vertical == "loop" and steps.t.size:
+        base = loop or VerticalLoop()
+        loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))
     model = Ins3dModel.from_grade(grade, position=position, rows=rows, vertical=vertical,
-                                  latency=latency, ref_markov=ref_markov)
+                                  latency=latency, ref_markov=ref_markov, loop=loop)
     if refs.t.size == 0:
         raise CoreError("ins3d analysis: no reference update inside the INS record")
     order = np.argsort(refs.step, kind="stable")

@@ -40,11 +40,24 @@ against expm and Van Loan at the flight's step measured in test/ins3d/test_model
 (docs/ins3d.md).
 
 Vertical channel (``vertical``): ``free`` -- the equations above (unstable through dg, use with
-``position=True``); ``damped`` (default: the simulator's INS, like most, damps its height with a
-baro loop the analyst does not know) -- dv_U is cut from the other states and modelled as a
-first-order Markov state of its own (``tau_vertical_s``, ``sigma_vertical``), so an unmodelled
-loop cannot pull the horizontal channels through the Coriolis term; the vertical accelerometer
-bias still enters the horizontal channels through C when the aircraft banks.
+``position=True``); ``damped`` -- dv_U is cut from the other states and modelled as a
+first-order Markov state of its own (``tau_vertical_s``, ``sigma_vertical``), for an INS whose
+height loop is not known: an unmodelled loop cannot pull the horizontal channels through the
+Coriolis term; the vertical accelerometer bias enters only the horizontal channels (through C
+when the aircraft banks). ``loop`` -- the INS's own third-order height loop (the simulator's,
+``sim.strapdown``; Widnall & Sinha) on e = h_INS - h_aid with the aiding error b (baro or
+reference height error, ``VerticalLoop``): per step the INS adds -k1 e dt to h and
+-(k2 e + k3 int e) dt to v_U, so the error states dh, s = int (dh - b), b (after the core
+states; with ``position=True`` dh is dp_U) obey::
+
+    dh'   = dv_U - k1 (dh - b)
+    dv_U' = (f x phi + C ba + ...)_U - dg/dh dh - k2 (dh - b) - k3 s
+    s'    = dh - b,        b' = -b / tau_c + w_b   (turn-on bias + Gauss-Markov, as the IMU biases)
+
+with the white part of the aiding height (sigma_w per sample at the INS rate) as process noise
+on dh, dv_U, s (k1^2, k2^2, 1 times its density sigma_w^2 dt_ins; the correlations dropped).
+A vertical accelerometer bias then shows in dv_U as a transient of some b tau (the loop's
+integrator absorbs it after a few tau): seen by a vertical reference row (``rows=3``).
 
 Measurement: z = v_INS - v_ref = H x + noise, H = [I 0 ...] on 2 (east, north) or 3 rows.
 Optional (``latency=True``) last state: the reference latency tau (s, a constant): the reference
@@ -64,13 +77,15 @@ from numba import njit
 
 from ..earth import A, E2, GE, GF, GK, GM_RATIO, OMEGA_IE, gravity, radii
 from .grades import GRADES, ImuGrade
+from .vertical import VerticalLoop, loop_gains
 from .sparse import mul_left
 from ..errors import CoreError
 
+LOOP_NAMES = ("dh", "int_dh", "b_aid")
 STATE_NAMES = ("dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u",
                "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "dp_e", "dp_n", "dp_u")
 IV, IPHI, IBA, IBG, IP = 0, 3, 6, 9, 12
-VERTICAL = ("damped", "free")
+VERTICAL = ("damped", "free", "loop")
 REF_MARKOV_NAMES = ("ref_m_e", "ref_m_n", "ref_m_u")
 
 
@@ -94,6 +109,7 @@ class Ins3dModel:
     latency: bool = False
     latency_sigma_s: float = 0.05
     ref_markov: tuple[float, float, float] | None = None   # (sigma_h, sigma_v m/s, tau s)
+    loop: VerticalLoop = VerticalLoop()      # the height loop of vertical="loop"
 
     def __post_init__(self) -> None:
         if self.rows not in (2, 3):
@@ -112,23 +128,40 @@ class Ins3dModel:
     @classmethod
     def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2,
                    vertical: str = "damped", latency: bool = False,
-                   ref_markov: tuple[float, float, float] | None = None) -> "Ins3dModel":
+                   ref_markov: tuple[float, float, float] | None = None,
+                   loop: VerticalLoop | None = None) -> "Ins3dModel":
         if isinstance(name, ImuGrade):
-            return cls(name, position, rows, vertical, latency=latency, ref_markov=ref_markov)
-        if name not in GRADES:
+            grade = name
+        elif name in GRADES:
+            grade = GRADES[name]
+        else:
             raise CoreError(f"ins3d: unknown IMU grade {name!r}; choose one of "
                             f"{', '.join(GRADES)}")
-        return cls(GRADES[name], position, rows, vertical, latency=latency,
-                   ref_markov=ref_markov)
+        return cls(grade, position, rows, vertical, latency=latency, ref_markov=ref_markov,
+                   loop=loop or VerticalLoop())
 
     @property
     def n(self) -> int:
         return self.im + self.n_markov + (1 if self.latency else 0)
 
     @property
+    def n_loop(self) -> int:
+        """Vertical-loop states after the core ones (dh, s, b; dh is dp_U with positions)."""
+        if self.vertical != "loop":
+            return 0
+        return 2 if self.position else 3
+
+    @property
+    def ih(self) -> int:
+        """Index of the height error dh (-1: none)."""
+        if self.position:
+            return IP + 2
+        return 12 if self.vertical == "loop" else -1
+
+    @property
     def im(self) -> int:
         """Index of the first reference Markov state (the count is ``n_markov``)."""
-        return 15 if self.position else 12
+        return (15 if self.position else 12) + self.n_loop
 
     @property
     def n_markov(self) -> int:
@@ -141,7 +174,8 @@ class Ins3dModel:
 
     @property
     def names(self) -> tuple[str, ...]:
-        return (STATE_NAMES[:self.im] + REF_MARKOV_NAMES[:self.n_markov]
+        core = STATE_NAMES[:15 if self.position else 12]
+        return (core + LOOP_NAMES[3 - self.n_loop:] + REF_MARKOV_NAMES[:self.n_markov]
                 + (("latency",) if self.latency else ()))
 
     def markov_sigma(self) -> np.ndarray:
@@ -157,16 +191,30 @@ class Ins3dModel:
         ig, qg = _tau_c(g.gyro_bias, g.gyro_instability, g.gyro_tau_s)
         return np.array([ia, ig, qa, qg])
 
+    def aid_params(self) -> tuple[float, float]:
+        """(1/tau_c, q) of the aiding height error b (vertical loop)."""
+        lp = self.loop
+        return _tau_c(lp.bias, lp.instability, lp.aid_tau_s)
+
     def kernel_params(self) -> np.ndarray:
-        """(4,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases,
-        1/tau of the damped vertical velocity error (0: free vertical channel), and 1 when the
-        position states are present, 1/tau of the reference Markov states, their first index
-        and their count."""
+        """(14,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases,
+        1/tau of the damped vertical velocity error (0: not damped), 1 when the position
+        states are present, 1/tau of the reference Markov states, their first index and their
+        count; the loop gains k1, k2, k3 (k1 = 0: no loop), 1/tau_c of the aiding error, the
+        indices of dh, s and b."""
         ia, ig, _, _ = self.bias_params()
-        return np.array([ia, ig, 1.0 / self.tau_vertical_s if self.vertical == "damped"
-                         else 0.0, 1.0 if self.position else 0.0,
-                         1.0 / self.ref_markov[2] if self.ref_markov else 0.0,
-                         float(self.im), float(self.n_markov)])
+        kp = np.zeros(14)
+        kp[:7] = [ia, ig, 1.0 / self.tau_vertical_s if self.vertical == "damped" else 0.0,
+                  1.0 if self.position else 0.0,
+                  1.0 / self.ref_markov[2] if self.ref_markov else 0.0,
+                  float(self.im), float(self.n_markov)]
+        if self.vertical == "loop":
+            i0 = self.im - self.n_loop
+            kp[7:10] = self.loop.gains()
+            kp[10] = self.aid_params()[0]
+            kp[11:14] = [self.ih, self.im - 2, self.im - 1] if self.position else \
+                [i0, i0 + 1, i0 + 2]
+        return kp
 
     def qc(self) -> np.ndarray:
         """(n,) diagonal of the continuous process noise density."""
@@ -178,6 +226,13 @@ class Ins3dModel:
         q[IBG:IBG + 3] = qg
         if self.vertical == "damped":
             q[IV + 2] = 2.0 * self.sigma_vertical**2 / self.tau_vertical_s
+        if self.vertical == "loop":       # white aiding height: density sigma_w^2 dt_aid
+            k1, k2, _ = self.loop.gains()
+            nw = self.loop.white**2 / self.loop.aid_rate_hz
+            q[self.ih] += k1 * k1 * nw
+            q[IV + 2] += k2 * k2 * nw
+            q[self.im - 2] = nw
+            q[self.im - 1] = self.aid_params()[1]
         if self.ref_markov:
             q[self.im:self.im + self.n_markov] = 2.0 * self.markov_sigma()**2 / self.ref_markov[2]
         return q
@@ -204,6 +259,11 @@ class Ins3dModel:
         p[IBG:IBG + 3] = max(sg, 1e-10) ** 2
         if self.position:
             p[IP:IP + 3] = p_sigma**2
+        if self.vertical == "loop":       # the loop starts at the true height, s = 0
+            lp = self.loop
+            p[self.ih] = min(p_sigma, 1.0) ** 2 if not self.position else p[self.ih]
+            p[self.im - 2] = 1.0
+            p[self.im - 1] = max(lp.bias**2 + lp.instability**2, 1e-6)
         if self.ref_markov:
             p[self.im:self.im + self.n_markov] = self.markov_sigma()**2
         if self.latency:
@@ -310,9 +370,29 @@ def fill_F(F, C, f_n, v, lat, h, bias):
         if pos:
             F[IP + 2, IV + 2] = 1.0
             F[IV + 2, IP + 2] = 0.0
+    if bias[7] > 0.0:
+        _fill_loop(F, bias, lat, h, pos)
     im = int(bias[5])
     for i in range(int(bias[6])):  # reference Markov noise states
         F[im + i, im + i] = -bias[4]
+
+
+@njit(cache=True)
+def _fill_loop(F, bias, lat, h, pos):
+    """The INS height loop's rows and columns (module docstring, ``vertical="loop"``)."""
+    k1, k2, k3 = bias[7], bias[8], bias[9]
+    ih, js, jb = int(bias[11]), int(bias[12]), int(bias[13])
+    if not pos:                   # dh' = dv_U (with positions: _fill_position did it)
+        F[ih, IV + 2] = 1.0
+        F[IV + 2, ih] += -dgravity_dh(lat, h)
+    F[ih, ih] += -k1
+    F[ih, jb] += k1
+    F[IV + 2, ih] += -k2
+    F[IV + 2, jb] += k2
+    F[IV + 2, js] += -k3
+    F[js, ih] = 1.0
+    F[js, jb] = -1.0
+    F[jb, jb] = -bias[10]
 
 
 @njit(cache=True)
@@ -439,6 +519,7 @@ def F_matrix(model: Ins3dModel, steps, k: int) -> np.ndarray:
     return F
 
 
-__all__ = ["IBA", "IBG", "IP", "IPHI", "IV", "Ins3dModel", "STATE_NAMES", "discretize", "square",
+__all__ = ["IBA", "IBG", "IP", "IPHI", "IV", "Ins3dModel", "LOOP_NAMES", "STATE_NAMES",
+           "VerticalLoop", "loop_gains", "discretize", "square",
            "transition",
            "dgravity_dh", "fill_F", "F_matrix", "gravity", "propagate"]
