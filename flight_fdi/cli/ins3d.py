@@ -30,7 +30,9 @@ def add_ins3d_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--grade", default=None, choices=[k for k in GRADES if k != "perfect"],
                    help="IMU grade preset of the bias models (default navigation)")
     g.add_argument("--rows", type=int, default=None, choices=(2, 3),
-                   help="reference rows: 2 (east, north) or 3 (with up) (default 2)")
+                   help="reference rows: 2 (east, north) or 3 (with up) (default 3: the vertical "
+                        "row sees the INS height loop's response to a vertical accelerometer "
+                        "error)")
     g.add_argument("--imu-topic", default=None,
                    help="INS attitude and IMU means, sensor_msgs/Imu (default /ins/imu)")
     g.add_argument("--fix-topic", default=None,
@@ -65,7 +67,7 @@ def settings(args: argparse.Namespace) -> dict:
     """grade, rows and the gate of the options."""
     from flight_fdi.cli.analyze import analysis_config
 
-    return {"grade": args.grade or "navigation", "rows": args.rows or 2,
+    return {"grade": args.grade or "navigation", "rows": args.rows or 3,
             "gate": analysis_config(args).gate}
 
 
@@ -85,7 +87,7 @@ def analyze_bag(bag: str, args: argparse.Namespace):
     names = check_topics(bag, topics(args))
     inp = read_ins3d(bag, names)
     analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
-                             gate=s["gate"])
+                             gate=s["gate"], **inp.vertical())
     return ins3d_result(analysis, bag, source(names, s)), analysis, inp
 
 

@@ -88,7 +88,7 @@ class Study3DConfig:
     grade: str = "navigation"
     onset_window: tuple = (0.1, 0.8)
     gnss_latency_s: float = 0.02
-    rows: int = 2
+    rows: int = 3
     seed: int = 0
     single_axis: bool = True
     analysis: Any = None     # core.analysis.AnalysisConfig of the single-axis model (None:
@@ -261,7 +261,7 @@ def ins3d_post_flight(flight, config: Study3DConfig, grade: str) -> tuple[dict, 
 
     inp = from_flight(flight)
     an = analyze_ins3d(inp.steps, inp.refs, grade=grade, rows=config.rows,
-                       gate=config.analysis.gate, with_observability=False)
+                       gate=config.analysis.gate, with_observability=False, **inp.vertical())
     return an.post_flight_dict(), {"alarms": len(an.summary()["alarms_raised_s"])}
 
 

@@ -60,7 +60,7 @@ INS3D_PARAMS = (
               "ins3d mode: INS latitude and height (sensor_msgs/NavSatFix)", non_empty=True),
     ParamSpec("ins3d_grade", "string", "navigation",
               "ins3d mode: IMU grade preset of the bias models", choices=GRADES),
-    ParamSpec("ins3d_rows", "int", 2,
+    ParamSpec("ins3d_rows", "int", 3,
               "ins3d mode: reference rows, 2 (east, north) or 3 (with up)", "rows",
               min=2, max=3),
     ParamSpec("ins3d_wait_s", "double", 1.0,

@@ -86,16 +86,19 @@ def test_sample_nominal_has_no_fault(bag_results):
     assert pf["seed_method"]["verdict"] == "no_fault"
 
 
-@pytest.mark.parametrize("fault,pair", [
-    ("gyro:step:t=300,mag=0.3deg/h,axis=y", {"gyro y", "accelerometer"}),
-    ("accel:step:t=300,mag=0.3mg,axis=x", {"accelerometer x", "accelerometer z"}),
+@pytest.mark.parametrize("fault,pair,rows", [
+    ("gyro:step:t=300,mag=0.3deg/h,axis=y", {"gyro y", "accelerometer"}, 3),
+    ("accel:step:t=300,mag=0.3mg,axis=x", {"accelerometer x", "accelerometer z"}, 2),
 ])
-def test_straight_leg_is_ambiguous_not_confidently_wrong(fault, pair):
+def test_straight_leg_is_ambiguous_not_confidently_wrong(fault, pair, rows):
     """On one straight level leg a gyro drift step on the pitch axis and an accelerometer ramp
-    make the same velocity error, and the forward accelerometer and the (slightly forward,
-    angle of attack) vertical one see the same specific-force direction: both named."""
+    make the same velocity error, and -- without the vertical reference row -- the forward
+    accelerometer and the (slightly forward, angle of attack) vertical one see the same
+    specific-force direction: both named."""
     inp = from_flight(flight("straight", 1200.0, "navigation", "baro", 11, faults=(fault,)))
-    pf = analyze_ins3d(inp.steps, inp.refs, with_observability=False).post_flight_dict()
+    vertical = {"vertical": "damped"} if rows == 2 else inp.vertical()
+    pf = analyze_ins3d(inp.steps, inp.refs, rows=rows, with_observability=False,
+                       **vertical).post_flight_dict()
     validate(pf)
     assert (pf["verdict"], pf["isolation"], pf["fault"]) == ("ambiguous", "ambiguous", None)
     named = {f"{c['sensor']} {c['axis']}" for c in pf["candidates"]}
@@ -104,6 +107,22 @@ def test_straight_leg_is_ambiguous_not_confidently_wrong(fault, pair):
     assert any(n.startswith(p) for n in named for p in pair - {truth})
     assert pf["ambiguity_resolved_s"] is None
     assert "ambiguous" in pf["headline"]
+
+
+def test_straight_leg_vertical_row_separates_the_forward_and_vertical_accelerometers():
+    """With the vertical row and the INS's height loop in the model a vertical accelerometer
+    error shows as the loop's vertical velocity transient, a forward one does not: the step
+    of the test above is isolated on a straight leg (right axis, onset within 10 s)."""
+    inp = from_flight(flight("straight", 1200.0, "navigation", "baro", 11,
+                             faults=("accel:step:t=300,mag=0.3mg,axis=x",)))
+    pf = analyze_ins3d(inp.steps, inp.refs, with_observability=False,
+                       **inp.vertical()).post_flight_dict()
+    validate(pf)
+    f = pf["fault"]
+    assert (pf["isolation"], f["sensor"], f["axis"], f["kind"]) == (
+        "single", "accelerometer", "x", "step")
+    assert abs(f["onset_s"] - 300.0) < 10.0
+    assert 300.0 < pf["ambiguity_resolved_s"] < 400.0      # told from gyro y within ~25 s
 
 
 @pytest.mark.parametrize("fault,expect", [

@@ -24,10 +24,11 @@ def test_analyze_json_is_schema_valid_and_matches_the_core(bag3d, capsys):
     rc, res, _ = _json(capsys, ["analyze", str(bag3d), "--model", "ins3d", "--json"])
     assert rc == 0
     validate_result(res)
-    assert res["model"] == "ins3d" and res["channel"] == "en"
+    assert res["model"] == "ins3d" and res["channel"] == "enu"      # 3 rows by default
     assert res["source"]["imu_topic"] == "/ins/imu" and res["source"]["grade"] == "navigation"
     inp = read_ins3d(bag3d)
-    a = analyze_ins3d(inp.steps, inp.refs, grade="navigation", rows=2)
+    assert inp.vertical()["loop"].tau_s == 100.0          # the bag's baro loop (metadata)
+    a = analyze_ins3d(inp.steps, inp.refs, grade="navigation", **inp.vertical())
     assert res["samples"] == a.forward.beta2.size
     assert res["ins3d"]["beta2_mean"] == pytest.approx(float(a.forward.beta2.mean()), rel=1e-12)
     assert res["ins3d"]["final_state"]["bg_x"] == pytest.approx(float(a.forward.x[-1, 9]),
@@ -39,11 +40,11 @@ def test_analyze_json_is_schema_valid_and_matches_the_core(bag3d, capsys):
 
 def test_analyze_options_grade_rows_and_table(bag3d, capsys):
     rc, res, _ = _json(capsys, ["analyze", str(bag3d), "--model", "ins3d", "--json",
-                                "--grade", "tactical", "--rows", "3"])
+                                "--grade", "tactical", "--rows", "2"])
     assert rc == 0
     validate_result(res)
-    assert res["channel"] == "enu" and res["ins3d"]["grade"] == "tactical"
-    assert set(res["ins3d"]["beta2_row_mean"]) == {"east", "north", "up"}
+    assert res["channel"] == "en" and res["ins3d"]["grade"] == "tactical"
+    assert set(res["ins3d"]["beta2_row_mean"]) == {"east", "north"}
     assert main(["analyze", str(bag3d), "--model", "ins3d"]) == 0
     text = capsys.readouterr().out
     assert "model ins3d (navigation grade" in text and "turns:" in text

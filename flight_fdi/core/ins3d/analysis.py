@@ -107,8 +107,8 @@ class Ins3dAnalysis:
         return [(a, b) for a, b, kind in self.manoeuvres if kind == "turn"]
 
 
-def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", rows: int = 2,
-                  position: bool = False, vertical: str = "damped", latency: bool = True,
+def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", rows: int = 3,
+                  position: bool = False, vertical: str = "loop", latency: bool = True,
                   ref_markov: tuple[float, float, float] | None = (0.02, 0.03, 30.0),
                   gate: GateConfig = GateConfig(), aligned_prior: bool = True,
                   post: bool = True, max_dt: float | None = 0.1,
