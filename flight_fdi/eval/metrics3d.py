@@ -19,7 +19,8 @@ not a body axis, so for IMU faults only its right-*sensor* rate is scored (its s
 ``None``); for GNSS jumps its axis is the channel (east / north) and is scored.
 
 Onset error: estimated minus true onset over the ``right`` flights (median of the absolute value
-is the issue's target, <= 5 s); magnitude error: estimated / true - 1 over the right flights
+is the issue's target, <= 5 s); onset coverage: the fraction of the right flights whose stated
+95 % onset interval (``onset_interval_s``) contains the true onset; magnitude error: estimated / true - 1 over the right flights
 whose kind is right too (a ramp reported as a step has a magnitude in other units).
 Smallest fault isolated in 95 %: the smallest level from which the rate of ``right`` is >= 95 %
 at that level and at every larger level (per scenario and axis).
@@ -106,6 +107,12 @@ def rates(records: Sequence[dict], model: str) -> dict:
     out["right_kind_rate"] = _rate(out["right_kind"], n) if scored else None
     out["onset_error_s"] = _stats(None if r[model]["onset_s"] is None
                                   else r[model]["onset_s"] - r["onset_s"] for r in right)
+    ivs = [(r[model].get("onset_interval_s"), r["onset_s"]) for r in right]
+    ivs = [(iv, t) for iv, t in ivs if iv is not None and t is not None]
+    out["onset_covered"] = sum(iv[0] - 1e-6 <= t <= iv[1] + 1e-6 for iv, t in ivs)
+    out["onset_coverage"] = _rate(out["onset_covered"], len(ivs))
+    out["onset_interval_n"] = len(ivs)
+    out["onset_interval_width_s"] = _stats(iv[1] - iv[0] for iv, _ in ivs)
     out["magnitude_error"] = _stats(None if r[model]["magnitude"] is None or not r["magnitude"]
                                     else r[model]["magnitude"] / r["magnitude"] - 1.0
                                     for r in right if r[model]["kind"] == r["kind"])
@@ -196,6 +203,14 @@ def _num(x: float | None, spec: str = ".2f") -> str:
     return "-" if x is None else format(x, spec)
 
 
+def _coverage(a: dict) -> str:
+    n = a.get("onset_interval_n", 0)
+    if not n:
+        return "-"
+    return (f"{_pct(a['onset_coverage'])} ({a['onset_covered']}/{n}; "
+            f"{_num(a['onset_interval_width_s']['median'], '.1f')})")
+
+
 def format_metrics(metrics: dict) -> str:
     """Markdown tables: nominal flights, per scenario (both models), smallest isolated."""
     models = metrics["models"]
@@ -212,8 +227,9 @@ def format_metrics(metrics: dict) -> str:
               "only for IMU faults):", "",
               "| scenario | model | n | right sensor+axis | right sensor | ambiguous | "
               "named | wrong (confident) | declared, no sensor | missed | right sensor+axis+kind "
-              "| median abs onset err s | median magnitude err | right in turn | right straight |",
-              "|---" * 15 + "|"]
+              "| median abs onset err s | true onset in 95 % interval (median width s) "
+              "| median magnitude err | right in turn | right straight |",
+              "|---" * 16 + "|"]
     for s in SCENARIOS:
         for m in models:
             if s not in metrics[m]["scenarios"]:
@@ -226,7 +242,7 @@ def format_metrics(metrics: dict) -> str:
                 f"{_pct(a['right_sensor_rate'])} | {_pct(a['ambiguous_rate'])} | "
                 f"{_pct(a['named_rate'])} | {_pct(a['wrong_rate'])} | {_pct(a['unnamed_rate'])} | "
                 f"{_pct(a['missed_rate'])} | {_pct(a['right_kind_rate'])} | "
-                f"{_num(a['onset_error_s']['median_abs'])} | "
+                f"{_num(a['onset_error_s']['median_abs'])} | {_coverage(a)} | "
                 f"{_pct(a['magnitude_error']['median'])} | "
                 f"{_pct(x['in_turn'][key])} ({x['in_turn']['n']}) | "
                 f"{_pct(x['straight'][key])} ({x['straight']['n']}) |")

@@ -247,6 +247,7 @@ def decision(post: dict) -> dict:
            "candidates": [brief(c) for c in post.get("candidates") or []]}
     if fault:
         out.update(brief(fault))
+        out["onset_interval_s"] = fault.get("onset_interval_s")
         out["statistic"], out["threshold"] = fault.get("statistic"), fault.get("threshold")
     glr = post.get("glr") or {}
     if out["statistic"] is None and "statistic" in glr:

@@ -81,6 +81,23 @@ def test_rates_on_a_hand_made_set():
     # the ramp reported for a step has a magnitude in other units: left out
     assert x["magnitude_error"]["n"] == 1
     assert x["magnitude_error"]["median"] == pytest.approx(2.2 / true_mag - 1.0)
+    assert x["onset_interval_n"] == 0 and x["onset_coverage"] is None
+
+
+def test_onset_interval_coverage_over_the_right_flights():
+    def iv(onset, a, b, axis="y"):
+        d = single("accelerometer", axis, onset=onset)
+        d["onset_interval_s"] = [a, b]
+        return d
+    rs = [accel(0, iv(103.0, 95.0, 110.0)),              # covers 100
+          accel(1, iv(104.0, 101.0, 108.0)),             # misses 100 (too narrow)
+          accel(2, iv(100.0, 100.0, 100.0)),             # exact, zero width: covers
+          accel(3, iv(90.0, 50.0, 150.0, axis="x")),     # wrong axis: not scored
+          accel(4, single("accelerometer", "y"))]        # right, no interval: not scored
+    x = rates(rs, "ins3d")
+    assert (x["onset_interval_n"], x["onset_covered"]) == (3, 2)
+    assert x["onset_coverage"] == pytest.approx(2 / 3)
+    assert x["onset_interval_width_s"]["median"] == pytest.approx(7.0)    # 15, 7, 0
 
 
 def test_nominal_flights_false_isolation_versus_declaration():
