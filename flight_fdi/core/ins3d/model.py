@@ -76,6 +76,7 @@ import numpy as np
 from numba import njit
 
 from ..earth import A, E2, GE, GF, GK, GM_RATIO, OMEGA_IE, gravity, radii
+from .grades import G0 as GRAVITY0
 from .grades import GRADES, ImuGrade
 from .vertical import VerticalLoop, loop_gains
 from .sparse import mul_left
@@ -241,7 +242,8 @@ class Ins3dModel:
            v_sigma: float = 0.05, p_sigma: float = 5.0) -> np.ndarray:
         """(n,) initial variances: velocity v_sigma, attitude phi_sigma (default: levelling
         tilt from the accelerometer bias, heading from the grade: gyrocompassing or external),
-        biases from the grade (sigma0^2 + sigma^2), position p_sigma."""
+        biases from the grade (sigma0^2 + sigma^2; body z accelerometer: + (scale g)^2),
+        position p_sigma."""
         g = self.grade
         sa = math.hypot(g.accel_bias, g.accel_instability)
         sg = math.hypot(g.gyro_bias, g.gyro_instability)
@@ -256,6 +258,9 @@ class Ins3dModel:
             p[IV + 2] = self.sigma_vertical**2
         p[IPHI:IPHI + 3] = np.square(phi_sigma)
         p[IBA:IBA + 3] = max(sa, 1e-7) ** 2
+        # the body z accelerometer carries ~1 g: its scale-factor error (not a state) is a
+        # constant bias of scale * g in cruise, seen by the vertical row (3 rows, loop)
+        p[IBA + 2] += (g.accel_scale * GRAVITY0) ** 2
         p[IBG:IBG + 3] = max(sg, 1e-10) ** 2
         if self.position:
             p[IP:IP + 3] = p_sigma**2
