@@ -96,7 +96,8 @@ def test_turns_make_heading_and_vertical_sensors_observable(nominal):
     inp_s = from_flight(fl)
     st = run_forward(m, inp_s.steps, inp_s.refs)
     assert st.sd[-1, 5] > 0.6 * st.sd[0, 5]
-    assert st.sd[-1, 8] > 0.98 * st.sd[0, 8] and st.sd[-1, 11] > 0.98 * st.sd[0, 11]
+    # (ba_z: 4 % -- its prior includes the 1-g scale error; the 2-deg angle of attack leaks it)
+    assert st.sd[-1, 8] > 0.95 * st.sd[0, 8] and st.sd[-1, 11] > 0.98 * st.sd[0, 11]
 
 
 def test_reference_jump_is_flagged_on_its_row_and_rejected():

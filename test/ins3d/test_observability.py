@@ -42,7 +42,7 @@ def test_straight_flight_leaves_heading_vertical_and_tilt_bias_pairs_unexcited()
     # tilt and horizontal accelerometer bias: only their combination is learnt -> 1/sqrt(2)
     for nm in ("phi_e", "phi_n", "ba_x", "ba_y"):
         assert rep.ratio[-1, i(nm)] == pytest.approx(1 / np.sqrt(2), abs=0.02), nm
-    assert rep.ratio[-1, i("ba_z")] > 0.999
+    assert rep.ratio[-1, i("ba_z")] > 0.998      # (its prior includes the 1-g scale error)
     # four unobservable directions: dv_U, ba_z and the two tilt/bias combinations
     small = rep.eigenvalues < 1e-3                  # scaled: 1 = the prior information
     assert small.sum() == 4
