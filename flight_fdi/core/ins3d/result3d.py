@@ -18,11 +18,11 @@ def _rel(x: float | None, t0: float) -> float | None:
 
 
 #: likelihood drop of the onset interval per sensor (the profile likelihood's chi^2(1) 95 %
-#: value 3.84, widened where the Monte Carlo showed it too narrow): calibrated on 30 + 30
-#: simulated accelerometer / gyro step flights (docs/ins3d_eval.md, "Onset intervals"):
+#: value 3.84, widened where the Monte Carlo showed it too narrow), calibrated with
+#: tools/ins3d_onset_calibrate.py (seed 7, 30 accelerometer + 30 gyro step flights):
 #: accelerometer steps 3.84 covered the true onset in 27/30, 6.0 in 30/30; gyro steps 3.84 in
-#: 17/17 (their intervals are wide: the onset of a drift is weakly determined); GNSS jumps 3.84
-#: (onset exact)
+#: 12/13 right isolations (and 17/17 on 30 other gyro flights: 29/30 pooled; their intervals
+#: are wide, the onset of a drift is weakly determined); GNSS jumps: onset exact
 ONSET_DROP = {"accelerometer": 6.0, "gyro": 3.84, "reference": 3.84}
 
 
