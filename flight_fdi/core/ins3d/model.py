@@ -44,20 +44,10 @@ Vertical channel (``vertical``): ``free`` -- the equations above (unstable throu
 first-order Markov state of its own (``tau_vertical_s``, ``sigma_vertical``), for an INS whose
 height loop is not known: an unmodelled loop cannot pull the horizontal channels through the
 Coriolis term; the vertical accelerometer bias enters only the horizontal channels (through C
-when the aircraft banks). ``loop`` -- the INS's own third-order height loop (the simulator's,
-``sim.strapdown``; Widnall & Sinha) on e = h_INS - h_aid with the aiding error b (baro or
-reference height error, ``VerticalLoop``): per step the INS adds -k1 e dt to h and
--(k2 e + k3 int e) dt to v_U, so the error states dh, s = int (dh - b), b (after the core
-states; with ``position=True`` dh is dp_U) obey::
-
-    dh'   = dv_U - k1 (dh - b)
-    dv_U' = (f x phi + C ba + ...)_U - dg/dh dh - k2 (dh - b) - k3 s
-    s'    = dh - b,        b' = -b / tau_c + w_b   (turn-on bias + Gauss-Markov, as the IMU biases)
-
-with the white part of the aiding height (sigma_w per sample at the INS rate) as process noise
-on dh, dv_U, s (k1^2, k2^2, 1 times its density sigma_w^2 dt_ins; the correlations dropped).
-A vertical accelerometer bias then shows in dv_U as a transient of some b tau (the loop's
-integrator absorbs it after a few tau): seen by a vertical reference row (``rows=3``).
+when the aircraft banks). ``loop`` -- the INS's own third-order height loop on the aiding
+height, with the height error dh, its integral and the aiding error as states after the core ones
+(``core.ins3d.vertical``: equations, gains, known answer): a vertical accelerometer bias then
+shows in dv_U as the loop's transient, seen by a vertical reference row (``rows=3``).
 
 Measurement: z = v_INS - v_ref = H x + noise, H = [I 0 ...] on 2 (east, north) or 3 rows.
 Optional (``latency=True``) last state: the reference latency tau (s, a constant): the reference
@@ -78,7 +68,7 @@ from numba import njit
 from ..earth import A, E2, GE, GF, GK, GM_RATIO, OMEGA_IE, gravity, radii
 from .grades import G0 as GRAVITY0
 from .grades import GRADES, ImuGrade
-from .vertical import VerticalLoop, loop_gains
+from .vertical import VerticalLoop, fill_loop, loop_gains
 from .sparse import mul_left
 from ..errors import CoreError
 
@@ -376,28 +366,10 @@ def fill_F(F, C, f_n, v, lat, h, bias):
             F[IP + 2, IV + 2] = 1.0
             F[IV + 2, IP + 2] = 0.0
     if bias[7] > 0.0:
-        _fill_loop(F, bias, lat, h, pos)
+        fill_loop(F, bias, IV + 2, -dgravity_dh(lat, h), pos)
     im = int(bias[5])
     for i in range(int(bias[6])):  # reference Markov noise states
         F[im + i, im + i] = -bias[4]
-
-
-@njit(cache=True)
-def _fill_loop(F, bias, lat, h, pos):
-    """The INS height loop's rows and columns (module docstring, ``vertical="loop"``)."""
-    k1, k2, k3 = bias[7], bias[8], bias[9]
-    ih, js, jb = int(bias[11]), int(bias[12]), int(bias[13])
-    if not pos:                   # dh' = dv_U (with positions: _fill_position did it)
-        F[ih, IV + 2] = 1.0
-        F[IV + 2, ih] += -dgravity_dh(lat, h)
-    F[ih, ih] += -k1
-    F[ih, jb] += k1
-    F[IV + 2, ih] += -k2
-    F[IV + 2, jb] += k2
-    F[IV + 2, js] += -k3
-    F[js, ih] = 1.0
-    F[js, jb] = -1.0
-    F[jb, jb] = -bias[10]
 
 
 @njit(cache=True)
