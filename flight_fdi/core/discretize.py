@@ -39,6 +39,10 @@ THETA = 0.25
 TERMS = 20
 #: a series is cut where the bound of its next term falls below this fraction of its first
 _EPS = 1e-16
+#: when the bound asks for at most this many terms (the usual sample intervals), Horner's loop
+#: runs exactly SHORT terms: a trip count the compiler knows, so it unrolls the loop (3-4x
+#: faster than a loop of run-time length; the extra terms lie below rounding)
+SHORT = 5
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -82,10 +86,12 @@ class VanLoanSeries:
         G = np.empty((TERMS, n, Bm.shape[1]))
         C = np.empty((TERMS, n, n))
         F[0] = np.eye(n)
-        C[0] = np.asarray(Qc, dtype=float)
+        Qc = np.asarray(Qc, dtype=float)
+        C[0] = 0.5 * (Qc + Qc.T)
         for j in range(1, TERMS):
             F[j] = F[j - 1] @ A / j
-            C[j] = (A @ C[j - 1] + C[j - 1] @ A.T) / (j + 1)
+            AC = A @ C[j - 1]
+            C[j] = (AC + AC.T) / (j + 1)            # (exactly symmetric: C[j-1] is)
         for j in range(TERMS):
             G[j] = F[j] @ Bm / (j + 1)
         self.F, self.G, self.C = F, G, C
@@ -113,7 +119,11 @@ def expm_series(F, norm, dt, Phi, work):
     """Phi = expm(A dt) alone, from the series F[j] = A^j / j! of :class:`VanLoanSeries` (norm =
     ||A||_1): Horner at h = dt / 2^s, then s squarings Phi(2h) = Phi(h)^2. ``work``: (n, n)."""
     s, h = _scaling(norm, dt)
-    _horner(F, h, _terms(norm * h), Phi)
+    J = _terms(norm * h)
+    if J <= SHORT:
+        _horner(F, h, SHORT, Phi)
+    else:
+        _horner(F, h, J, Phi)
     for _ in range(s):
         matmul(Phi, Phi, work)
         Phi[:, :] = work
@@ -135,12 +145,13 @@ def _terms(a):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _horner(coef, h, J, out):
-    """out = sum_{j < J} h^j coef[j] (Horner's scheme)."""
-    out[:, :] = coef[J - 1]
-    for j in range(J - 2, -1, -1):
-        for r in range(out.shape[0]):
-            for c in range(out.shape[1]):
-                out[r, c] = out[r, c] * h + coef[j, r, c]
+    """out = sum_{j < J} h^j coef[j] (Horner's scheme, element by element)."""
+    for r in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            acc = coef[J - 1, r, c]
+            for j in range(J - 2, -1, -1):
+                acc = acc * h + coef[j, r, c]
+            out[r, c] = acc
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -156,33 +167,52 @@ def van_loan(F, G, C, norm, dt, Phi, Qd, Bd, work):
     n = Phi.shape[0]
     s, h = _scaling(norm, dt)
     J = _terms(norm * h)
-    _horner(F, h, J, Phi)
-    _horner(C, h, J, Qd)
-    for r in range(n):
-        for c in range(n):
-            Qd[r, c] *= h
-    if s == 0:
-        _horner(G, h, J, Bd)
-        for r in range(n):
-            for c in range(Bd.shape[1]):
-                Bd[r, c] *= h
+    if J <= SHORT:
+        _phi_qd(F, C, h, SHORT, Phi, Qd)
     else:
-        Gamma = work[2]
-        _gamma(F, h, J, Gamma)
-        for _ in range(s):
-            matmul(Phi, Qd, work[0])
-            matmul(work[0], Phi.T, work[1])
-            _add_to(Qd, work[1])
-            matmul(Phi, Gamma, work[0])
-            _add_to(Gamma, work[0])
-            matmul(Phi, Phi, work[0])
-            Phi[:, :] = work[0]
-        matmul(Gamma, G[0], Bd)          # Bd = Gamma B (G[0] = B)
-    for r in range(n):
+        _phi_qd(F, C, h, J, Phi, Qd)
+    if s == 0:
+        if Bd.shape[1] > 0:
+            _horner(G, h, J, Bd)
+            for r in range(n):
+                for c in range(Bd.shape[1]):
+                    Bd[r, c] *= h
+        return
+    Gamma = work[2]
+    _gamma(F, h, J, Gamma)
+    for _ in range(s):
+        matmul(Phi, Qd, work[0])
+        matmul(work[0], Phi.T, work[1])
+        _add_to(Qd, work[1])
+        matmul(Phi, Gamma, work[0])
+        _add_to(Gamma, work[0])
+        matmul(Phi, Phi, work[0])
+        Phi[:, :] = work[0]
+    matmul(Gamma, G[0], Bd)          # Bd = Gamma B (G[0] = B)
+    for r in range(n):               # (the doublings leave rounding asymmetry in Qd)
         for c in range(r + 1, n):
             q = 0.5 * (Qd[r, c] + Qd[c, r])
             Qd[r, c] = q
             Qd[c, r] = q
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _phi_qd(F, C, h, J, Phi, Qd):
+    """Phi = sum_{j < J} h^j F[j] and Qd = h sum_{j < J} h^j C[j] by Horner's scheme, element
+    by element (Qd from its upper triangle: every C[j] is symmetric)."""
+    n = Phi.shape[0]
+    for r in range(n):
+        for c in range(n):
+            phi = F[J - 1, r, c]
+            for j in range(J - 2, -1, -1):
+                phi = phi * h + F[j, r, c]
+            Phi[r, c] = phi
+        for c in range(r, n):
+            q = C[J - 1, r, c]
+            for j in range(J - 2, -1, -1):
+                q = q * h + C[j, r, c]
+            Qd[r, c] = q * h
+            Qd[c, r] = q * h
 
 
 @njit(cache=True, error_model="numpy", inline="always")
