@@ -202,12 +202,19 @@ class System:
     (beta_j' = r, r' = 0, r(theta) = 1). Only the states the fault reaches are kept, and a step
     shares the system of the ramp of the same state (its states are part of the ramp's, with the
     same dynamics). A jump or an outlier: one element in row r of z (the jumps and outliers of
-    one row share a System, one element each)."""
+    one row share a System, one element each).
+
+    The ramp's rate r is carried in scaled units of state j per T seconds, T = 1 / ||A'||_1
+    (the model's own time scale; ``rate_unit`` = 1 / T), not per second: the fault system's
+    norm is then the model's, and Psi = expm(A_bar dt) needs no more series terms than Phi
+    (``discretize.SHORT``). :meth:`scan`, :meth:`num` and :meth:`signature` return per-second
+    values (l = num^2 / den does not depend on the unit)."""
 
     def __init__(self, model: LinearModel, hyps: list) -> None:
         n, m = model.n, model.m
         self.hyps = list(hyps)
         main = self.hyps[0]
+        self.rate_unit = 1.0
         if main.kind in ("step", "ramp"):
             j = main.index
             ramp = main.kind == "ramp"
@@ -216,7 +223,8 @@ class System:
             Abar[:n, :n] = sm.A
             Abar[j, :] = 0.0  # the instrument error stays at the step: beta_j' = 0
             if ramp:
-                Abar[j, n] = 1.0  # (r in scaled units of state j per second)
+                self.rate_unit = sm.series.norm if sm.series.norm > 0.0 else 1.0
+                Abar[j, n] = self.rate_unit  # beta_j' = r (r in units of state j per T)
             keep = _reachable(Abar, n if ramp else j)
             E = np.zeros((n, len(keep)))
             for a, i in enumerate(keep):
@@ -241,26 +249,38 @@ class System:
     def _args(self) -> tuple:
         return self.E, self.R_sel, self.Fpsi, self.norm_psi, self.persists
 
+    def _per_second(self, name: str) -> float:
+        """The factor from the kernel's unit fault to one per second (1 but for a ramp: the
+        kernel's unit rate is rate_unit per second, its signature rate_unit times as large)."""
+        kind = next(h.kind for h in self.hyps if h.name == name)
+        return 1.0 / self.rate_unit if kind == "ramp" else 1.0
+
     def scan(self, flt: Filter) -> dict:
         """{hypothesis name: (num, den, cross)} for every onset."""
         N, h = flt.t.size, len(self.hyps)
         num, den, cross = np.empty((h, N)), np.empty((h, N)), np.empty((h, N))
         kernel.hypothesis_scan(flt.A, flt.G, flt.H, flt.Sinv, flt.w, flt.dt, flt.MG, flt.GMG,
                                flt.Glam, *self._args(), self.i0, num, den, cross)
-        return {hyp.name: (num[i], den[i], cross[i]) for i, hyp in enumerate(self.hyps)}
+        out = {}
+        for i, hyp in enumerate(self.hyps):
+            c = self._per_second(hyp.name)
+            out[hyp.name] = ((num[i], den[i], cross[i]) if c == 1.0 else
+                             (num[i] * c, den[i] * c ** 2, cross[i] * c ** 2))
+        return out
 
     def num(self, flt: Filter) -> dict:
         """{hypothesis name: num} alone (the lambda recursion)."""
         out = np.empty((len(self.hyps), flt.t.size))
         kernel.hypothesis_num(flt.H, flt.w, flt.dt, flt.Glam, *self._args(), self.i0, out)
-        return {hyp.name: out[i] for i, hyp in enumerate(self.hyps)}
+        return {hyp.name: out[i] * self._per_second(hyp.name) for i, hyp in enumerate(self.hyps)}
 
     def signature(self, flt: Filter, k0: int, name: str) -> np.ndarray:
         """rho_k (N, m) of a unit fault of hypothesis ``name`` starting at sample k0."""
         i0 = self.i0[[h.name for h in self.hyps].index(name)]
         rho = np.empty((flt.t.size, flt.H.shape[1]))
         kernel.signature(flt.A, flt.G, flt.H, flt.dt, *self._args(), int(i0), int(k0), rho)
-        return rho
+        c = self._per_second(name)
+        return rho if c == 1.0 else rho * c
 
 
 def systems(model: LinearModel, hyps: list) -> dict:
