@@ -103,8 +103,9 @@ import numpy as np
 
 from .errors import CoreError
 from .glr_residual import residual_pass
-from .glr_system import NONE, prepare, resolve, systems as _systems
-from .glr_threshold import first_crossing_probability, threshold as _threshold
+from .glr_system import NONE, each_system, prepare, resolve, systems as _systems
+from .glr_kernel import onset_statistics
+from .glr_threshold import A_EDGES, first_crossing_probability, threshold as _threshold
 from .models import LinearModel
 
 __all__ = ["GlrConfig", "GlrResult", "isolate", "first_crossing_probability",
@@ -134,6 +135,9 @@ class GlrConfig:
         2 ln 100 = 9.21 asks for a likelihood ratio of 100 between the winner and the runner-up).
     residual_test: after the best hypothesis is fitted and removed, test what is left by a
         second GLR pass (see "Is the fault explained?" in the module doc).
+    threads: the independent fault systems (one per instrument and the reference's) are
+        scanned on this many threads (the compiled kernels release the GIL); 1: in the calling
+        thread. The results do not depend on it.
     """
 
     p_false_alarm: float = 1e-3
@@ -142,6 +146,7 @@ class GlrConfig:
     curve_points: int = 4000
     ambiguity_margin: float = 2.0 * float(np.log(100.0))
     residual_test: bool = True
+    threads: int = 2
 
     def __post_init__(self) -> None:
         p = self.p_false_alarm
@@ -166,6 +171,9 @@ class GlrConfig:
             val = getattr(self, nm)
             if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 0:
                 raise CoreError(f"GlrConfig.{nm} must be an integer >= 0, got {val!r}")
+        if isinstance(self.threads, bool) or not isinstance(self.threads, (int, np.integer)) \
+                or self.threads < 1:
+            raise CoreError(f"GlrConfig.threads must be an integer >= 1, got {self.threads!r}")
         if self.block_size == 1:
             raise CoreError("GlrConfig.block_size must be 0 (automatic) or >= 2, got 1")
         am = self.ambiguity_margin
@@ -253,22 +261,16 @@ def _best_onset(hyp, t: np.ndarray, num: np.ndarray, den: np.ndarray, l: np.ndar
             "statistic": float(l[k]), "unit": hyp.unit, "kind": hyp.kind}
 
 
-def _onset_statistics(num: np.ndarray, den: np.ndarray, cross: np.ndarray) -> tuple:
-    """(l, ok, pair_a, fresh) of one hypothesis: l = num^2 / den where the onset is a test
-    (den > 0: else the fault would leave no trace, e.g. a bias step at the last sample; a tiny
-    but positive den is a real test), a = sqrt((1-|c|)/(1+|c|)) of the correlation c of
-    neighbouring informative onsets, and the number of onsets that start a run of tests."""
-    N = num.size
-    ok = den > 1e-300
-    l = np.zeros(N)
-    l[ok] = num[ok] ** 2 / den[ok]
-    both = ok[:-1] & ok[1:]
-    c = np.zeros(N - 1)
-    c[both] = cross[:-1][both] / np.sqrt(den[:-1][both] * den[1:][both])
-    c = np.clip(np.abs(c), 0.0, 1.0)
-    pair_a = np.sqrt((1.0 - c[both]) / (1.0 + c[both]))
-    fresh = int(ok[0]) + int(np.count_nonzero(ok[1:] & ~ok[:-1]))
-    return l, ok, pair_a, fresh
+def _onset_statistics(num: np.ndarray, den: np.ndarray, cross: np.ndarray,
+                      counts: np.ndarray) -> tuple:
+    """(l, ok, fresh) of one hypothesis: l = num^2 / den where the onset is a test (den > 0:
+    else the fault would leave no trace, e.g. a bias step at the last sample; a tiny but
+    positive den is a real test), and the number of onsets that start a run of tests; the
+    correlations of neighbouring tests are counted into the threshold's bins ``counts``
+    (:func:`.glr_kernel.onset_statistics`)."""
+    l, ok = np.empty(num.size), np.empty(num.size, dtype=bool)
+    fresh = onset_statistics(num, den, cross, A_EDGES, l, ok, counts)
+    return l, ok, fresh
 
 
 def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> GlrResult:
@@ -283,22 +285,19 @@ def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> Gl
     hyps = [resolve(model, h) for h in config.hypotheses]
     flt = prepare(model, fwd)
     systems = _systems(model, hyps)
-    raw: dict = {}
-    for system in {id(s): s for s in systems.values()}.values():
-        raw.update(system.scan(flt))
+    raw = each_system(lambda system: system.scan(flt), systems, config.threads)
     per: dict[str, dict] = {}
     curves: dict[str, tuple] = {}
-    fresh, pair_a, outlier_l = 0, [], {}
+    fresh, counts, outlier_l = 0, np.zeros(A_EDGES.size + 1, dtype=np.int64), {}
     for hyp in hyps:
         num, den, cross = raw[hyp.name]
-        l, ok, a, f = _onset_statistics(num, den, cross)
-        pair_a.append(a)
+        l, ok, f = _onset_statistics(num, den, cross, counts)
         fresh += f
         per[hyp.name] = _best_onset(hyp, flt.t, num, den, l, ok)
         curves[hyp.name] = _pool(flt.t, l, config.curve_points)
         if hyp.kind == "outlier":
             outlier_l[hyp.name] = l
-    threshold = _threshold(fresh, np.concatenate(pair_a), config.p_false_alarm)
+    threshold = _threshold(fresh, counts, config.p_false_alarm)
     for name, l in outlier_l.items():  # every onset above the threshold is one (c ~ 0)
         over = np.flatnonzero(l > threshold)
         per[name].update(count=int(over.size), onset_interval=None,
@@ -324,7 +323,8 @@ def _verdict(config: GlrConfig, systems: dict, flt, raw: dict, per: dict, curves
         isolation = "ambiguous"
         extra = {"runner_up": rival, "runner_up_statistic": per[rival]["statistic"]}
     if config.residual_test and isolation == "single":  # (an ambiguous result stays so)
-        residual = residual_pass(systems, flt, raw, best, b["onset_index"])
+        residual = residual_pass(systems, flt, raw, best, b["onset_index"],
+                                 config.threads)
         more_outliers = kind_of(best) == "outliers" and residual["hypothesis"] == best
         if residual["statistic"] > threshold and not more_outliers:
             isolation = "unexplained"

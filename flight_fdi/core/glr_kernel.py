@@ -119,22 +119,12 @@ def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def fault_rows(H_k, E, R_sel, D):
-    """D_k = H_k E + R_sel: how the fault state shows in the measurement."""
-    matmul(H_k, E, D)
-    for i in range(D.shape[0]):
-        for a in range(D.shape[1]):
-            D[i, a] += R_sel[i, a]
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work):
-    """Psi_{k+1} (recomputed only for a new dt; none after the last sample) and D_k; returns
+def psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work):
+    """Psi_{k+1} into Psi, recomputed only for a new dt (none after the last sample); returns
     the dt Psi is held for."""
     if k < dt.shape[0] - 1 and not dt[k + 1] == dt_held:
         fault_transition(Fpsi, norm_psi, persists, dt[k + 1], Psi, work)
         dt_held = dt[k + 1]
-    fault_rows(H[k], E, R_sel, D)
     return dt_held
 
 
@@ -153,23 +143,25 @@ def lambda_f_step(Psi, D, Glam_k, w_k, lam_f, lam_new):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_psi, persists,
+def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, D_all, Fpsi, norm_psi, persists,
                     i0, num, den, cross):
     """num[h], den[h], cross[h] for every onset (module doc) of the faults that enter as
     f = e_i0[h] (several hypotheses can share one fault state, e.g. a step and a ramp of the
-    same instrument: the step's states are part of the ramp's). A, G: :func:`transitions`; MG, GMG, Glam: :func:`filter_information` (so that
-    GD^T M_dd = D^T MG^T, GD^T M_dd GD = D^T GMG D, GD^T lambda_d = D^T Glam)."""
+    same instrument: the step's states are part of the ramp's). A, G: :func:`transitions`; MG,
+    GMG, Glam: :func:`filter_information` (so that GD^T M_dd = D^T MG^T, GD^T M_dd GD =
+    D^T GMG D, GD^T lambda_d = D^T Glam); D_all: D_k of every sample."""
     N, m, n = H.shape
-    q = E.shape[1]
+    q = D_all.shape[2]
     Mff, Mfd, lam_f = np.zeros((q, q)), np.zeros((q, n)), np.zeros(q)
     Psi, work = np.zeros((q, q)), np.empty((q, q))
-    D, GD, SD = np.empty((m, q)), np.empty((n, q)), np.empty((m, q))
+    GD, SD = np.empty((n, q)), np.empty((m, q))
     MddGD, GMGD = np.empty((n, q)), np.empty((m, q))
     PtMfd, PtMfdG, Y = np.empty((q, n)), np.empty((q, m)), np.empty((q, q))
     PtMff, Mff_new, lam_new = np.empty((q, q)), np.empty((q, q)), np.empty(q)
     dt_held = np.nan
     for k in range(N - 1, -1, -1):
-        dt_held = fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work)
+        dt_held = psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work)
+        D = D_all[k]
         matmul(G[k], D, GD)
         matmul(Sinv[k], D, SD)
         for h in range(i0.shape[0]):                # cross = (M_ff Psi + M_fd GD)[i0, i0]
@@ -211,41 +203,38 @@ def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, E, R_sel, Fpsi, norm_ps
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def hypothesis_num(H, w, dt, Glam, E, R_sel, Fpsi, norm_psi, persists, i0, num):
+def hypothesis_num(w, dt, Glam, D_all, Fpsi, norm_psi, persists, i0, num):
     """num(theta) = lambda_theta[i0] alone (the lambda recursion of :func:`hypothesis_scan`
     without M): for the second pass, whose den and cross are the first pass's."""
-    N, m, n = H.shape
-    q = E.shape[1]
+    N, m, q = D_all.shape
     lam_f, lam_new = np.zeros(q), np.empty(q)
     Psi, work = np.zeros((q, q)), np.empty((q, q))
-    D = np.empty((m, q))
     dt_held = np.nan
     for k in range(N - 1, -1, -1):
-        dt_held = fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work)
-        lambda_f_step(Psi, D, Glam[k], w[k], lam_f, lam_new)
+        dt_held = psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work)
+        lambda_f_step(Psi, D_all[k], Glam[k], w[k], lam_f, lam_new)
         for h in range(i0.shape[0]):
             num[h, k] = lam_f[i0[h]]
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def signature(A, G, H, dt, E, R_sel, Fpsi, norm_psi, persists, i0, k0, rho):
+def signature(A, G, H, dt, D_all, Fpsi, norm_psi, persists, i0, k0, rho):
     """rho_k of a unit fault starting at sample k0 (zero before), forwards:
     rho_k = D_k f_k - H_k d_k, d_{k+1} = A_k d_k + G_k D_k f_k, f_{k+1} = Psi_{k+1} f_k."""
     N, m, n = H.shape
-    q = E.shape[1]
+    q = D_all.shape[2]
     f, d = np.zeros(q), np.zeros(n)
     f_new, d_new, Df = np.empty(q), np.empty(n), np.empty(m)
     Psi, work = np.zeros((q, q)), np.empty((q, q))
-    D = np.empty((m, q))
     f[i0] = 1.0
     rho[:k0] = 0.0
     dt_held = np.nan
     for k in range(k0, N):
-        dt_held = fault_at(k, dt, dt_held, Fpsi, norm_psi, persists, H, E, R_sel, Psi, D, work)
+        dt_held = psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work)
         for i in range(m):
             acc = 0.0
             for a in range(q):
-                acc += D[i, a] * f[a]
+                acc += D_all[k, i, a] * f[a]
             Df[i] = acc
             for b in range(n):
                 acc -= H[k, i, b] * d[b]
@@ -262,3 +251,29 @@ def signature(A, G, H, dt, E, R_sel, Fpsi, norm_psi, persists, i0, k0, rho):
         matmul(Psi, f.reshape(q, 1), f_new.reshape(q, 1))
         f[:] = f_new
         d[:] = d_new
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def onset_statistics(num, den, cross, edges, l, ok, counts):
+    """l = num^2 / den for every onset that is a test (ok: den > 1e-300), and, for every pair
+    of neighbouring tests, a = sqrt((1 - |c|) / (1 + |c|)) of their correlation
+    c = cross / sqrt(den den') counted into ``counts`` by the bin of ``edges`` it falls in
+    (``glr_threshold``: edges[i-1] < a <= edges[i]; neighbouring pairs mostly share a bin, so
+    the last one is tried before a binary search). Returns the number of onsets that start a
+    run of tests."""
+    fresh = 0
+    i = edges.shape[0]
+    for k in range(num.shape[0]):
+        ok[k] = den[k] > 1e-300
+        l[k] = num[k] * num[k] / den[k] if ok[k] else 0.0
+        if not ok[k]:
+            continue
+        if k == 0 or not ok[k - 1]:
+            fresh += 1
+            continue
+        c = min(abs(cross[k - 1] / np.sqrt(den[k - 1] * den[k])), 1.0)
+        a = np.sqrt((1.0 - c) / (1.0 + c))
+        if not (i < edges.shape[0] and a <= edges[i] and (i == 0 or a > edges[i - 1])):
+            i = np.searchsorted(edges, a)
+        counts[i] += 1
+    return fresh

@@ -5,23 +5,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from .glr_system import NONE, Filter
+from .glr_system import NONE, Filter, each_system
 
 
-def residual_pass(systems: dict, flt: Filter, raw: dict, best: str, k0: int) -> dict:
+def residual_pass(systems: dict, flt: Filter, raw: dict, best: str, k0: int,
+                  threads: int = 1) -> dict:
     """Remove the fitted fault (``best``, onset k0) from the innovations and test what is left:
     for every hypothesis h2 and onset, the GLR of h2 *given* the first fault (both fitted
     jointly): with n_i, d_ij the inner products of the first pass and n2' the numerator on the
     residual, l2 = n2'^2 / (d22 - d12^2 / d11), chi2(1) for each onset when one fault explains
-    the data (d12 comes from n2 - n2' = mu1 d12)."""
+    the data (d12 comes from n2 - n2' = mu1 d12). ``threads``: see :func:`.each_system`."""
     num1, den1, _ = raw[best]
     mu1 = num1[k0] / den1[k0]
     rho = systems[best].signature(flt, k0, best)
     rest = flt.with_innovations(flt.w - mu1 * np.einsum("kij,kj->ki", flt.Sinv, rho))
     top = {"hypothesis": NONE, "onset_index": None, "onset_t": None, "statistic": 0.0}
-    nums: dict = {}
-    for system in {id(s): s for s in systems.values()}.values():
-        nums.update(system.num(rest))
+    nums = each_system(lambda system: system.num(rest), systems, threads)
     for name in systems:
         n2r = nums[name]
         n2, d22, _ = raw[name]

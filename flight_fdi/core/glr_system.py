@@ -3,8 +3,9 @@ recursion (:mod:`flight_fdi.core.glr_kernel`); the math is in the :mod:`flight_f
 docstring. Scaled coordinates throughout (x' = diag(scale)^-1 x); magnitudes in SI units."""
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -132,12 +133,14 @@ def _checked(model: LinearModel, fwd: Any) -> tuple:
     if t is None or t.ndim != 1 or t.size == 0:
         raise CoreError("isolate: the forward result needs a non-empty 1-D time array 't'")
     N = t.size
-    dt = _field(fwd, "dt", (N,)).astype(float)
-    nu = _field(fwd, "nu", (N, m), f" (model {model.name!r} has m = {m})").astype(float)
-    S = _field(fwd, "S", (N, m, m)).astype(float)
-    K = _field(fwd, "K", (N, n, m), f" (model {model.name!r} has n = {n})").astype(float)
-    H = _field(fwd, "H", (N, m, n)).astype(float)
-    fused = _field(fwd, "fused", (N,)).astype(bool)
+    dt = np.ascontiguousarray(_field(fwd, "dt", (N,)), dtype=float)  # (no copies: read only)
+    nu = np.asarray(_field(fwd, "nu", (N, m), f" (model {model.name!r} has m = {m})"),
+                    dtype=float)
+    S = np.asarray(_field(fwd, "S", (N, m, m)), dtype=float)
+    K = np.asarray(_field(fwd, "K", (N, n, m), f" (model {model.name!r} has n = {n})"),
+                   dtype=float)
+    H = np.asarray(_field(fwd, "H", (N, m, n)), dtype=float)
+    fused = np.asarray(_field(fwd, "fused", (N,)), dtype=bool)
     if not np.all(np.isfinite(t)):
         raise CoreError("isolate: forward result time 't' contains NaN or Inf")
     if N > 1 and (not np.all(np.isfinite(dt[1:])) or np.any(dt[1:] < 0)):
@@ -245,9 +248,17 @@ class System:
         self.i0 = self.i0.astype(np.int64)
         series = VanLoanSeries(Ar, np.zeros_like(Ar), None)
         self.Fpsi, self.norm_psi = series.F, series.norm
+        self._D: tuple = (None, None)
 
-    def _args(self) -> tuple:
-        return self.E, self.R_sel, self.Fpsi, self.norm_psi, self.persists
+    def _args(self, flt: Filter) -> tuple:
+        """(D_all, Fpsi, norm_psi, persists): the kernels' fault arguments for a filter, with
+        D_k = H_k E + R_sel of every sample (how the fault state shows in the measurement;
+        computed once per filter's H)."""
+        if self._D[0] is not flt.H:
+            N, m, n = flt.H.shape
+            D = (flt.H.reshape(N * m, n) @ self.E).reshape(N, m, -1) + self.R_sel
+            self._D = (flt.H, np.ascontiguousarray(D))
+        return self._D[1], self.Fpsi, self.norm_psi, self.persists
 
     def _per_second(self, name: str) -> float:
         """The factor from the kernel's unit fault to one per second (1 but for a ramp: the
@@ -260,7 +271,7 @@ class System:
         N, h = flt.t.size, len(self.hyps)
         num, den, cross = np.empty((h, N)), np.empty((h, N)), np.empty((h, N))
         kernel.hypothesis_scan(flt.A, flt.G, flt.H, flt.Sinv, flt.w, flt.dt, flt.MG, flt.GMG,
-                               flt.Glam, *self._args(), self.i0, num, den, cross)
+                               flt.Glam, *self._args(flt), self.i0, num, den, cross)
         out = {}
         for i, hyp in enumerate(self.hyps):
             c = self._per_second(hyp.name)
@@ -271,14 +282,15 @@ class System:
     def num(self, flt: Filter) -> dict:
         """{hypothesis name: num} alone (the lambda recursion)."""
         out = np.empty((len(self.hyps), flt.t.size))
-        kernel.hypothesis_num(flt.H, flt.w, flt.dt, flt.Glam, *self._args(), self.i0, out)
+        kernel.hypothesis_num(flt.w, flt.dt, flt.Glam, *self._args(flt), self.i0, out)
         return {hyp.name: out[i] * self._per_second(hyp.name) for i, hyp in enumerate(self.hyps)}
 
     def signature(self, flt: Filter, k0: int, name: str) -> np.ndarray:
         """rho_k (N, m) of a unit fault of hypothesis ``name`` starting at sample k0."""
         i0 = self.i0[[h.name for h in self.hyps].index(name)]
         rho = np.empty((flt.t.size, flt.H.shape[1]))
-        kernel.signature(flt.A, flt.G, flt.H, flt.dt, *self._args(), int(i0), int(k0), rho)
+        kernel.signature(flt.A, flt.G, flt.H, flt.dt, *self._args(flt), int(i0), int(k0),
+                         rho)
         c = self._per_second(name)
         return rho if c == 1.0 else rho * c
 
@@ -298,4 +310,20 @@ def systems(model: LinearModel, hyps: list) -> dict:
         members.sort(key=lambda h: h.kind != "ramp")  # the ramp defines the fault state
         system = System(model, members)
         out.update({h.name: system for h in members})
+    return out
+
+
+def each_system(fn: Callable, systems: dict, threads: int = 1) -> dict:
+    """The union of ``fn(system)`` (a dict by hypothesis name) over the distinct Systems of
+    :func:`systems`; on ``threads`` threads when more than one (the compiled kernels release the
+    GIL; the largest fault state first, so that two threads share the work evenly)."""
+    distinct = sorted({id(s): s for s in systems.values()}.values(), key=lambda s: -s.E.shape[1])
+    if threads > 1 and len(distinct) > 1:
+        with ThreadPoolExecutor(max_workers=min(threads, len(distinct))) as pool:
+            parts = list(pool.map(fn, distinct))
+    else:
+        parts = [fn(s) for s in distinct]
+    out: dict = {}
+    for part in parts:
+        out.update(part)
     return out

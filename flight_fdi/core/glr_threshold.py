@@ -25,21 +25,28 @@ def _crossing_from_a(u: float, a: np.ndarray) -> np.ndarray:
     return np.maximum(out, 0.0)
 
 
-_A_EDGES = np.logspace(-9.0, 0.0, 241)
+#: the bins of a = sqrt((1-|c|)/(1+|c|)): bin i holds edges[i-1] < a <= edges[i]
+A_EDGES = np.logspace(-9.0, 0.0, 241)
 
 
-def threshold(fresh: int, pair_a: np.ndarray, p_false_alarm: float) -> float:
+def bin_counts(pair_a: np.ndarray) -> np.ndarray:
+    """How many of the a values fall in each bin of :data:`A_EDGES` (length A_EDGES.size + 1:
+    the last one would count a > 1, which the clip to [0, 1] leaves empty)."""
+    idx = np.searchsorted(A_EDGES, np.clip(pair_a, 0.0, 1.0), side="left")
+    return np.bincount(idx, minlength=A_EDGES.size + 1)
+
+
+def threshold(fresh: int, counts: np.ndarray, p_false_alarm: float) -> float:
     """Smallest l threshold u^2 whose first-crossing bound is p_false_alarm. ``fresh`` onsets
-    start a run (term P(|Z| > u)); ``pair_a`` holds a = sqrt((1-|c|)/(1+|c|)) of every
-    neighbouring pair.
-    The a values are binned up to log-spaced edges: the terms grow with a, so this only loosens
-    the bound (by < 10 % for the affected terms) and keeps the root search cheap."""
+    start a run (term P(|Z| > u)); ``counts`` (:func:`bin_counts`) holds how many neighbouring
+    pairs have a = sqrt((1-|c|)/(1+|c|)) in each bin of :data:`A_EDGES`, and a pair counts as
+    its bin's upper edge: the terms grow with a, so this only loosens the bound (by < 10 % for
+    the affected terms) and keeps the root search cheap."""
     if fresh == 0:
         return float("inf")
-    idx = np.searchsorted(_A_EDGES, np.clip(pair_a, 0.0, 1.0), side="left")
-    counts = np.bincount(idx, minlength=_A_EDGES.size)
+    counts = np.asarray(counts)[:A_EDGES.size]
     keep = counts > 0
-    edges, counts = _A_EDGES[keep], counts[keep].astype(float)
+    edges, counts = A_EDGES[keep], counts[keep].astype(float)
 
     def bound(u: float) -> float:
         return fresh * 2.0 * _Q(u) + float(counts @ _crossing_from_a(u, edges))
