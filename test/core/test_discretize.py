@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from flight_fdi.core.discretize import VanLoanSeries, discretize, discretize_all
+from flight_fdi.core.discretize import (SHORT, VanLoanSeries, _scaling, _terms, discretize,
+                                       discretize_all, expm_series)
 from flight_fdi.core.models import attitude_axis, ins_channel, model_from_dict
 from flight_fdi.core.scaled import scaled_model
 
@@ -90,3 +91,36 @@ def test_series_coefficients_are_the_van_loan_taylor_terms():
     np.testing.assert_allclose(vl.C[1], (m.A @ m.Qc + m.Qc @ m.A.T) / 2)
     np.testing.assert_array_equal(vl.G[0], m.B)
     assert vl.norm == pytest.approx(np.abs(m.A).sum(axis=0).max())
+
+
+def test_both_horner_paths_equal_scipy_expm():
+    """Phi = expm(A dt) alone (GLR's transitions and fault transitions Psi) and the Van Loan
+    blocks, on the fixed-length Horner loop (at most SHORT terms suffice: the INS channel, a
+    GLR ramp's fault system) and on the run-time length one (more terms: the random model's
+    steps), 0.1 s with 1 ms Gaussian jitter: every entry to 1e-12 of scipy's expm."""
+    from flight_fdi.core.glr import DEFAULT_HYPOTHESES
+    from flight_fdi.core.glr_system import resolve, systems
+
+    ins = ins_channel()
+    sm = scaled_model(ins)
+    ramp = systems(ins, [resolve(ins, h) for h in DEFAULT_HYPOTHESES])["accel_bias_ramp"]
+    Abar = ramp.Fpsi[1]                                 # F[1] = A_bar
+    rnd = scaled_model(random_model())
+    dts = 0.1 + np.random.default_rng(5).normal(0.0, 1e-3, 30)
+    paths = set()
+    for A, F, norm in ((sm.A, sm.series.F, sm.series.norm), (Abar, ramp.Fpsi, ramp.norm_psi),
+                       (rnd.A, rnd.series.F, rnd.series.norm)):
+        for dt in dts:
+            paths.add(_terms(norm * _scaling(norm, dt)[1]) <= SHORT)
+            Phi = np.empty(A.shape)
+            expm_series(F, norm, dt, Phi, np.empty(A.shape))
+            ref = expm(A * dt)
+            assert np.abs(Phi - ref).max() <= 1e-12 * max(1.0, np.abs(ref).max()), dt
+    assert paths == {True, False}
+    for model in (sm, rnd):
+        for dt in dts:
+            Phi, Qd, Bd = discretize(model.A, model.Qc, model.B, dt, model.series)
+            Phi_r, Qd_r, Bd_r = van_loan_reference(model.A, model.Qc, model.B, dt)
+            assert np.abs(Phi - Phi_r).max() <= 1e-12 * max(1.0, np.abs(Phi_r).max())
+            assert np.abs(Qd - Qd_r).max() <= 1e-12 * np.abs(Qd_r).max()
+            assert np.array_equal(Qd, Qd.T)

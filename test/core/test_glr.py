@@ -364,6 +364,9 @@ def test_curves_are_max_pooled():
     ({"block_size": 1}, "block_size"),
     ({"block_size": 2.5}, "block_size"),
     ({"curve_points": -3}, "curve_points"),
+    ({"threads": 0}, "threads"),
+    ({"threads": 1.5}, "threads"),
+    ({"threads": True}, "threads"),
 ])
 def test_config_is_validated(kwargs, field):
     with pytest.raises(CoreError, match=f"GlrConfig.{field}"):

@@ -12,7 +12,9 @@ from scipy.linalg import expm
 
 from flight_fdi.core import ins_channel
 from flight_fdi.core.glr import DEFAULT_HYPOTHESES, GlrConfig, isolate
+from flight_fdi.core.glr_kernel import onset_statistics
 from flight_fdi.core.glr_system import prepare, resolve, systems
+from flight_fdi.core.glr_threshold import A_EDGES, bin_counts
 from flight_fdi.core.kalman import GateConfig, run_forward
 
 
@@ -142,3 +144,44 @@ def test_shared_systems_change_nothing(flight):
         alone = isolate(model, fwd, GlrConfig(hypotheses=(name,), curve_points=0))
         np.testing.assert_allclose(together.curves[name][1], alone.curves[name][1],
                                    rtol=1e-10, atol=1e-10 * alone.curves[name][1].max())
+
+
+def test_threads_change_nothing(flight):
+    # the fault systems scanned on two threads give the same bits as in one
+    model, fwd = flight
+    one = isolate(model, fwd, GlrConfig(curve_points=0, threads=1))
+    two = isolate(model, fwd, GlrConfig(curve_points=0, threads=2))
+    assert (one.hypothesis, one.statistic, one.threshold, one.residual) == \
+        (two.hypothesis, two.statistic, two.threshold, two.residual)
+    assert one.per_hypothesis == two.per_hypothesis
+    for name in DEFAULT_HYPOTHESES:
+        np.testing.assert_array_equal(one.curves[name][1], two.curves[name][1])
+
+
+def test_compiled_onset_statistics_equal_the_numpy_formulas(flight):
+    """l = num^2 / den where den > 0, the runs of tests, and the threshold's bins of
+    a = sqrt((1-|c|)/(1+|c|)) of neighbouring tests (numpy's searchsorted) -- bit for bit,
+    with onsets that are no test (den = 0) in the middle of the record."""
+    model, fwd = flight
+    flt = prepare(model, fwd)
+    hyps = [resolve(model, h) for h in DEFAULT_HYPOTHESES]
+    raw = {}
+    for system in {id(s): s for s in systems(model, hyps).values()}.values():
+        raw.update(system.scan(flt))
+    num, den, cross = raw["reference_outlier"]
+    den = den.copy()
+    den[[10, 11, 200]] = 0.0                    # three onsets that test nothing
+    raw["holes"] = num, den, cross
+    for name, (num, den, cross) in raw.items():
+        l, ok = np.empty(num.size), np.empty(num.size, dtype=bool)
+        counts = np.zeros(A_EDGES.size + 1, dtype=np.int64)
+        fresh = onset_statistics(num, den, cross, A_EDGES, l, ok, counts)
+        ok_ref = den > 1e-300
+        np.testing.assert_array_equal(ok, ok_ref)
+        np.testing.assert_array_equal(l, np.where(ok_ref, num ** 2 / np.where(ok_ref, den, 1.0),
+                                                  0.0))
+        assert fresh == int(ok_ref[0]) + np.count_nonzero(ok_ref[1:] & ~ok_ref[:-1]), name
+        both = ok_ref[:-1] & ok_ref[1:]
+        c = np.clip(np.abs(cross[:-1][both] / np.sqrt(den[:-1][both] * den[1:][both])), 0, 1)
+        np.testing.assert_array_equal(counts, bin_counts(np.sqrt((1.0 - c) / (1.0 + c))))
+        assert counts.sum() == both.sum() > 0
