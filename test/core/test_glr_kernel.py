@@ -13,7 +13,7 @@ from scipy.linalg import expm
 from flight_fdi.core import ins_channel
 from flight_fdi.core.glr import DEFAULT_HYPOTHESES, GlrConfig, isolate
 from flight_fdi.core.glr_kernel import onset_statistics
-from flight_fdi.core.glr_system import prepare, resolve, systems
+from flight_fdi.core.glr_system import each_system, prepare, resolve, systems
 from flight_fdi.core.glr_threshold import A_EDGES, bin_counts
 from flight_fdi.core.kalman import GateConfig, run_forward
 
@@ -97,13 +97,16 @@ def flight(request):
 ONSETS = [0, 49, 50, 173, 398]
 
 
-def test_kernel_statistics_equal_the_reference(flight):
-    model, fwd = flight
+def first_pass(model, fwd):
+    """(hypotheses, {name: (num, den, cross)}) of the compiled scan over every onset."""
     flt = prepare(model, fwd)
     hyps = [resolve(model, h) for h in DEFAULT_HYPOTHESES]
-    raw = {}
-    for system in {id(s): s for s in systems(model, hyps).values()}.values():
-        raw.update(system.scan(flt))
+    return hyps, each_system(lambda system: system.scan(flt), systems(model, hyps))
+
+
+def test_kernel_statistics_equal_the_reference(flight):
+    model, fwd = flight
+    hyps, raw = first_pass(model, fwd)
     for hyp in hyps:
         num, den, cross = raw[hyp.name]
         for theta in ONSETS:
@@ -163,11 +166,7 @@ def test_compiled_onset_statistics_equal_the_numpy_formulas(flight):
     a = sqrt((1-|c|)/(1+|c|)) of neighbouring tests (numpy's searchsorted) -- bit for bit,
     with onsets that are no test (den = 0) in the middle of the record."""
     model, fwd = flight
-    flt = prepare(model, fwd)
-    hyps = [resolve(model, h) for h in DEFAULT_HYPOTHESES]
-    raw = {}
-    for system in {id(s): s for s in systems(model, hyps).values()}.values():
-        raw.update(system.scan(flt))
+    hyps, raw = first_pass(model, fwd)
     num, den, cross = raw["reference_outlier"]
     den = den.copy()
     den[[10, 11, 200]] = 0.0                    # three onsets that test nothing
