@@ -17,7 +17,8 @@ These are the blocks of Van Loan's exponential of [[-A, Qc], [0, A^T]] dt (and o
        Bd(h)  = h sum_j h^j A^j B / (j+1)!
        Qd(h)  = h sum_j h^j M_{j+1} / (j+1)!,   M_1 = Qc,  M_{k+1} = A M_k + M_k A^T
 
-   summed by Horner's scheme up to the term whose bound is below rounding (O(terms n^2) per dt);
+   summed by Horner's scheme up to the term whose bound is below rounding (O(terms n^2) per dt;
+   at least ``SHORT`` terms, a loop length the compiler knows and unrolls);
 3. squaring, s times (the semigroup property, block by block)::
 
        Qd(2h) = Phi(h) Qd(h) Phi(h)^T + Qd(h),  Gamma(2h) = Gamma(h) + Phi(h) Gamma(h),
