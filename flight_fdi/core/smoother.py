@@ -146,7 +146,7 @@ def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] 
     Y, W, P_s, y, Wv, x_s, info_ratio, v_tilde, d, terms, normalized = o.values()
     informative = np.empty((N, n), dtype=bool)
     dof_k = np.empty((N, n), dtype=np.int64)
-    bad, code = kernel.smooth_pass(
+    bad, code = kernel.sweep_for(n)(
         *sm.series.args(), np.ascontiguousarray(fwd.dt, dtype=float), u, info, Y0, y0,
         np.ascontiguousarray(fwd.x), np.ascontiguousarray(fwd.P), sm.s, float(rank_tol), Y, y,
         W, Wv, x_s, P_s, info_ratio, informative, v_tilde, d, terms, dof_k, normalized)
