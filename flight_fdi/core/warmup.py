@@ -26,6 +26,7 @@ def warm() -> None:
         fwd = run_forward(ins, t, rng.normal(0, 0.1, N), gate=gate)
         bwd = run_backward(ins, fwd)
         diagnose(ins, fwd, bwd)
+    run_backward(_two_states(), run_forward(_two_states(), t, rng.normal(0, 0.1, N)))
     ti = np.arange(5 * N) * 0.02
     run_analysis(ins, ti, rng.normal(0, 0.1, ti.size), t[t < ti[-1]],
                  np.zeros((t < ti[-1]).sum()), config=AnalysisConfig())
@@ -49,6 +50,29 @@ def warm() -> None:
     ldl(P)
     localize(np.ones(4), dP=P)
     localize(np.ones(4), W=P)
+
+
+def _two_states():
+    """A 2-state model: its size is not specialised, so it compiles the generic backward sweep
+    (``information.smooth_pass``, any n) that a model file of another size runs."""
+    from .models import LinearModel
+
+    return LinearModel(name="warm_cv", state_names=("p", "v"), state_units=("m", "m/s"),
+                       A=[[0.0, 1.0], [0.0, 0.0]], Qc=np.diag([0.0, 0.05]), H=[[1.0, 0.0]],
+                       R=[[0.04]], P0=np.eye(2))
+
+
+def preload(model, config=None) -> None:
+    """Load the compiled kernels a flight analysis of ``model`` uses (numba's start-up and the
+    cached machine code, ~0.4 s of a fresh process), by analysing a short synthetic record:
+    what ``flight-fdi analyze --jobs 2`` does while its forked child reads the bag."""
+    from .analysis import AnalysisConfig, run_analysis
+
+    if model.m != 1:
+        return
+    t = np.arange(300) * 0.1
+    run_analysis(model, t, np.zeros(t.size), t, np.zeros(t.size),
+                 config=AnalysisConfig() if config is None else config)
 
 
 def warm_glr(model, fwd) -> None:

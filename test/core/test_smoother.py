@@ -221,3 +221,79 @@ def test_backward_bad_input():
                                     fwd.fused, None, fwd.x, fwd.P)
     with pytest.raises(CoreError, match="positive definite"):
         run_backward(model, rec)
+
+
+# ------------------------------------------------------------- the sweep compiled per state size
+
+def constant_velocity():
+    """A 2-state model (position, velocity): its n is not specialised, the generic sweep runs."""
+    from flight_fdi.core.models import LinearModel
+
+    return LinearModel(name="cv", state_names=("p", "v"), state_units=("m", "m/s"),
+                       A=[[0.0, 1.0], [0.0, 0.0]], Qc=np.diag([0.0, 0.05]), H=[[1.0, 0.0]],
+                       R=[[0.04]], P0=np.diag([1.0, 0.25]))
+
+
+def _stamps(kind, N, rng):
+    t = np.arange(N) * 0.1
+    return t if kind == "regular" else t + rng.normal(0.0, 1e-3, N)
+
+
+@pytest.mark.parametrize("kind", ["regular", "jittered"])
+@pytest.mark.parametrize("make", [ins_channel, attitude_axis])
+def test_sweep_compiled_for_the_state_size_equals_the_generic_sweep(kind, make, monkeypatch):
+    """The built-in models' sizes run a sweep compiled with n fixed: the same arithmetic as the
+    generic sweep, so the same bits (outputs, J, localization), with gating and control."""
+    from flight_fdi.core import information
+    from flight_fdi.core.kalman import GateConfig
+
+    model = make()
+    rng = np.random.default_rng(11)
+    N = 500
+    t = _stamps(kind, N, rng)
+    z = rng.normal(0.0, np.sqrt(model.R[0, 0]), (N, model.m)) + 0.2 * np.sin(t / 20.0)[:, None]
+    z[200::41] += 30 * np.sqrt(model.R[0, 0])  # outliers, rejected by the gate
+    u = None if model.B is None else rng.normal(0.0, 1.0, (N, model.B.shape[1]))
+    fwd = run_forward(model, t, z, u=u, gate=GateConfig(action="reject"))
+    assert not fwd.fused.all()
+    special = information.sweep_for(model.n)
+    assert model.n in information.SPECIALISED and special is not information.smooth_pass
+    fixed = run_backward(model, fwd)
+    monkeypatch.setattr(information, "sweep_for", lambda n: information.smooth_pass)
+    generic = run_backward(model, fwd)
+    for name in ("Y", "y", "x_s", "P_s", "W", "Wv", "J", "dof", "info_ratio"):
+        np.testing.assert_array_equal(getattr(fixed, name), getattr(generic, name), err_msg=name)
+    for name in ("terms", "v_tilde", "d", "normalized"):
+        np.testing.assert_array_equal(getattr(fixed.localization, name),
+                                      getattr(generic.localization, name), err_msg=name)
+
+
+@pytest.mark.parametrize("kind", ["regular", "jittered"])
+def test_generic_sweep_equals_filterpy_rts_for_another_state_size(kind):
+    """A 2-state model runs the generic sweep: FilterPy's RTS smoother to 1e-9 of the scale."""
+    from flight_fdi.core import information
+    from scipy.linalg import expm
+
+    model = constant_velocity()
+    assert information.sweep_for(model.n) is information.smooth_pass
+    rng = np.random.default_rng(12)
+    N = 400
+    t = _stamps(kind, N, rng)
+    z = 0.5 * np.sin(t / 5.0) + rng.normal(0.0, 0.2, N)
+    fwd = run_forward(model, t, z)
+    bwd = run_backward(model, fwd)
+    n = model.n
+    Fs, Qs = [np.eye(n)], [np.zeros((n, n))]
+    for dt in np.diff(t):  # Van Loan with scipy's expm, independent of the kernels
+        M = np.zeros((2 * n, 2 * n))
+        M[:n, :n], M[:n, n:], M[n:, n:] = -model.A, model.Qc, model.A.T
+        E = expm(M * dt)
+        Fs.append(E[n:, n:].T)
+        Qs.append(Fs[-1] @ E[:n, n:])
+    kf = FilterPyKF(n, 1)
+    kf.x, kf.P, kf.H, kf.R = np.zeros(n), np.array(model.P0), np.array(model.H), model.R
+    mu, cov, _, _ = kf.batch_filter(z, Fs=Fs, Qs=Qs)
+    xs, Ps, _, _ = kf.rts_smoother(mu, cov, Fs=Fs, Qs=Qs)
+    s = model.scale
+    assert rel(bwd.x_s, xs, s) < 1e-9
+    assert rel(bwd.P_s, Ps, np.outer(s, s)) < 1e-9
