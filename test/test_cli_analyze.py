@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -129,3 +130,51 @@ def test_invalid_option_values(capsys, repo_root):
     assert "M/N" in capsys.readouterr().err
     assert main(["analyze", bag, "--model", "no_such_model"]) == 1
     assert "unknown model" in capsys.readouterr().err
+
+
+_FRESH_ANALYZE = """
+import contextlib, io, json, sys
+from flight_fdi.cli.main import main
+out = io.StringIO()  # (the JSON result, and numba's cache messages with NUMBA_DEBUG_CACHE)
+with contextlib.redirect_stdout(out):
+    rc = main(["analyze", sys.argv[1], "--json", "--jobs", "1"])
+print(*[ln for ln in out.getvalue().splitlines() if ln.startswith("[cache]")], sep="\\n")
+print(json.dumps({"rc": rc, "modules": sorted(sys.modules)}))
+"""
+
+
+def test_fresh_analyze_imports_only_what_it_uses(repo_root):
+    """A fresh ``analyze`` imports neither the campaign engine (dask), the JSON Schema checker,
+    matplotlib, SciPy's statistics nor ``coverage`` (which numba would import for its coverage
+    hook), and compiles nothing (every kernel comes from the cache ``make setup`` warms)."""
+    env = {**os.environ, "NUMBA_DEBUG_CACHE": "1"}
+    env.pop("COVERAGE_PROCESS_START", None)
+    proc = subprocess.run([sys.executable, "-c", _FRESH_ANALYZE,
+                           str(repo_root / "bags" / "nominal")], capture_output=True, text=True,
+                          timeout=120, env=env)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    out = json.loads(lines[-1])
+    assert out["rc"] == 0
+    top = {m.split(".")[0] for m in out["modules"]}
+    assert not top & {"dask", "distributed", "jsonschema", "matplotlib", "coverage"}, top
+    assert "scipy.stats" not in out["modules"] and "numba" in top
+    cache = [ln for ln in lines if ln.startswith("[cache]")]
+    assert any("data loaded" in ln for ln in cache)
+    assert not [ln for ln in cache if "saved" in ln], cache
+
+
+def test_preload_loads_every_kernel_the_analysis_uses(repo_root):
+    """``analyze --jobs 2`` loads the kernels (``core.warmup.preload``) while its child reads
+    the bag: after it, the analysis of a flight loads no more machine code."""
+    code = ("import sys\n"
+            "from flight_fdi.core.models import ins_channel\n"
+            "from flight_fdi.core.warmup import preload\n"
+            "preload(ins_channel())\n"
+            "print('--- analysis', flush=True)\n" + _FRESH_ANALYZE)
+    proc = subprocess.run([sys.executable, "-c", code, str(repo_root / "bags" / "accel_fault_500s")],
+                          capture_output=True, text=True, timeout=120, check=True,
+                          env={**os.environ, "NUMBA_DEBUG_CACHE": "1"})
+    before, after = proc.stdout.split("--- analysis")
+    assert before.count("data loaded") >= 3
+    assert "data loaded" not in after and "saved" not in after

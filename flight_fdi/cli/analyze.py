@@ -113,8 +113,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                "reference velocity (see --ins-topic, --input-profile)")
     add_analysis_options(p)
     p.add_argument("--jobs", type=int, choices=(1, 2), default=default_jobs(),
-                   help="processes to use: with 2 the backward pass runs beside the forward "
-                        "pass, same results (default 2 on a machine with 2 or more cores)")
+                   help="processes to use: with 2 the bag is read in a forked child while "
+                        "this process loads the estimation core and its compiled kernels, same "
+                        "results (default 2 on a machine with 2 or more cores)")
     p.set_defaults(func=run)
 
 
@@ -136,7 +137,8 @@ def analyse_flight_bag(bag: str, args: argparse.Namespace, with_truth: bool = Fa
 
     spec = input_spec(args)
     # with two jobs the bag is read in a forked child while this process imports the estimation
-    # core (SciPy: ~0.5 s); errors of either side come out here, the child never outlives this
+    # core and loads its kernels (~0.9 s CPU, docs/performance.md); errors of either side come
+    # out here, the child never outlives this
     with ForkedCall(read_flight, (bag,), {"spec": spec, "with_truth": with_truth},
                     fork=getattr(args, "jobs", 1) == 2) as job:
         import_numba()

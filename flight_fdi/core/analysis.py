@@ -39,7 +39,8 @@ class AnalysisConfig:
     glr_p_false_alarm, glr_hypotheses, glr_ambiguity_margin: the GLR isolator
         (:class:`~flight_fdi.core.glr.GlrConfig`).
     jobs: processes ``flight-fdi analyze`` may use: with 2 it reads the bag in a forked child
-        while it imports the estimation core. The analysis itself runs in one process (its
+        while it imports the estimation core and loads the compiled kernels
+        (``core.warmup.preload``). The analysis itself runs in one process (its
         compiled kernels release the GIL, so GLR's thread overlaps the backward pass; a forked
         backward pass or GLR no longer pays, docs/performance.md).
     """

@@ -71,8 +71,9 @@ def preload(model, config=None) -> None:
     if model.m != 1:
         return
     t = np.arange(300) * 0.1
-    run_analysis(model, t, np.zeros(t.size), t, np.zeros(t.size),
-                 config=AnalysisConfig() if config is None else config)
+    res = run_analysis(model, t, np.zeros(t.size), t, np.zeros(t.size),
+                       config=AnalysisConfig() if config is None else config)
+    warm_glr(model, res.fwd)  # (GLR's second pass, which only a fault flight runs)
 
 
 def warm_glr(model, fwd) -> None:
