@@ -128,9 +128,8 @@ def _inputs(model: LinearModel, fwd: Any, prior: tuple[Any, Any] | None) -> tupl
 def run_backward(model: LinearModel, fwd: ForwardResult, prior: tuple[Any, Any] | None = None,
                  rank_tol: float = DEFAULT_RANK_TOL) -> BackwardResult:
     """Backward information filter over ``fwd``'s record and the two-filter combination with
-    its posterior x(i/i), P(i/i), in one compiled backward sweep
-    (:func:`flight_fdi.core.information.smooth_pass`). See the module docstring for the
-    formulas."""
+    its posterior x(i/i), P(i/i), in one compiled backward sweep (the one for the model's n,
+    :func:`flight_fdi.core.information.sweep_for`). See the module docstring for the formulas."""
     if not isinstance(fwd, ForwardResult):
         raise CoreError(f"run_backward: expected a ForwardResult, got {type(fwd).__name__}")
     if not (np.isfinite(rank_tol) and 0 < rank_tol < 1):
