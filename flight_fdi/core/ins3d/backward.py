@@ -1,42 +1,60 @@
-"""Backward information filter on the time-varying ins3d model, the two-filter combination and
-the information about constant body-axis faults for every onset -- one backward sweep.
+"""The post-flight backward sweep on the time-varying ins3d model: the two-filter combination
+with the forward pass at every boundary with reference updates, and the information about
+constant body-axis faults for every onset -- one backward sweep (Bryson-Frazier adjoint form).
 
-Backward information filter (Fraser-Potter; the formulas of ``core.information``), from zero
-information at the end of the flight, on the same Phi_k, Q_k as the forward pass (``model.fill_F``,
-``model.discretize``), scaled coordinates x' = T^-1 x (T = diag(sqrt(p0)), as ``filter``)::
+The backward information filter (Fraser-Potter: Y, y from zero information at the end, on the
+same Phi_k, Q_k as the forward pass) combined with the forward filter's *prior* (x_f, P_f) at a
+boundary k gives (``core.information.combine_step``)
 
-    update at boundary k:  Y <- Y + H' R^-1 H,   y <- y + H' R^-1 z
-    predict to k-1:        Y <- Phi' Yt Phi,  y <- Phi' yt,  [Yt | yt] = (I + Y Q)^-1 [Y | y]
+    W = (I + Y P_f)^-1 Y,   W v = (I + Y P_f)^-1 (y - Y x_f),
+    x_s = x_f + P_f W v,    P_s = P_f - P_f W P_f,
 
-(Y, y) at k then holds the information about x_k from the updates at k and after; with the
-forward filter's *prior* at k (updates before k) the two-filter combination gives the smoothed
-state and the seed method's terms (``information.combine_step``: W = (I + Y P_f)^-1 Y, J, UDU^T
-/ LDL^T element terms with the effective degrees of freedom).
+and W, W v (the information of the difference between the backward and the forward estimate)
+are what the seed method decomposes (UDU^T of P_f for the reference pivots, LDL^T of W, element
+terms with the effective dof). The sweep computes W and W v directly, with the forward filter's
+gains K_j = P_j H_j' S_j^-1 (L_j = I - K_j H_j) instead of a (I + Y Q)^-1 solve per step -- the
+modified Bryson-Frazier recursion (Bierman 1977, ch. X), from (Lambda, lambda) = (0, 0) after the
+last update, in scaled coordinates x' = T^-1 x (T = diag(sqrt(p0)), as ``filter``)::
 
-Faults. The state is augmented with a constant fault vector b (``FAULT_COLUMNS``): an
-accelerometer or gyro error a + r t on each body axis (a step is a alone; a ramp that starts at
-theta is a + r t with a = -r theta) entering the velocity or attitude equation through C_b^n like
-the bias states do, and an offset of z per reference row (a reference jump). b enters the dynamics
-through Gamma_k (x_k+1 = Phi_k x_k + Gamma_k b + w_k) and the measurement through D (z = H x + D b
-+ v). The augmented backward filter's x block is the plain one; the fault blocks Y_xb, Y_bb, y_b
-follow (A = (I + Y Q)^-1)::
+    update j (backwards):  lambda <- H' S^-1 nu + L' lambda,   Lambda <- H' S^-1 H + L' Lambda L
+    step k (backwards):    lambda <- Phi_k' lambda,            Lambda <- Phi_k' Lambda Phi_k
 
-    update:   Y_xb += H' R^-1 D,  Y_bb += D' R^-1 D,  y_b += D' R^-1 z
-    predict:  Yt_xb = A Y_xb,  Yt_bb = Y_bb - Y_xb' Q Yt_xb,  yt_b = y_b - Y_xb' Q yt
-              Y_xb <- Phi' (Yt Gamma + Yt_xb)
-              Y_bb <- Yt_bb + Gamma' Yt_xb + Yt_xb' Gamma + Gamma' Yt Gamma  (group blocks)
-              y_b  <- yt_b + Gamma' yt
+(Lambda, lambda) before the first update at boundary k is (W, W v) there: the same quantities,
+no Q_k and no solve (test_backward.py: = the information filter's combination and = FilterPy's
+RTS smoother).
 
-A fault that starts at boundary k (b = 0 before it) is independent of the forward prior at k, so
-combining that prior (x_f, P_f) with the augmented backward information and marginalising the
-state gives the information I_b and the information vector eta_b of the fault for the onset k::
+Faults. A constant fault vector b (``ACC_A`` ... ``REF``): an accelerometer or gyro error a + r t
+on each body axis (a step is a alone; a ramp that starts at theta is a + r t with a = -r theta)
+entering the velocity or attitude equation through C_b^n like the bias states do, and an offset of
+z per reference row (a reference jump); it enters the dynamics through Gamma_k
+(x_k+1 = Phi_k x_k + Gamma_k b + w_k) and the measurement through D (z = H x + D b + v). A fault
+that starts at boundary k moves the forward filter's (which ignores it) prior error by mu and its
+innovations by rho (the Willsky-Jones signature, ``signature.py``)::
 
-    I_b(k) = Y_bb - Y_xb' P_s Y_xb,    eta_b(k) = y_b - Y_xb' x_s
+    rho_j = H mu_j + D b,   mu <- L_j mu - K_j D b (update j),   mu <- Phi_k mu + Gamma_k b
 
-(x_s, P_s the smoothed state of the plain two-filter combination), so b^ = I_b^-1 eta_b and
-GLR(k) = eta_b' I_b^-1 eta_b for every onset in one sweep; a hypothesis on one axis (or a ramp
-with a = -r theta) is a direction tau in b: GLR = (tau' eta)^2 / (tau' I tau). A reference
-outlier at update j is the same with D at that update only: I = R^-1 - R^-1 H P_s H' R^-1,
+with mu = 0 at the onset; the GLR statistics are e = sum rho' S^-1 nu (linear in b) and
+d = sum rho' S^-1 rho (quadratic). Both are carried backwards as functions of (mu, b):
+e = mu' lambda + b' zeta, d = mu' Lambda mu + 2 mu' Z b + b' Omega b -- with the same lambda,
+Lambda as above and (KD = K D, M = Lambda K)::
+
+    update j:  zeta  += D' S^-1 nu - D' K' lambda
+               Z     <- H' S^-1 D + L' (Z - M D)
+               Omega += D' S^-1 D - D' K' Z - Z' K D + D' K' Lambda K D
+    step k:    zeta  += Gamma' lambda
+               Omega += Gamma' (Z + Lambda Gamma) + Z' Gamma      (group blocks)
+               Z     <- Phi' (Z + Lambda Gamma)
+
+(right-hand sides with the values before the update / step). At the onset boundary k (mu = 0
+before its first update) the fault's information vector and information are
+
+    eta_b(k) = zeta,   I_b(k) = Omega,
+
+so b^ = I_b^-1 eta_b and GLR(k) = eta_b' I_b^-1 eta_b for every onset in one sweep (= the
+information-filter form Y_bb - Y_xb' P_s Y_xb of the augmented backward filter); a hypothesis on
+one axis (or a ramp with a = -r theta) is a direction tau in b: GLR = (tau' eta)^2 / (tau' I tau).
+Only the group blocks of Omega (accelerometer, gyro, reference) are kept. A reference outlier at
+update j is the same with D at that update only: I = R^-1 - R^-1 H P_s H' R^-1,
 eta = R^-1 (z - H x_s). The forward signature recursion (``signature.py``) computes the same
 statistics for one onset by brute force (the known-answer test).
 
@@ -44,15 +62,20 @@ Gamma_k of one step from the F of the step (E = the bias columns of F on the vel
 attitude rows, the fault's error a + r (t~_k + s) over the step, e^(F u) = I + F u)::
 
     Gamma_a = E dt + F E dt^2 / 2,    Gamma_r = Gamma_a t~_k + E dt^2 / 2 + F E dt^3 / 6
+
+Every update the forward filter fused enters with its gain; an update the forward filter
+rejected (gate action ``reject``) has no gain: ``postflight.run_backward`` then re-runs the
+forward pass fusing every update (the post-flight part judges all the data).
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from ..information import combine_step, solve
-from .filter import _scale, scaled_H
-from .model import IBA, IBG, IPHI, IV, discretize, fill_F
+from ..information import solve
+from ..ldl import information_terms, ldl_factor, udu_factor
+from .filter import scaled_H
+from .model import IBA, IBG, IPHI, IV, fill_F, transition
 from .sparse import mul_left, mul_right
 
 #: columns of the fault vector b: accelerometer a (x, y, z), r (x, y, z), gyro a, r, then one
@@ -84,195 +107,305 @@ def fault_gamma(F, dt, tt, s, sB, G):
                 G[i, col0 + 3 + c] = (ga * tt + g1) * sB[col0 + 3 + c] / s[i]
 
 
-@njit(cache=True)
-def _add_updates(Y, y, YxB, YBB, yB, ref_step, z, r, acc, s, sB, il, im, rows, j0, j1):
-    """The updates j0..j1-1 (one boundary) into the plain and the fault information."""
-    n = s.size
-    for j in range(j0, j1):
-        Hs = scaled_H(s, acc[j], il, im, rows)
+@njit(cache=True, inline="always")
+def _gain(P_j, Hs, S_j, inv_s, HP, K, Si, work):
+    """Si = S^-1, HP = H' P (scaled, rows x n) and K = P H' S^-1 (n x rows) of one update
+    (P_j physical, Hs scaled)."""
+    rows, n = Hs.shape
+    for i in range(rows):
+        for c in range(rows):
+            work[i, c] = S_j[i, c]
+            work[i, rows + c] = 1.0 if i == c else 0.0
+    solve(work, rows)
+    for i in range(rows):
+        for c in range(rows):
+            Si[i, c] = work[i, rows + c]
+    for i in range(rows):
+        for b in range(n):
+            HP[i, b] = 0.0
+        for a in range(n):
+            h = Hs[i, a]
+            if h != 0.0:
+                ha = h * inv_s[a]
+                for b in range(n):
+                    HP[i, b] += ha * P_j[a, b] * inv_s[b]
+    for a in range(n):
         for i in range(rows):
-            w = 1.0 / r[j, i]
-            for a in range(n):
-                ha = Hs[i, a] * w
-                if ha != 0.0:
-                    y[a] += ha * z[j, i]
-                    YxB[a, REF + i] += ha * sB[REF + i]
-                    for b in range(n):
-                        Y[a, b] += ha * Hs[i, b]
-            YBB[REF + i, REF + i] += sB[REF + i] * sB[REF + i] * w
-            yB[REF + i] += sB[REF + i] * z[j, i] * w
+            acc = 0.0
+            for c in range(rows):
+                acc += HP[c, a] * Si[c, i]
+            K[a, i] = acc
 
 
 @njit(cache=True)
-def _fault_info(YxB, YBB, yB, x_s, P_s, eta, I3):
-    """eta = y_b - Y_xb' x_s and the group blocks of I_b = Y_bb - Y_xb' P_s Y_xb."""
-    n, pB = YxB.shape
-    PY = np.zeros((n, pB))
+def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, Snu):
+    """The update j of the adjoint recursion (module docstring), in place."""
+    rows, n = Hs.shape
+    pB = sB.size
+    for a in range(n):                          # M = Lambda K
+        for i in range(rows):
+            acc = 0.0
+            for b in range(n):
+                acc += Lam[a, b] * K[b, i]
+            M[a, i] = acc
+    for i in range(rows):
+        acc = 0.0
+        for a in range(n):
+            acc += K[a, i] * lam[a]
+        Kl[i] = acc
+        acc = 0.0
+        for c in range(rows):
+            acc += Si[i, c] * nu[c]
+        Snu[i] = acc
+        for c in range(rows):                  # K' Lambda K
+            acc = 0.0
+            for a in range(n):
+                acc += K[a, i] * M[a, c]
+            KtM[i, c] = acc
+        for p in range(pB):                    # K' Z (the old Z)
+            acc = 0.0
+            for a in range(n):
+                acc += K[a, i] * Z[a, p]
+            KtZ[i, p] = acc
+    # Omega's reference block and zeta (old Z, lambda, Lambda)
+    for i in range(rows):
+        p = REF + i
+        zeta[p] += sB[p] * (Snu[i] - Kl[i])
+        for c in range(rows):
+            q = REF + c
+            Om[p, q] += sB[p] * sB[q] * (Si[i, c] + KtM[i, c]) - sB[p] * KtZ[i, q] \
+                - sB[q] * KtZ[c, p]
+    # Z <- H' S^-1 D + (Z - M D) - H' K' (Z - M D);  K' (Z - M D) = K'Z - K'M D
+    for i in range(rows):
+        p = REF + i
+        for a in range(n):
+            Z[a, p] -= M[a, i] * sB[p]
+        for c in range(rows):
+            KtZ[c, p] -= KtM[c, i] * sB[p]
+    for i in range(rows):
+        for a in range(n):
+            h = Hs[i, a]
+            if h != 0.0:
+                for p in range(pB):
+                    Z[a, p] -= h * KtZ[i, p]
+                for c in range(rows):
+                    Z[a, REF + c] += h * Si[i, c] * sB[REF + c]
+                lam[a] += h * (Snu[i] - Kl[i])
+    # Lambda <- H' S^-1 H + Lambda - H' M' - M H + H' K'M H
+    for i in range(rows):
+        for a in range(n):
+            h = Hs[i, a]
+            if h != 0.0:
+                for b in range(n):
+                    Lam[a, b] -= h * M[b, i]
+                    Lam[b, a] -= h * M[b, i]
+    for i in range(rows):
+        for a in range(n):
+            h = Hs[i, a]
+            if h != 0.0:
+                for c in range(rows):
+                    w = h * (Si[i, c] + KtM[i, c])
+                    for b in range(n):
+                        Lam[a, b] += w * Hs[c, b]
+
+
+@njit(cache=True)
+def _adjoint_step(lam, Lam, zeta, Z, Om, Phi, G, T2, T3, lt):
+    """The step k of the adjoint recursion (module docstring), in place; T2, T3 (n, pB) and
+    lt (n, n) scratch."""
+    n, pB = Z.shape
+    for p in range(pB):                         # zeta += Gamma' lambda
+        acc = 0.0
+        for a in range(n):
+            acc += G[a, p] * lam[a]
+        zeta[p] += acc
+    for a in range(n):                          # T2 = Z + Lambda Gamma
+        for p in range(pB):
+            T2[a, p] = Z[a, p]
+    mul_right(Lam, G, T2)
+    for p in range(pB):                         # Omega group blocks (Gamma's columns only)
+        grp = p // GROUP_SIZE
+        for q in range(p, min(pB, (grp + 1) * GROUP_SIZE)):
+            acc = 0.0
+            for a in range(n):
+                g_p = G[a, p]
+                g_q = G[a, q]
+                if g_p != 0.0:
+                    acc += g_p * T2[a, q]
+                if g_q != 0.0:
+                    acc += Z[a, p] * g_q
+            Om[p, q] += acc
+            if q != p:
+                Om[q, p] = Om[p, q]
+    for a in range(n):
+        for p in range(pB):
+            T3[a, p] = 0.0
+    mul_left(Phi, T2, T3, True)                 # Z = Phi' T2
+    for a in range(n):
+        for p in range(pB):
+            Z[a, p] = T3[a, p]
+    for b in range(n):                          # lambda = Phi' lambda
+        acc = 0.0
+        for a in range(n):
+            f = Phi[a, b]
+            if f != 0.0:
+                acc += f * lam[a]
+        lt[0, b] = acc
+    for a in range(n):
+        lam[a] = lt[0, a]
     for a in range(n):
         for b in range(n):
-            p = P_s[a, b]
-            for c in range(pB):
-                PY[a, c] += p * YxB[b, c]
-    for c in range(pB):
-        acc = yB[c]
-        for a in range(n):
-            acc -= YxB[a, c] * x_s[a]
-        eta[c] = acc
-    for g in range(3):
-        c0 = GROUP_START[g]
-        m = min(GROUP_SIZE, pB - c0)
-        for p in range(m):
-            for q in range(m):
-                acc = YBB[c0 + p, c0 + q]
-                for a in range(n):
-                    acc -= YxB[a, c0 + p] * PY[a, c0 + q]
-                I3[g, p, q] = acc
-
-
-@njit(cache=True)
-def _outliers(s, acc_j, il, im, rows, z_j, r_j, x_s, P_s, e_o, I_o):
-    """Outlier information of one update: eta = R^-1 (z - H x_s), I = R^-1 - R^-1 H P_s H' R^-1."""
-    Hs = scaled_H(s, acc_j, il, im, rows)
-    HP = Hs @ P_s
-    for i in range(rows):
-        res = z_j[i]
-        for a in range(s.size):
-            res -= Hs[i, a] * x_s[a]
-        e_o[i] = res / r_j[i]
-        for k in range(rows):
-            hph = 0.0
-            for a in range(s.size):
-                hph += HP[i, a] * Hs[k, a]
-            I_o[i, k] = (1.0 / r_j[i] if i == k else 0.0) - hph / (r_j[i] * r_j[k])
-
-
-@njit(cache=True)
-def _predict_back(Y, y, YxB, YBB, yB, Phi, Qd, G, A):
-    """The backward prediction of the plain and the fault information (module docstring)."""
-    n, pB = YxB.shape
-    w = n + 1 + pB
-    for a in range(n):                      # A = [I + Y Q | Y | y | Y_xb]
-        for c in range(n):
-            acc = 1.0 if a == c else 0.0
-            for j in range(n):
-                q = Qd[j, c]
-                if q != 0.0:
-                    acc += Y[a, j] * q
-            A[a, c] = acc
-            A[a, n + c] = Y[a, c]
-        A[a, 2 * n] = y[a]
-        for c in range(pB):
-            A[a, 2 * n + 1 + c] = YxB[a, c]
-    if not solve(A, n):
-        return False
-    Yt = A[:, n:2 * n]
-    # Y_bb, y_b first (they need the old Y_xb)
-    QYt = np.zeros((n, pB + 1))             # Q [yt | Yt_xb]
-    mul_left(Qd, A[:, 2 * n:], QYt, False)
-    YtG = np.zeros((n, pB))
-    mul_right(Yt, G, YtG)
-    for p in range(pB):
-        acc_y = yB[p]
-        for a in range(n):
-            acc_y += -YxB[a, p] * QYt[a, 0] + G[a, p] * A[a, 2 * n]
-        yB[p] = acc_y
-        grp = p // GROUP_SIZE                # the group blocks of Y_bb only (what is used)
-        for q in range(p, min(pB, (grp + 1) * GROUP_SIZE)):
-            acc = YBB[p, q]
-            for a in range(n):
-                acc += (-YxB[a, p] * QYt[a, 1 + q] + G[a, p] * A[a, 2 * n + 1 + q]
-                        + A[a, 2 * n + 1 + p] * G[a, q] + G[a, p] * YtG[a, q])
-            YBB[p, q] = acc
-            YBB[q, p] = acc
-    for c in range(pB):                     # Y_xb <- Phi' (Yt Gamma + Yt_xb), y <- Phi' yt
-        for a in range(n):
-            YtG[a, c] += A[a, 2 * n + 1 + c]
-    YxB[:, :] = 0.0
-    mul_left(Phi, YtG, YxB, True)
-    y[:] = 0.0
-    mul_left(Phi, A[:, 2 * n:2 * n + 1], y.reshape((n, 1)), True)
-    YtPhi = np.zeros((n, n))                # Y <- Phi' Yt Phi
-    mul_right(Yt, Phi, YtPhi)
-    Y[:, :] = 0.0
-    mul_left(Phi, YtPhi, Y, True)
+            lt[a, b] = 0.0
+    mul_right(Lam, Phi, lt)                     # Lambda Phi
     for a in range(n):
-        for c in range(a + 1, n):
-            sym = 0.5 * (Y[a, c] + Y[c, a])
-            Y[a, c] = sym
-            Y[c, a] = sym
+        for b in range(n):
+            Lam[a, b] = 0.0
+    mul_left(Phi, lt, Lam, True)                # Phi' Lambda Phi
+    for a in range(n):
+        for b in range(a + 1, n):
+            sym = 0.5 * (Lam[a, b] + Lam[b, a])
+            Lam[a, b] = sym
+            Lam[b, a] = sym
+
+
+@njit(cache=True, inline="always")
+def _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d, informative, q, vt, dd,
+             terms, dof, norm, ps_diag):
+    """The two-filter combination at a boundary from W = Lambda, W v = lambda (module
+    docstring): x_s, diag P_s, P_f W, and the seed method's element terms (UDU' of P_f for the
+    reference pivots, LDL' of W: ``core.ldl``). False when P_f is not positive definite."""
+    n = xf.size
+    for a in range(n):
+        acc = xf[a]
+        for b in range(n):
+            acc += Pf[a, b] * lam[b]
+        x_s[a] = acc
+    for a in range(n):
+        for b in range(n):
+            PW[a, b] = 0.0
+        for c in range(n):
+            p = Pf[a, c]
+            if p != 0.0:
+                for b in range(n):
+                    PW[a, b] += p * Lam[c, b]
+    for a in range(n):
+        acc = Pf[a, a]
+        for b in range(n):
+            acc -= PW[a, b] * Pf[b, a]
+        ps_diag[a] = acc
+    if udu_factor(Pf, U, ref) >= 0:
+        return False
+    for k in range(n):
+        ref[k] = 1.0 / ref[k]
+    ldl_factor(Lam, ref, rank_tol, L, Lam_d, informative)
+    information_terms(L, Lam_d, informative, lam, q, vt, dd, terms, dof, norm)
     return True
 
 
+@njit(cache=True)
+def _outliers(Hs, z_j, r_j, x_s, Pf, PW, e_o, I_o, HP, HPW):
+    """Outlier information of one update: eta = R^-1 (z - H x_s), I = R^-1 - R^-1 H P_s H' R^-1
+    with H P_s H' = H P_f H' - (H P_f W) (P_f H')."""
+    rows, n = Hs.shape
+    for i in range(rows):
+        for b in range(n):
+            HP[i, b] = 0.0
+            HPW[i, b] = 0.0
+        for a in range(n):
+            h = Hs[i, a]
+            if h != 0.0:
+                for b in range(n):
+                    HP[i, b] += h * Pf[a, b]
+                    HPW[i, b] += h * PW[a, b]
+    for i in range(rows):
+        res = z_j[i]
+        for a in range(n):
+            res -= Hs[i, a] * x_s[a]
+        e_o[i] = res / r_j[i]
+        for k in range(rows):
+            acc = 0.0
+            for a in range(n):
+                acc += HP[i, a] * Hs[k, a] - HPW[i, a] * HP[k, a]
+            I_o[i, k] = (1.0 / r_j[i] if i == k else 0.0) - acc / (r_j[i] * r_j[k])
+
+
 @njit(cache=True, nogil=True)
-def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, z, r, acc, il, im,
-                   rows, x_pr, P_pr, rank_tol, x_s_o, sd_s_o, terms_o, dof_o, norm_o, vt_o,
+def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il, im, rows,
+                   x_pr, P_pr, S, nu, rank_tol, x_s_o, sd_s_o, terms_o, dof_o, norm_o, vt_o,
                    d_o, eta_o, I_o, oe_o, oI_o):
     """The backward sweep (module docstring). Per update j (sorted by step; x_pr, P_pr the
-    forward prior before it, physical) it writes the combination at its boundary: x_s, sd_s
-    (physical), the cumulative element terms J(i/k), their effective dof and the normalised
-    residuals, v~ and dD (seed method; physical units); the fault information eta (pB,) and
-    the group blocks I (3, 6, 6) (scaled fault units, ``sB``); the outlier information oe
-    (rows,), oI (rows, rows).
-    Returns (boundary, code) of a failure (1: I + Y Q singular, 2: the combination) or
-    (-1, 0)."""
+    forward prior before it, physical; S, nu its innovation covariance and innovation) it
+    writes the combination at its boundary: x_s, sd_s (physical), the cumulative element terms
+    J(i/k), their effective dof and the normalised residuals, v~ and dD (seed method; physical
+    units); the fault information eta (pB,) and the group blocks I (3, 6, 6) (scaled fault
+    units, ``sB``); the outlier information oe (rows,), oI (rows, rows).
+    Returns the boundary where P_f is not positive definite, or -1."""
     n = s.size
     pB = sB.size
     K = dt.size
-    F = np.empty((n, n))
-    Phi = np.empty((n, n))
-    Qd = np.empty((n, n))
+    inv_s = 1.0 / s
+    F, Phi, F2 = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     G = np.empty((n, pB))
-    Y = np.zeros((n, n))
-    y = np.zeros(n)
-    YxB = np.zeros((n, pB))
-    YBB = np.zeros((pB, pB))
-    yB = np.zeros(pB)
-    A = np.empty((n, 2 * n + 1 + pB))
-    Ac = np.empty((n, 2 * n + 1))
-    work = np.empty((2, n, n))
-    W, P_s, xf, Pf = np.empty((n, n)), np.empty((n, n)), np.empty(n), np.empty((n, n))
-    Wv, x_s, ref, Lam, vt, dd = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
-                                 np.empty(n), np.empty(n))
+    lam, Lam = np.zeros(n), np.zeros((n, n))
+    zeta, Z, Om = np.zeros(pB), np.zeros((n, pB)), np.zeros((pB, pB))
+    T2, T3, lt = np.empty((n, pB)), np.empty((n, pB)), np.empty((n, n))
+    HP, Kg, Si = np.empty((rows, n)), np.empty((n, rows)), np.empty((rows, rows))
+    work = np.empty((rows, 2 * rows))
+    M, KtM, KtZ = np.empty((n, rows)), np.empty((rows, rows)), np.empty((rows, pB))
+    Kl, Snu = np.empty(rows), np.empty(rows)
+    xf, Pf, x_s, PW = np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n))
+    U, L = np.empty((n, n)), np.empty((n, n))
+    ref, Lam_d, q, vt, dd, psd = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
+                                  np.empty(n), np.empty(n))
     informative = np.empty(n, dtype=np.bool_)
-    eta = np.empty(pB)
-    I3 = np.zeros((3, GROUP_SIZE, GROUP_SIZE))
+    HPW = np.empty((rows, n))
     j1 = ref_step.size
     for k in range(K, -1, -1):
         j0 = j1
         while j0 > 0 and ref_step[j0 - 1] == k:
             j0 -= 1
         if j0 < j1:
-            _add_updates(Y, y, YxB, YBB, yB, ref_step, z, r, acc, s, sB, il, im, rows, j0, j1)
+            for j in range(j1 - 1, j0 - 1, -1):
+                Hs = scaled_H(s, acc[j], il, im, rows)
+                _gain(P_pr[j], Hs, S[j], inv_s, HP, Kg, Si, work)
+                _adjoint_update(lam, Lam, zeta, Z, Om, Hs, Kg, Si, nu[j], sB, M, KtM, KtZ,
+                                Kl, Snu)
             for a in range(n):
-                xf[a] = x_pr[j0, a] / s[a]
+                xf[a] = x_pr[j0, a] * inv_s[a]
                 for b in range(n):
-                    Pf[a, b] = P_pr[j0, a, b] / (s[a] * s[b])
-            if not combine_step(Y, y, xf, Pf, rank_tol, W, Wv, x_s, P_s, ref, Lam, informative,
-                                vt, dd, terms_o[j0], dof_o[j0], norm_o[j0], Ac, work):
-                return k, 2
-            _fault_info(YxB, YBB, yB, x_s, P_s, eta, I3)
+                    Pf[a, b] = P_pr[j0, a, b] * inv_s[a] * inv_s[b]
+            if not _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d,
+                            informative, q, vt, dd, terms_o[j0], dof_o[j0], norm_o[j0], psd):
+                return k
             for j in range(j0, j1):
                 for a in range(n):
                     x_s_o[j, a] = x_s[a] * s[a]
-                    sd_s_o[j, a] = np.sqrt(max(P_s[a, a], 0.0)) * s[a]
+                    sd_s_o[j, a] = np.sqrt(max(psd[a], 0.0)) * s[a]
                     terms_o[j, a] = terms_o[j0, a]
                     dof_o[j, a] = dof_o[j0, a]
                     norm_o[j, a] = norm_o[j0, a]
                     vt_o[j, a] = vt[a] * s[a]
                     d_o[j, a] = dd[a] * s[a] * s[a]
-                eta_o[j, :] = eta
-                I_o[j] = I3
-                _outliers(s, acc[j], il, im, rows, z[j], r[j], x_s, P_s, oe_o[j], oI_o[j])
+                for p in range(pB):
+                    eta_o[j, p] = zeta[p]
+                for g in range(3):
+                    c0 = GROUP_START[g]
+                    for p in range(min(GROUP_SIZE, pB - c0)):
+                        for c in range(min(GROUP_SIZE, pB - c0)):
+                            I_o[j, g, p, c] = Om[c0 + p, c0 + c]
+                _outliers(scaled_H(s, acc[j], il, im, rows), z[j], r[j], x_s, Pf, PW, oe_o[j],
+                          oI_o[j], HP, HPW)
             j1 = j0
         if k == 0:
             break
         fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], kp)
         fault_gamma(F, dt[k - 1], tt[k - 1], s, sB, G)
-        discretize(F, dt[k - 1], qc, Phi, Qd)
-        _scale(Phi, Qd, s)
-        if not _predict_back(Y, y, YxB, YBB, yB, Phi, Qd, G, A):
-            return k, 1
-    return -1, 0
+        transition(F, dt[k - 1], Phi, F2)
+        for a in range(n):
+            for b in range(n):
+                Phi[a, b] *= s[b] * inv_s[a]
+        _adjoint_step(lam, Lam, zeta, Z, Om, Phi, G, T2, T3, lt)
+    return -1
 
 
 __all__ = ["ACC_A", "ACC_R", "GROUP_SIZE", "GROUP_START", "GYR_A", "GYR_R", "REF",

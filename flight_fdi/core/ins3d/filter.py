@@ -170,6 +170,9 @@ class Ins3dForward:
     P_post: np.ndarray | None = None   # (M, n, n) posterior covariances (keep_cov)
     x_prior: np.ndarray | None = None  # (M, n) state before each update (keep_prior)
     P_prior: np.ndarray | None = None  # (M, n, n) its covariance (keep_prior)
+    x0: np.ndarray | None = None       # (n,) the initial state
+    P0: np.ndarray | None = None       # (n, n) its covariance
+    fused: np.ndarray | None = None    # (M,) bool: the update was fused (not rejected)
 
 
 def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
@@ -213,7 +216,8 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,
                         b2r > thr_row, alarm_states(exc, gate), thr, thr_row,
                         Pp if keep_cov else None, xpr if keep_prior else None,
-                        Ppr if keep_prior else None)
+                        Ppr if keep_prior else None, x0, P0,
+                        ~exc if gate.action == "reject" else np.ones(m, dtype=bool))
 
 
 __all__ = ["Ins3dForward", "predict", "run_forward", "scaled_H", "white_variance"]

@@ -16,7 +16,7 @@ from ..errors import CoreError
 from ..ldl import localization
 from .backward import ACC_A, ACC_R, GYR_A, GYR_R, REF, backward_sweep
 from .data import NavSteps, RefRows
-from .filter import Ins3dForward, white_variance
+from .filter import Ins3dForward, run_forward, white_variance
 from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, resolved_time
 from .model import IBA, IBG, Ins3dModel
 from .signature import signature_stats
@@ -64,9 +64,13 @@ def _kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
 
 def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
                  rank_tol: float) -> Ins3dBackward:
-    """The backward sweep (``refs`` sorted by step, ``fwd`` run with keep_prior=True)."""
+    """The backward sweep (``refs`` sorted by step, ``fwd`` run with keep_prior=True). When the
+    forward pass rejected updates (gate action ``reject``), the sweep runs on a forward pass that
+    fuses every update (``backward.py``: the post-flight part judges all the data)."""
     if fwd.P_prior is None:
         raise CoreError("ins3d backward: the forward pass must keep its priors (keep_prior)")
+    if fwd.fused is not None and not np.all(fwd.fused):
+        fwd = run_forward(model, steps, refs, x0=fwd.x0, P0=fwd.P0, keep_prior=True)
     n, rows, m = model.n, model.rows, refs.t.size
     args = _kernel_args(model, steps, refs)
     sB = args[10]
@@ -74,14 +78,14 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
     dof = np.empty((m, n), dtype=np.int64)
     eta, I3 = np.empty((m, sB.size)), np.zeros((m, 3, 6, 6))
     oe, oI = np.empty((m, rows)), np.empty((m, rows, rows))
-    k, code = backward_sweep(*args, np.ascontiguousarray(refs.z),
-                             white_variance(model, refs.r), np.ascontiguousarray(refs.a),
-                             model.il, model.im if model.n_markov else 0, rows, fwd.x_prior,
-                             fwd.P_prior, rank_tol, x_s, sd_s, terms, dof, norm, vt, d, eta, I3,
-                             oe, oI)
-    if code:
-        raise CoreError(f"ins3d backward: {'I + Y Q' if code == 1 else 'the combination'} "
-                        f"is singular at t = {steps.t[k]:.3f} s")
+    k = backward_sweep(*args[:8], *args[9:], np.ascontiguousarray(refs.z),
+                       white_variance(model, refs.r), np.ascontiguousarray(refs.a), model.il,
+                       model.im if model.n_markov else 0, rows, fwd.x_prior, fwd.P_prior,
+                       fwd.S, fwd.nu, rank_tol, x_s, sd_s, terms, dof, norm, vt, d, eta, I3,
+                       oe, oI)
+    if k >= 0:
+        raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
+                        f"t = {steps.t[k]:.3f} s")
     first = np.flatnonzero(np.r_[True, refs.step[1:] != refs.step[:-1]]) if m else \
         np.zeros(0, dtype=np.int64)
     return Ins3dBackward(refs.t, x_s, sd_s, terms, dof, norm, vt, d, eta, I3, oe, oI, sB, first)
