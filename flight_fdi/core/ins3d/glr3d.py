@@ -36,6 +36,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .backward import GROUP_START, REF
 
@@ -169,17 +170,74 @@ def curves(hyps: list[Hypothesis], t_onset: np.ndarray, t_start: float, duration
     return out
 
 
+@njit(cache=True, nogil=True)
+def _pinv_quadratic(info, e, rcond, out):
+    """out[k] = e_k' pinv(I_k) e_k for symmetric I_k (m x m, small): cyclic Jacobi eigen
+    decomposition, eigenvalues at or below rcond * max |lambda| dropped (numpy's pinv)."""
+    m = e.shape[1]
+    A = np.empty((m, m))
+    V = np.empty((m, m))
+    for k in range(e.shape[0]):
+        for i in range(m):
+            for c in range(m):
+                A[i, c] = info[k, i, c]
+                V[i, c] = 1.0 if i == c else 0.0
+        for _ in range(50):
+            off = 0.0
+            for i in range(m):
+                for c in range(i + 1, m):
+                    off += A[i, c] * A[i, c]
+            diag = 0.0
+            for i in range(m):
+                diag += A[i, i] * A[i, i]
+            if not off > 1e-34 * diag:
+                break
+            for p in range(m):
+                for q in range(p + 1, m):
+                    if A[p, q] == 0.0:
+                        continue
+                    th = (A[q, q] - A[p, p]) / (2.0 * A[p, q])
+                    t = (1.0 if th >= 0.0 else -1.0) / (abs(th) + np.sqrt(th * th + 1.0))
+                    cs = 1.0 / np.sqrt(t * t + 1.0)
+                    sn = t * cs
+                    for r in range(m):          # A <- J' A J, V <- V J
+                        a_rp, a_rq = A[r, p], A[r, q]
+                        A[r, p] = cs * a_rp - sn * a_rq
+                        A[r, q] = sn * a_rp + cs * a_rq
+                    for r in range(m):
+                        a_pr, a_qr = A[p, r], A[q, r]
+                        A[p, r] = cs * a_pr - sn * a_qr
+                        A[q, r] = sn * a_pr + cs * a_qr
+                    for r in range(m):
+                        v_rp, v_rq = V[r, p], V[r, q]
+                        V[r, p] = cs * v_rp - sn * v_rq
+                        V[r, q] = sn * v_rp + cs * v_rq
+        big = 0.0
+        for i in range(m):
+            big = max(big, abs(A[i, i]))
+        acc = 0.0
+        for i in range(m):
+            lam = A[i, i]
+            if abs(lam) > rcond * big:
+                u = 0.0
+                for r in range(m):
+                    u += V[r, i] * e[k, r]
+                acc += u * u / lam
+        out[k] = acc
+
+
 def joint(eta: np.ndarray, I3: np.ndarray, rows: int) -> dict[str, np.ndarray]:
     """GLR over the onsets of a step on all three axes of a sensor at once (3 dof; a reference
-    jump on all its rows): eta_a' I_aa^+ eta_a of the step columns (pseudo-inverse: near the
-    end of the flight an axis may carry no information)."""
+    jump on all its rows): eta_a' I_aa^+ eta_a of the step columns (pseudo-inverse as numpy's
+    ``pinv(rcond=1e-10, hermitian=True)``: near the end of the flight an axis may carry no
+    information)."""
     out = {}
     for name, g, m in (("accelerometer_step", 0, 3), ("gyro_step", 1, 3),
                        ("reference_jump", 2, rows)):
-        e = eta[:, GROUP_START[g]:GROUP_START[g] + m]
-        info = I3[:, g, :m, :m]
-        x = np.einsum("kij,kj->ki", np.linalg.pinv(info, rcond=1e-10, hermitian=True), e)
-        out[name] = np.einsum("ki,ki->k", e, x)        # pinv: an axis without information
+        e = np.ascontiguousarray(eta[:, GROUP_START[g]:GROUP_START[g] + m])
+        info = np.ascontiguousarray(I3[:, g, :m, :m])
+        out[name] = np.empty(e.shape[0])
+        _pinv_quadratic(info, e, 1e-10, out[name])
     return out
 
 
