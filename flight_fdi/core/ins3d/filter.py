@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from ..errors import CoreError
+from ..information import solve
 from ..kalman import GateConfig, alarm_states
 from .data import NavSteps, RefRows
 from .model import Ins3dModel, discretize, fill_F
@@ -31,6 +32,7 @@ from .sparse import mul_left
 
 @njit(cache=True)
 def _scale(Phi, Qd, s):
+    """Phi' = T^-1 Phi T, Qd' = T^-1 Qd T^-1 (T = diag(s)), in place."""
     n = s.size
     for i in range(n):
         for j in range(n):
@@ -61,23 +63,47 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
     Hs = scaled_H(s, a, il, im, rows)
     HP = np.zeros((rows, n))
     mul_left(Hs, P, HP, False)
-    S = HP @ Hs.T
-    nu = z[:rows] - Hs @ x
+    A = np.empty((rows, 2 * rows))              # [S | I] -> [I | S^-1]
+    nu = np.empty(rows)
     for i in range(rows):
-        S[i, i] += r[i]
-    Si = np.linalg.inv(S)
-    b2 = nu @ Si @ nu
+        acc = z[i]
+        for b in range(n):
+            acc -= Hs[i, b] * x[b]
+        nu[i] = acc
+        for c in range(rows):
+            acc = r[i] if i == c else 0.0
+            for b in range(n):
+                acc += HP[i, b] * Hs[c, b]
+            A[i, c] = acc
+            A[i, rows + c] = 1.0 if i == c else 0.0
+    for i in range(rows):
+        nu_o[j, i] = nu[i]
+        for c in range(rows):
+            S_o[j, i, c] = A[i, c]
+        b2r_o[j, i] = nu[i] * nu[i] / A[i, i]
+    solve(A, rows)
+    Sinu = np.zeros(rows)
+    b2 = 0.0
+    for i in range(rows):
+        for c in range(rows):
+            Sinu[i] += A[i, rows + c] * nu[c]
+        b2 += nu[i] * Sinu[i]
     b2_o[j] = b2
-    nu_o[j, :] = nu
-    S_o[j, :, :] = S
-    for i in range(rows):
-        b2r_o[j, i] = nu[i] * nu[i] / S[i, i]
     exc_o[j] = b2 > thr
     if reject and b2 > thr:
         return
-    K = HP.T @ Si                       # (n, rows) = P H' S^-1
-    x += K @ nu
-    KS = K @ S
+    K = np.zeros((n, rows))                     # P H' S^-1
+    for a_ in range(n):
+        for i in range(rows):
+            hp = HP[i, a_]
+            x[a_] += hp * Sinu[i]
+            for c in range(rows):
+                K[a_, c] += hp * A[i, rows + c]
+    KS = np.zeros((n, rows))                    # K S (= P H')
+    for a_ in range(n):
+        for i in range(rows):
+            for c in range(rows):
+                KS[a_, c] += K[a_, i] * S_o[j, i, c]
     for p_ in range(n):
         for q_ in range(p_, n):
             acc = P[p_, q_]
@@ -92,18 +118,31 @@ def predict(x, P, Phi, Qd, T, xt):
     """x <- Phi x, P <- Phi P Phi' + Qd (exactly symmetric), skipping the zeros of Phi
     (T (n, n), xt (n) scratch)."""
     n = x.size
-    T[:, :] = 0.0
-    mul_left(Phi, P, T, False)
-    xt[:] = 0.0
-    mul_left(Phi, x.reshape((n, 1)), xt.reshape((n, 1)), False)
+    nz = np.empty((n, n), dtype=np.int64)       # the nonzero columns of each row of Phi
+    cnt = np.zeros(n, dtype=np.int64)
     for i in range(n):
+        for k in range(n):
+            if Phi[i, k] != 0.0:
+                nz[i, cnt[i]] = k
+                cnt[i] += 1
+    for i in range(n):                          # T = Phi P, xt = Phi x
+        acc = 0.0
+        for c in range(n):
+            T[i, c] = 0.0
+        for m in range(cnt[i]):
+            k = nz[i, m]
+            f = Phi[i, k]
+            acc += f * x[k]
+            for c in range(n):
+                T[i, c] += f * P[k, c]
+        xt[i] = acc
+    for i in range(n):                          # P = T Phi' + Qd (upper triangle, mirrored)
         x[i] = xt[i]
         for j in range(i, n):
             acc = Qd[i, j]
-            for k in range(n):
-                f = Phi[j, k]
-                if f != 0.0:
-                    acc += T[i, k] * f
+            for m in range(cnt[j]):
+                k = nz[j, m]
+                acc += T[i, k] * Phi[j, k]
             P[i, j] = acc
             P[j, i] = acc
 
