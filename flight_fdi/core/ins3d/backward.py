@@ -76,7 +76,7 @@ from ..information import solve
 from ..ldl import information_terms, ldl_factor, udu_factor
 from .filter import scaled_H
 from .model import IBA, IBG, IPHI, IV, fill_F, transition
-from .sparse import mul_left, mul_right
+from .sparse import congruence, mul_pattern, row_pattern
 
 #: columns of the fault vector b: accelerometer a (x, y, z), r (x, y, z), gyro a, r, then one
 #: offset per reference row
@@ -210,62 +210,41 @@ def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, S
 
 
 @njit(cache=True)
-def _adjoint_step(lam, Lam, zeta, Z, Om, Phi, G, T2, T3, lt):
-    """The step k of the adjoint recursion (module docstring), in place; T2, T3 (n, pB) and
-    lt (n, n) scratch."""
+def _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, zero):
+    """The step k of the adjoint recursion (module docstring), in place: PhiT = Phi_k' with its
+    row pattern (nz, cnt), G = Gamma_k whose nonzero rows are grows[:ng]; T2 (n, pB), lt (n, n)
+    scratch, ``zero`` (n, n) zeros."""
     n, pB = Z.shape
-    for p in range(pB):                         # zeta += Gamma' lambda
-        acc = 0.0
-        for a in range(n):
-            acc += G[a, p] * lam[a]
-        zeta[p] += acc
+    for m in range(ng):                         # zeta += Gamma' lambda
+        a = grows[m]
+        for p in range(pB):
+            zeta[p] += G[a, p] * lam[a]
     for a in range(n):                          # T2 = Z + Lambda Gamma
         for p in range(pB):
             T2[a, p] = Z[a, p]
-    mul_right(Lam, G, T2)
-    for p in range(pB):                         # Omega group blocks (Gamma's columns only)
+        for m in range(ng):
+            k = grows[m]
+            lk = Lam[a, k]
+            for p in range(pB):
+                T2[a, p] += lk * G[k, p]
+    for p in range(pB):                         # Omega += Gamma' T2 + Z' Gamma (group blocks)
         grp = p // GROUP_SIZE
         for q in range(p, min(pB, (grp + 1) * GROUP_SIZE)):
             acc = 0.0
-            for a in range(n):
-                g_p = G[a, p]
-                g_q = G[a, q]
-                if g_p != 0.0:
-                    acc += g_p * T2[a, q]
-                if g_q != 0.0:
-                    acc += Z[a, p] * g_q
+            for m in range(ng):
+                a = grows[m]
+                acc += G[a, p] * T2[a, q] + Z[a, p] * G[a, q]
             Om[p, q] += acc
-            if q != p:
-                Om[q, p] = Om[p, q]
-    for a in range(n):
-        for p in range(pB):
-            T3[a, p] = 0.0
-    mul_left(Phi, T2, T3, True)                 # Z = Phi' T2
-    for a in range(n):
-        for p in range(pB):
-            Z[a, p] = T3[a, p]
-    for b in range(n):                          # lambda = Phi' lambda
+            Om[q, p] = Om[p, q]
+    mul_pattern(PhiT, nz, cnt, T2, Z)           # Z = Phi' T2
+    for i in range(n):                          # lambda = Phi' lambda
         acc = 0.0
-        for a in range(n):
-            f = Phi[a, b]
-            if f != 0.0:
-                acc += f * lam[a]
-        lt[0, b] = acc
-    for a in range(n):
-        lam[a] = lt[0, a]
-    for a in range(n):
-        for b in range(n):
-            lt[a, b] = 0.0
-    mul_right(Lam, Phi, lt)                     # Lambda Phi
-    for a in range(n):
-        for b in range(n):
-            Lam[a, b] = 0.0
-    mul_left(Phi, lt, Lam, True)                # Phi' Lambda Phi
-    for a in range(n):
-        for b in range(a + 1, n):
-            sym = 0.5 * (Lam[a, b] + Lam[b, a])
-            Lam[a, b] = sym
-            Lam[b, a] = sym
+        for m in range(cnt[i]):
+            acc += PhiT[i, nz[i, m]] * lam[nz[i, m]]
+        lt[0, i] = acc
+    for i in range(n):
+        lam[i] = lt[0, i]
+    congruence(PhiT, nz, cnt, Lam, zero, lt)     # Lambda = Phi' Lambda Phi
 
 
 @njit(cache=True, inline="always")
@@ -348,7 +327,8 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
     G = np.empty((n, pB))
     lam, Lam = np.zeros(n), np.zeros((n, n))
     zeta, Z, Om = np.zeros(pB), np.zeros((n, pB)), np.zeros((pB, pB))
-    T2, T3, lt = np.empty((n, pB)), np.empty((n, pB)), np.empty((n, n))
+    T2, lt, zero, PhiT = np.empty((n, pB)), np.empty((n, n)), np.zeros((n, n)), np.empty((n, n))
+    nz, cnt, grows = np.empty((n, n), np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
     HP, Kg, Si = np.empty((rows, n)), np.empty((n, rows)), np.empty((rows, rows))
     work = np.empty((rows, 2 * rows))
     M, KtM, KtZ = np.empty((n, rows)), np.empty((rows, rows)), np.empty((rows, pB))
@@ -401,10 +381,18 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
         fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], kp)
         fault_gamma(F, dt[k - 1], tt[k - 1], s, sB, G)
         transition(F, dt[k - 1], Phi, F2)
-        for a in range(n):
+        for a in range(n):                      # Phi' scaled
             for b in range(n):
-                Phi[a, b] *= s[b] * inv_s[a]
-        _adjoint_step(lam, Lam, zeta, Z, Om, Phi, G, T2, T3, lt)
+                PhiT[b, a] = Phi[a, b] * s[b] * inv_s[a]
+        row_pattern(PhiT, nz, cnt)
+        ng = 0
+        for a in range(n):
+            for p in range(pB):
+                if G[a, p] != 0.0:
+                    grows[ng] = a
+                    ng += 1
+                    break
+        _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, zero)
     return -1
 
 

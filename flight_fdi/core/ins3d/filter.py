@@ -27,7 +27,7 @@ from ..information import solve
 from ..kalman import GateConfig, alarm_states
 from .data import NavSteps, RefRows
 from .model import Ins3dModel, discretize, fill_F
-from .sparse import mul_left
+from .sparse import congruence, mul_left, row_pattern
 
 
 @njit(cache=True)
@@ -115,36 +115,20 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
 
 @njit(cache=True)
 def predict(x, P, Phi, Qd, T, xt):
-    """x <- Phi x, P <- Phi P Phi' + Qd (exactly symmetric), skipping the zeros of Phi
+    """x <- Phi x, P <- Phi P Phi' + Qd (exactly symmetric), over the nonzero entries of Phi
     (T (n, n), xt (n) scratch)."""
     n = x.size
-    nz = np.empty((n, n), dtype=np.int64)       # the nonzero columns of each row of Phi
-    cnt = np.zeros(n, dtype=np.int64)
+    nz = np.empty((n, n), dtype=np.int64)
+    cnt = np.empty(n, dtype=np.int64)
+    row_pattern(Phi, nz, cnt)
     for i in range(n):
-        for k in range(n):
-            if Phi[i, k] != 0.0:
-                nz[i, cnt[i]] = k
-                cnt[i] += 1
-    for i in range(n):                          # T = Phi P, xt = Phi x
         acc = 0.0
-        for c in range(n):
-            T[i, c] = 0.0
         for m in range(cnt[i]):
-            k = nz[i, m]
-            f = Phi[i, k]
-            acc += f * x[k]
-            for c in range(n):
-                T[i, c] += f * P[k, c]
+            acc += Phi[i, nz[i, m]] * x[nz[i, m]]
         xt[i] = acc
-    for i in range(n):                          # P = T Phi' + Qd (upper triangle, mirrored)
+    for i in range(n):
         x[i] = xt[i]
-        for j in range(i, n):
-            acc = Qd[i, j]
-            for m in range(cnt[j]):
-                k = nz[j, m]
-                acc += T[i, k] * Phi[j, k]
-            P[i, j] = acc
-            P[j, i] = acc
+    congruence(Phi, nz, cnt, P, Qd, T)
 
 
 @njit(cache=True, nogil=True)

@@ -1,5 +1,7 @@
 """Products with the sparse matrices of the ins3d model (F, Phi, Q, Gamma, H: about a quarter of
-their entries are nonzero): loops that skip the zeros, accumulating into ``out``."""
+their entries are nonzero): loops that skip the zeros, accumulating into ``out``; the pattern
+of a matrix's nonzero columns per row (found at run time: nothing assumes the model's layout)
+and the congruence A P A' over it."""
 from __future__ import annotations
 
 from numba import njit
@@ -32,4 +34,52 @@ def mul_right(X, M, out):
                     out[a, c] += X[a, k] * m
 
 
-__all__ = ["mul_left", "mul_right"]
+@njit(cache=True)
+def row_pattern(A, nz, cnt):
+    """nz[i, :cnt[i]] = the columns of the nonzero entries of row i of A."""
+    for i in range(A.shape[0]):
+        c = 0
+        for k in range(A.shape[1]):
+            if A[i, k] != 0.0:
+                nz[i, c] = k
+                c += 1
+        cnt[i] = c
+
+
+@njit(cache=True)
+def congruence(A, nz, cnt, P, Q, T):
+    """P <- A P A' + Q (P symmetric, exactly symmetric afterwards) over the row pattern
+    (nz, cnt) of A; T (n, n) scratch."""
+    n = P.shape[0]
+    for i in range(n):                          # T = A P
+        for c in range(n):
+            T[i, c] = 0.0
+        for m in range(cnt[i]):
+            k = nz[i, m]
+            f = A[i, k]
+            for c in range(n):
+                T[i, c] += f * P[k, c]
+    for i in range(n):                          # P = T A' + Q (upper triangle, mirrored)
+        for j in range(i, n):
+            acc = Q[i, j]
+            for m in range(cnt[j]):
+                k = nz[j, m]
+                acc += T[i, k] * A[j, k]
+            P[i, j] = acc
+            P[j, i] = acc
+
+
+@njit(cache=True)
+def mul_pattern(A, nz, cnt, X, out):
+    """out = A X over the row pattern (nz, cnt) of A (X, out: (n, w); out is overwritten)."""
+    for i in range(A.shape[0]):
+        for c in range(X.shape[1]):
+            out[i, c] = 0.0
+        for m in range(cnt[i]):
+            k = nz[i, m]
+            f = A[i, k]
+            for c in range(X.shape[1]):
+                out[i, c] += f * X[k, c]
+
+
+__all__ = ["congruence", "mul_left", "mul_pattern", "mul_right", "row_pattern"]
