@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..information import solve
 from .backward import REF, fault_gamma
 from .filter import scaled_H
 from .model import fill_F, transition
@@ -36,6 +37,7 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
     mu = np.zeros(n)
     mu2 = np.empty(n)
     u = np.empty(n)
+    rho, Sr, A = np.empty(rows), np.empty(rows), np.empty((rows, rows + 1))
     e = 0.0
     d = 0.0
     j = 0
@@ -47,12 +49,19 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
     for k in range(k0, dt.size + 1):
         while j < m and ref_step[j] == k:
             Hs = scaled_H(s, acc[j], il, im, rows)
-            rho = Hs @ mu
+            for i in range(rows):               # A = [S | rho], rho = H mu + D tau
+                r_i = sB[REF + i] * tau[REF + i]
+                for b in range(n):
+                    r_i += Hs[i, b] * mu[b]
+                rho[i] = r_i
+                for c in range(rows):
+                    A[i, c] = S[j, i, c]
+                A[i, rows] = r_i
+            solve(A, rows)
             for i in range(rows):
-                rho[i] += sB[REF + i] * tau[REF + i]
-            Sr = np.linalg.solve(S[j], rho)
-            e += Sr @ nu[j]
-            d += Sr @ rho
+                Sr[i] = A[i, rows]
+                e += Sr[i] * nu[j, i]
+                d += Sr[i] * rho[i]
             e_o[j] = e
             d_o[j] = d
             for b in range(n):                  # mu -= P' H' S^-1 rho (P' = P / s s')
