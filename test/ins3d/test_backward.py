@@ -133,3 +133,112 @@ def test_unsorted_references_are_sorted(short):
     shuffled = RefRows(r.t[p], r.z[p], r.r[p], r.step[p], r.a[p])
     b = analyze_ins3d(inp.steps, shuffled, with_observability=False)
     np.testing.assert_allclose(b.backward.x_s, short.backward.x_s, rtol=1e-12, atol=1e-15)
+
+
+def _information_filter_combination(a):
+    """Reference: the backward information filter (Y, y) from zero information, predicted with
+    (I + Y Q)^-1 per step (numpy), combined with the forward prior at every boundary with updates
+    by ``core.information.combine_step`` (the single-axis kernel) -- the two-filter form the sweep
+    replaces. Scaled coordinates like the kernels; returns physical x_s, sd_s and the terms."""
+    from flight_fdi.core.information import combine_step
+    m, steps, refs, fwd = a.model, a.steps, a.refs, a.forward
+    n, rows, M = m.n, m.rows, refs.t.size
+    s = np.sqrt(m.p0())
+    R = white_variance(m, refs.r)
+    Y, y = np.zeros((n, n)), np.zeros(n)
+    out = {k: np.full((M, n), np.nan) for k in ("x_s", "sd_s", "terms", "normalized", "d")}
+    out["dof"] = np.zeros((M, n), dtype=np.int64)
+    W, P_s, x_s = np.empty((n, n)), np.empty((n, n)), np.empty(n)
+    Wv, ref, Lam, vt, dd = (np.empty(n) for _ in range(5))
+    inf = np.empty(n, dtype=np.bool_)
+    A, work = np.empty((n, 2 * n + 1)), np.empty((2, n, n))
+    j1 = M
+    for k in range(len(steps), -1, -1):
+        j0 = j1
+        while j0 > 0 and refs.step[j0 - 1] == k:
+            j0 -= 1
+        for j in range(j0, j1):
+            Hs = m.H(refs.a[j]) * s[None, :]
+            Y += Hs.T @ np.diag(1.0 / R[j, :rows]) @ Hs
+            y += Hs.T @ (refs.z[j, :rows] / R[j, :rows])
+        if j0 < j1:
+            xf = fwd.x_prior[j0] / s
+            Pf = fwd.P_prior[j0] / np.outer(s, s)
+            terms, dof, norm = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n)
+            assert combine_step(Y, y, xf, Pf, 1e-9, W, Wv, x_s, P_s, ref, Lam, inf, vt, dd,
+                                terms, dof, norm, A, work)
+            out["x_s"][j0:j1] = x_s * s
+            out["sd_s"][j0:j1] = np.sqrt(np.diag(P_s)) * s
+            out["terms"][j0:j1], out["dof"][j0:j1], out["normalized"][j0:j1] = terms, dof, norm
+            out["d"][j0:j1] = dd * s * s
+            j1 = j0
+        if k == 0:
+            break
+        _, Phi, Q = phi_q(m, steps, k - 1)
+        Phi, Q = Phi * s[None, :] / s[:, None], Q / np.outer(s, s)
+        B = np.linalg.solve(np.eye(n) + Y @ Q, np.column_stack([Y, y]))
+        Y, y = Phi.T @ B[:, :n] @ Phi, Phi.T @ B[:, n]
+        Y = 0.5 * (Y + Y.T)
+    return out
+
+
+def test_sweep_equals_the_information_filter_combination():
+    """The adjoint (Bryson-Frazier) sweep gives the two-filter combination of the backward
+    information filter: smoothed state and sd, and the seed method's element terms (J(i/k), the
+    effective dof, the normalised residuals) at every boundary with updates; 150 s with the
+    start of a turn (the first turn starts at 303 s: the flight's tail is the hard part, the
+    backward information is small there)."""
+    a = short_analysis(t_end=330.0)
+    ref = _information_filter_combination(a)
+    b = a.backward
+    assert np.max(np.abs(b.x_s - ref["x_s"]) / ref["sd_s"]) < 1e-8
+    np.testing.assert_allclose(b.sd_s, ref["sd_s"], rtol=1e-8)
+    np.testing.assert_array_equal(b.dof, ref["dof"])
+    np.testing.assert_allclose(b.terms, ref["terms"], rtol=1e-5, atol=1e-8)
+    ok = np.isfinite(ref["normalized"])
+    np.testing.assert_array_equal(ok, np.isfinite(b.normalized))
+    assert np.max(np.abs(b.normalized[ok] - ref["normalized"][ok])) < 1e-3
+    np.testing.assert_allclose(b.d[ok], ref["d"][ok], rtol=1e-4)   # 2e-5 where 1/Lam ~ 1e5
+
+
+def test_rejected_updates_are_judged_after_the_flight():
+    """With the gate action ``reject`` the forward pass skips gated updates; the post-flight part
+    still judges all the data: its sweep runs on a forward pass that fuses every update, so it
+    equals the analysis with the action ``flag``."""
+    from flight_fdi.core.kalman import GateConfig
+    inp = from_flight(flight("cruise_turns", 200.0, "navigation", "baro", 5))
+    rej = analyze_ins3d(inp.steps, inp.refs, with_observability=False,
+                        gate=GateConfig(action="reject", probability=0.05))
+    flag = analyze_ins3d(inp.steps, inp.refs, with_observability=False,
+                         gate=GateConfig(action="flag", probability=0.05))
+    assert not rej.forward.fused.all() and flag.forward.fused.all()
+    assert not np.array_equal(rej.forward.x, flag.forward.x)
+    np.testing.assert_array_equal(rej.backward.x_s, flag.backward.x_s)
+    np.testing.assert_array_equal(rej.backward.eta, flag.backward.eta)
+
+
+def test_merged_steps_match_the_per_step_analysis():
+    """The INS topics at 100 Hz: the analysis on the steps merged onto the 10-Hz reference grid
+    (``max_dt`` 0.1 s, the default) against the same analysis on every 100-Hz step (the model
+    as defined: discretised per step at the actual dt) over 330 s with a turn and a gyro step:
+    innovations within 1e-4 of their sd, smoothed states within 1e-2 sd, the GLR statistics
+    within 0.1 % and the same onset and magnitude."""
+    fl = flight("cruise_turns", 330.0, "navigation", "baro", 6,
+                faults=("gyro:step:t=200,mag=0.5deg/h,axis=x",))
+    inp = from_flight(fl, imu_rate_hz=100.0, velocity_rate_hz=100.0)
+    merged = analyze_ins3d(inp.steps, inp.refs, with_observability=False)
+    fine = analyze_ins3d(inp.steps, inp.refs, with_observability=False, max_dt=None)
+    assert len(fine.steps) > 9 * len(merged.steps)
+    sd_nu = np.sqrt(np.diagonal(fine.forward.S, axis1=1, axis2=2))
+    d_nu = np.max(np.abs(merged.forward.nu - fine.forward.nu) / sd_nu)
+    d_x = np.max(np.abs(merged.backward.x_s - fine.backward.x_s) / fine.backward.sd_s)
+    print(f"innovations {d_nu:.1e} sd, smoothed states {d_x:.1e} sd")
+    assert d_nu < 1e-4 and d_x < 1e-2            # measured 1.2e-5, 1.7e-3
+    for name in ("gyro_x_step", "gyro_x_ramp", "accelerometer_y_step"):
+        cm, cf = merged.glr[name], fine.glr[name]
+        np.testing.assert_array_equal(cm.t, cf.t)
+        print(name, cm.statistic, cf.statistic)
+        assert cm.statistic == pytest.approx(cf.statistic, rel=1e-3)   # measured 3e-5
+        assert cm.best == cf.best
+        assert cm.mag[cm.best] == pytest.approx(cf.mag[cf.best], rel=1e-2)
+    assert merged.isolation.best == fine.isolation.best == "gyro_x_step"

@@ -154,3 +154,37 @@ def test_isolation_rules():
     gap = np.array([0.0, 12.0, 5.0, 10.0, 11.0])
     assert resolved_time(t, gap) == 3.0
     assert resolved_time(t, np.array([0.0, 12.0, 5.0, 10.0, 1.0])) is None
+
+
+def test_joint_statistic_equals_numpy_pinv():
+    """The 3-dof statistic e' I^+ e (numba Jacobi kernel) against numpy's pinv(rcond=1e-10,
+    hermitian=True): random symmetric matrices with eigenvalues over 8 decades, a third of them
+    exactly singular, a third with an eigenvalue below the cut (1e-12 of the largest: dropped),
+    and the flight's own information blocks."""
+    from flight_fdi.core.ins3d.glr3d import joint
+    rng = np.random.default_rng(11)
+    V = np.linalg.qr(rng.normal(size=(300, 3, 3)))[0]
+    lam = np.abs(rng.normal(size=(300, 3))) * 10.0 ** rng.uniform(-6, 2, size=(300, 3))
+    lam[::3, 0] = 0.0
+    lam[1::3, 1] = 1e-12 * lam[1::3][:, [0, 2]].max(axis=1)
+    info = np.einsum("kij,kj,klj->kil", V, lam, V)
+    I3 = np.zeros((300, 3, 6, 6))
+    I3[:, 0, :3, :3] = info
+    eta = rng.normal(size=(300, REF + 3))
+    ref = np.einsum("ki,kij,kj->k", eta[:, :3],
+                    np.linalg.pinv(info, rcond=1e-10, hermitian=True), eta[:, :3])
+    got = joint(eta, I3, 3)["accelerometer_step"]
+    np.testing.assert_allclose(got, ref, rtol=1e-5)   # numpy: eps x cond (1e8) on the small eigenvalues
+    u = np.einsum("kij,ki->kj", V, eta[:, :3])          # the dropped direction carries nothing
+    keep = np.ones((300, 3), dtype=bool)
+    keep[::3, 0] = keep[1::3, 1] = False
+    np.testing.assert_allclose(got, np.sum(np.where(keep, u * u / np.where(keep, lam, 1), 0),
+                                           axis=1), rtol=1e-7)
+    a = short_analysis()
+    f = a.backward.first
+    e, I = a.backward.eta[f], a.backward.I3[f]
+    for name, g in (("accelerometer_step", 0), ("gyro_step", 1)):
+        ref = np.einsum("ki,kij,kj->k", e[:, 6 * g:6 * g + 3],
+                        np.linalg.pinv(I[:, g, :3, :3], rcond=1e-10, hermitian=True),
+                        e[:, 6 * g:6 * g + 3])
+        np.testing.assert_allclose(joint(e, I, 2)[name], ref, rtol=1e-5, atol=1e-9)
