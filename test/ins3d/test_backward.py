@@ -242,3 +242,15 @@ def test_merged_steps_match_the_per_step_analysis():
         assert cm.best == cf.best
         assert cm.mag[cm.best] == pytest.approx(cf.mag[cf.best], rel=1e-2)
     assert merged.isolation.best == fine.isolation.best == "gyro_x_step"
+
+
+def test_the_two_threads_of_the_sweep_equal_one(short):
+    """The combination and the fault blocks on two threads (each carries the same (lambda,
+    Lambda)) give exactly the one-thread sweep."""
+    from flight_fdi.core.ins3d.postflight import run_backward
+    a = short
+    one = run_backward(a.model, a.steps, a.refs, a.forward, 1e-9, threads=1)
+    two = run_backward(a.model, a.steps, a.refs, a.forward, 1e-9, threads=2)
+    for k in ("x_s", "sd_s", "terms", "dof", "normalized", "v_tilde", "d", "eta", "I3", "oe",
+              "oI"):
+        np.testing.assert_array_equal(getattr(one, k), getattr(two, k), err_msg=k)

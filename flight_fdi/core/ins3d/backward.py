@@ -138,8 +138,9 @@ def _gain(P_j, Hs, S_j, inv_s, HP, K, Si, work):
 
 
 @njit(cache=True)
-def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, Snu):
-    """The update j of the adjoint recursion (module docstring), in place."""
+def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, Snu, faults):
+    """The update j of the adjoint recursion (module docstring), in place (``faults``: also
+    zeta, Z, Omega)."""
     rows, n = Hs.shape
     pB = sB.size
     for a in range(n):                          # M = Lambda K
@@ -162,6 +163,35 @@ def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, S
             for a in range(n):
                 acc += K[a, i] * M[a, c]
             KtM[i, c] = acc
+    if faults:
+        _fault_update(zeta, Z, Om, Hs, K, Si, sB, M, KtM, KtZ, Kl, Snu)
+    for i in range(rows):                      # lambda <- H' S^-1 nu + L' lambda
+        for a in range(n):
+            lam[a] += Hs[i, a] * (Snu[i] - Kl[i])
+    # Lambda <- H' S^-1 H + Lambda - H' M' - M H + H' K'M H
+    for i in range(rows):
+        for a in range(n):
+            h = Hs[i, a]
+            if h != 0.0:
+                for b in range(n):
+                    Lam[a, b] -= h * M[b, i]
+                    Lam[b, a] -= h * M[b, i]
+    for i in range(rows):
+        for a in range(n):
+            h = Hs[i, a]
+            if h != 0.0:
+                for c in range(rows):
+                    w = h * (Si[i, c] + KtM[i, c])
+                    for b in range(n):
+                        Lam[a, b] += w * Hs[c, b]
+
+
+@njit(cache=True, inline="always")
+def _fault_update(zeta, Z, Om, Hs, K, Si, sB, M, KtM, KtZ, Kl, Snu):
+    """The fault part of the update (zeta, Z, Omega; with the old lambda, Lambda, Z)."""
+    rows, n = Hs.shape
+    pB = sB.size
+    for i in range(rows):
         for p in range(pB):                    # K' Z (the old Z)
             acc = 0.0
             for a in range(n):
@@ -190,30 +220,29 @@ def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, S
                     Z[a, p] -= h * KtZ[i, p]
                 for c in range(rows):
                     Z[a, REF + c] += h * Si[i, c] * sB[REF + c]
-                lam[a] += h * (Snu[i] - Kl[i])
-    # Lambda <- H' S^-1 H + Lambda - H' M' - M H + H' K'M H
-    for i in range(rows):
-        for a in range(n):
-            h = Hs[i, a]
-            if h != 0.0:
-                for b in range(n):
-                    Lam[a, b] -= h * M[b, i]
-                    Lam[b, a] -= h * M[b, i]
-    for i in range(rows):
-        for a in range(n):
-            h = Hs[i, a]
-            if h != 0.0:
-                for c in range(rows):
-                    w = h * (Si[i, c] + KtM[i, c])
-                    for b in range(n):
-                        Lam[a, b] += w * Hs[c, b]
 
 
 @njit(cache=True)
-def _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, zero):
+def _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, zero, faults):
     """The step k of the adjoint recursion (module docstring), in place: PhiT = Phi_k' with its
     row pattern (nz, cnt), G = Gamma_k whose nonzero rows are grows[:ng]; T2 (n, pB), lt (n, n)
-    scratch, ``zero`` (n, n) zeros."""
+    scratch, ``zero`` (n, n) zeros (``faults``: also zeta, Z, Omega)."""
+    n, pB = Z.shape
+    if faults:
+        _fault_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2)
+    for i in range(n):                          # lambda = Phi' lambda
+        acc = 0.0
+        for m in range(cnt[i]):
+            acc += PhiT[i, nz[i, m]] * lam[nz[i, m]]
+        lt[0, i] = acc
+    for i in range(n):
+        lam[i] = lt[0, i]
+    congruence(PhiT, nz, cnt, Lam, zero, lt)     # Lambda = Phi' Lambda Phi
+
+
+@njit(cache=True, inline="always")
+def _fault_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2):
+    """The fault part of the step (zeta, Z, Omega; with the old lambda, Lambda)."""
     n, pB = Z.shape
     for m in range(ng):                         # zeta += Gamma' lambda
         a = grows[m]
@@ -237,14 +266,6 @@ def _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, ze
             Om[p, q] += acc
             Om[q, p] = Om[p, q]
     mul_pattern(PhiT, nz, cnt, T2, Z)           # Z = Phi' T2
-    for i in range(n):                          # lambda = Phi' lambda
-        acc = 0.0
-        for m in range(cnt[i]):
-            acc += PhiT[i, nz[i, m]] * lam[nz[i, m]]
-        lt[0, i] = acc
-    for i in range(n):
-        lam[i] = lt[0, i]
-    congruence(PhiT, nz, cnt, Lam, zero, lt)     # Lambda = Phi' Lambda Phi
 
 
 @njit(cache=True, inline="always")
@@ -308,23 +329,53 @@ def _outliers(Hs, z_j, r_j, x_s, Pf, PW, e_o, I_o, HP, HPW):
             I_o[i, k] = (1.0 / r_j[i] if i == k else 0.0) - acc / (r_j[i] * r_j[k])
 
 
+@njit(cache=True)
+def _write_combination(j0, j1, s, x_s, psd, vt, dd, x_s_o, sd_s_o, terms_o, dof_o, norm_o,
+                       vt_o, d_o):
+    """The combination of one boundary into the rows j0..j1-1 (physical units)."""
+    n = s.size
+    for j in range(j0, j1):
+        for a in range(n):
+            x_s_o[j, a] = x_s[a] * s[a]
+            sd_s_o[j, a] = np.sqrt(max(psd[a], 0.0)) * s[a]
+            terms_o[j, a] = terms_o[j0, a]
+            dof_o[j, a] = dof_o[j0, a]
+            norm_o[j, a] = norm_o[j0, a]
+            vt_o[j, a] = vt[a] * s[a]
+            d_o[j, a] = dd[a] * s[a] * s[a]
+
+
+@njit(cache=True)
+def _write_faults(j0, j1, zeta, Om, eta_o, I_o):
+    """eta and the group blocks of Omega into the rows j0..j1-1."""
+    pB = zeta.size
+    for j in range(j0, j1):
+        for p in range(pB):
+            eta_o[j, p] = zeta[p]
+        for g in range(3):
+            c0 = GROUP_START[g]
+            for p in range(min(GROUP_SIZE, pB - c0)):
+                for c in range(min(GROUP_SIZE, pB - c0)):
+                    I_o[j, g, p, c] = Om[c0 + p, c0 + c]
+
+
 @njit(cache=True, nogil=True)
 def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il, im, rows,
                    x_pr, P_pr, S, nu, rank_tol, x_s_o, sd_s_o, terms_o, dof_o, norm_o, vt_o,
-                   d_o, eta_o, I_o, oe_o, oI_o):
+                   d_o, eta_o, I_o, oe_o, oI_o, part):
     """The backward sweep (module docstring). Per update j (sorted by step; x_pr, P_pr the
     forward prior before it, physical; S, nu its innovation covariance and innovation) it
-    writes the combination at its boundary: x_s, sd_s (physical), the cumulative element terms
-    J(i/k), their effective dof and the normalised residuals, v~ and dD (seed method; physical
-    units); the fault information eta (pB,) and the group blocks I (3, 6, 6) (scaled fault
-    units, ``sB``); the outlier information oe (rows,), oI (rows, rows).
+    writes, with ``part`` & 1, the combination at its boundary: x_s, sd_s (physical), the
+    cumulative element terms J(i/k), their effective dof and the normalised residuals, v~ and
+    dD (seed method; physical units), the outlier information oe (rows,), oI (rows, rows); with
+    ``part`` & 2 the fault information eta (pB,) and the group blocks I (3, 6, 6) (scaled fault
+    units, ``sB``). Both parts carry the same (lambda, Lambda): two threads can run one each.
     Returns the boundary where P_f is not positive definite, or -1."""
-    n = s.size
-    pB = sB.size
-    K = dt.size
+    n, pB, K = s.size, sB.size, dt.size
+    comb, faults = (part & 1) != 0, (part & 2) != 0
     inv_s = 1.0 / s
     F, Phi, F2 = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    G = np.empty((n, pB))
+    G = np.zeros((n, pB))
     lam, Lam = np.zeros(n), np.zeros((n, n))
     zeta, Z, Om = np.zeros(pB), np.zeros((n, pB)), np.zeros((pB, pB))
     T2, lt, zero, PhiT = np.empty((n, pB)), np.empty((n, n)), np.zeros((n, n)), np.empty((n, n))
@@ -334,11 +385,10 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
     M, KtM, KtZ = np.empty((n, rows)), np.empty((rows, rows)), np.empty((rows, pB))
     Kl, Snu = np.empty(rows), np.empty(rows)
     xf, Pf, x_s, PW = np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n))
-    U, L = np.empty((n, n)), np.empty((n, n))
+    U, L, HPW = np.empty((n, n)), np.empty((n, n)), np.empty((rows, n))
     ref, Lam_d, q, vt, dd, psd = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
                                   np.empty(n), np.empty(n))
     informative = np.empty(n, dtype=np.bool_)
-    HPW = np.empty((rows, n))
     j1 = ref_step.size
     for k in range(K, -1, -1):
         j0 = j1
@@ -349,50 +399,42 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
                 Hs = scaled_H(s, acc[j], il, im, rows)
                 _gain(P_pr[j], Hs, S[j], inv_s, HP, Kg, Si, work)
                 _adjoint_update(lam, Lam, zeta, Z, Om, Hs, Kg, Si, nu[j], sB, M, KtM, KtZ,
-                                Kl, Snu)
-            for a in range(n):
-                xf[a] = x_pr[j0, a] * inv_s[a]
-                for b in range(n):
-                    Pf[a, b] = P_pr[j0, a, b] * inv_s[a] * inv_s[b]
-            if not _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d,
-                            informative, q, vt, dd, terms_o[j0], dof_o[j0], norm_o[j0], psd):
-                return k
-            for j in range(j0, j1):
+                                Kl, Snu, faults)
+            if comb:
                 for a in range(n):
-                    x_s_o[j, a] = x_s[a] * s[a]
-                    sd_s_o[j, a] = np.sqrt(max(psd[a], 0.0)) * s[a]
-                    terms_o[j, a] = terms_o[j0, a]
-                    dof_o[j, a] = dof_o[j0, a]
-                    norm_o[j, a] = norm_o[j0, a]
-                    vt_o[j, a] = vt[a] * s[a]
-                    d_o[j, a] = dd[a] * s[a] * s[a]
-                for p in range(pB):
-                    eta_o[j, p] = zeta[p]
-                for g in range(3):
-                    c0 = GROUP_START[g]
-                    for p in range(min(GROUP_SIZE, pB - c0)):
-                        for c in range(min(GROUP_SIZE, pB - c0)):
-                            I_o[j, g, p, c] = Om[c0 + p, c0 + c]
-                _outliers(scaled_H(s, acc[j], il, im, rows), z[j], r[j], x_s, Pf, PW, oe_o[j],
-                          oI_o[j], HP, HPW)
+                    xf[a] = x_pr[j0, a] * inv_s[a]
+                    for b in range(n):
+                        Pf[a, b] = P_pr[j0, a, b] * inv_s[a] * inv_s[b]
+                if not _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d,
+                                informative, q, vt, dd, terms_o[j0], dof_o[j0], norm_o[j0],
+                                psd):
+                    return k
+                _write_combination(j0, j1, s, x_s, psd, vt, dd, x_s_o, sd_s_o, terms_o, dof_o,
+                                   norm_o, vt_o, d_o)
+                for j in range(j0, j1):
+                    _outliers(scaled_H(s, acc[j], il, im, rows), z[j], r[j], x_s, Pf, PW,
+                              oe_o[j], oI_o[j], HP, HPW)
+            if faults:
+                _write_faults(j0, j1, zeta, Om, eta_o, I_o)
             j1 = j0
         if k == 0:
             break
         fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], kp)
-        fault_gamma(F, dt[k - 1], tt[k - 1], s, sB, G)
         transition(F, dt[k - 1], Phi, F2)
         for a in range(n):                      # Phi' scaled
             for b in range(n):
                 PhiT[b, a] = Phi[a, b] * s[b] * inv_s[a]
         row_pattern(PhiT, nz, cnt)
         ng = 0
-        for a in range(n):
-            for p in range(pB):
-                if G[a, p] != 0.0:
-                    grows[ng] = a
-                    ng += 1
-                    break
-        _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, zero)
+        if faults:
+            fault_gamma(F, dt[k - 1], tt[k - 1], s, sB, G)
+            for a in range(n):                  # the nonzero rows of Gamma
+                for p in range(pB):
+                    if G[a, p] != 0.0:
+                        grows[ng] = a
+                        ng += 1
+                        break
+        _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, zero, faults)
     return -1
 
 
