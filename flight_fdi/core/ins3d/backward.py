@@ -72,11 +72,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..discretize import matmul
 from ..information import solve
 from ..ldl import information_terms, ldl_factor, udu_factor
 from .filter import scaled_H
 from .model import IBA, IBG, IPHI, IV, fill_F, transition
-from .sparse import congruence, mul_pattern, row_pattern
+from .sparse import congruence, mul_left, mul_pattern, row_pattern
 
 #: columns of the fault vector b: accelerometer a (x, y, z), r (x, y, z), gyro a, r, then one
 #: offset per reference row
@@ -129,12 +130,7 @@ def _gain(P_j, Hs, S_j, inv_s, HP, K, Si, work):
                 ha = h * inv_s[a]
                 for b in range(n):
                     HP[i, b] += ha * P_j[a, b] * inv_s[b]
-    for a in range(n):
-        for i in range(rows):
-            acc = 0.0
-            for c in range(rows):
-                acc += HP[c, a] * Si[c, i]
-            K[a, i] = acc
+    matmul(HP.T, Si, K)
 
 
 @njit(cache=True)
@@ -172,18 +168,15 @@ def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, S
     for i in range(rows):
         for a in range(n):
             h = Hs[i, a]
-            if h != 0.0:
+            if h == 0.0:
+                continue
+            for b in range(n):
+                Lam[a, b] -= h * M[b, i]
+                Lam[b, a] -= h * M[b, i]
+            for c in range(rows):
+                w = h * (Si[i, c] + KtM[i, c])
                 for b in range(n):
-                    Lam[a, b] -= h * M[b, i]
-                    Lam[b, a] -= h * M[b, i]
-    for i in range(rows):
-        for a in range(n):
-            h = Hs[i, a]
-            if h != 0.0:
-                for c in range(rows):
-                    w = h * (Si[i, c] + KtM[i, c])
-                    for b in range(n):
-                        Lam[a, b] += w * Hs[c, b]
+                    Lam[a, b] += w * Hs[c, b]
 
 
 @njit(cache=True, inline="always")
@@ -280,14 +273,8 @@ def _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d, informative,
         for b in range(n):
             acc += Pf[a, b] * lam[b]
         x_s[a] = acc
-    for a in range(n):
-        for b in range(n):
-            PW[a, b] = 0.0
-        for c in range(n):
-            p = Pf[a, c]
-            if p != 0.0:
-                for b in range(n):
-                    PW[a, b] += p * Lam[c, b]
+    PW[:, :] = 0.0
+    mul_left(Pf, Lam, PW, False)
     for a in range(n):
         acc = Pf[a, a]
         for b in range(n):
