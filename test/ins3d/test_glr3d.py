@@ -174,7 +174,7 @@ def test_joint_statistic_equals_numpy_pinv():
     ref = np.einsum("ki,kij,kj->k", eta[:, :3],
                     np.linalg.pinv(info, rcond=1e-10, hermitian=True), eta[:, :3])
     got = joint(eta, I3, 3)["accelerometer_step"]
-    np.testing.assert_allclose(got, ref, rtol=1e-5)   # numpy: eps x cond (1e8) on the small eigenvalues
+    np.testing.assert_allclose(got, ref, rtol=1e-5)   # numpy: eps x cond (1e8) on small eigenvalues
     u = np.einsum("kij,ki->kj", V, eta[:, :3])          # the dropped direction carries nothing
     keep = np.ones((300, 3), dtype=bool)
     keep[::3, 0] = keep[1::3, 1] = False
