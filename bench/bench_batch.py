@@ -117,9 +117,11 @@ def cores(n: int | None):
     if n is None or n >= len(every):
         yield
         return
-    tasks = [int(t) for t in os.listdir("/proc/self/task")]
-    for t in tasks:
-        os.sched_setaffinity(t, every[:n])
+    for t in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(t), every[:n])
+        except OSError:  # the thread has ended since the listing
+            pass
     try:
         yield
     finally:

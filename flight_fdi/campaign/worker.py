@@ -4,10 +4,13 @@ imports ``distributed``, which the inline engine never needs)."""
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from typing import Any, Callable
 
 from distributed import WorkerPlugin
+
+from flight_fdi.core.threads import ENV
 
 #: glibc's own limits once its dynamic thresholds have grown (64-bit): arrays up to 32 MB from
 #: the heap, the heap's top returned to the system above 64 MB free
@@ -18,7 +21,7 @@ TRIM_THRESHOLD = 64 << 20
 class WorkerSetup(WorkerPlugin):
     """Run on each worker as it joins (a Dask worker plugin, registered by
     :class:`~.engine.Engine`): fix glibc's malloc thresholds (:func:`restore_malloc`: Dask's nanny freezes them low),
-    then run ``warm``."""
+    give each analysis one thread (``FLIGHT_FDI_THREADS=1``), then run ``warm``."""
 
     #: registered once per cluster and name: a later engine on the same cluster (the next
     #: batch) does not set up and warm its workers again
@@ -29,6 +32,8 @@ class WorkerSetup(WorkerPlugin):
 
     def setup(self, worker: Any) -> None:
         restore_malloc()
+        # a worker is one core: one analysis thread (core.threads), as the nanny gives BLAS one
+        os.environ[ENV] = "1"
         if self.warm is not None:
             try:
                 self.warm()

@@ -107,6 +107,7 @@ from .glr_system import NONE, each_system, prepare, resolve, systems as _systems
 from .glr_kernel import onset_statistics
 from .glr_threshold import A_EDGES, first_crossing_probability, threshold as _threshold
 from .models import LinearModel
+from .threads import usable_threads
 
 __all__ = ["GlrConfig", "GlrResult", "isolate", "first_crossing_probability",
            "DEFAULT_HYPOTHESES", "sensor_of", "kind_of"]
@@ -137,7 +138,8 @@ class GlrConfig:
         second GLR pass (see "Is the fault explained?" in the module doc).
     threads: the independent fault systems (one per instrument and the reference's) are
         scanned on this many threads (the compiled kernels release the GIL); 1: in the calling
-        thread. The results do not depend on it.
+        thread; None: :func:`~flight_fdi.core.threads.usable_threads` (the cores the process may
+        use, 1 on a campaign worker). The results do not depend on it.
     """
 
     p_false_alarm: float = 1e-3
@@ -146,7 +148,7 @@ class GlrConfig:
     curve_points: int = 4000
     ambiguity_margin: float = 2.0 * float(np.log(100.0))
     residual_test: bool = True
-    threads: int = 2
+    threads: int | None = None
 
     def __post_init__(self) -> None:
         p = self.p_false_alarm
@@ -171,8 +173,8 @@ class GlrConfig:
             val = getattr(self, nm)
             if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 0:
                 raise CoreError(f"GlrConfig.{nm} must be an integer >= 0, got {val!r}")
-        if isinstance(self.threads, bool) or not isinstance(self.threads, (int, np.integer)) \
-                or self.threads < 1:
+        if self.threads is not None and (isinstance(self.threads, bool) or not isinstance(
+                self.threads, (int, np.integer)) or self.threads < 1):
             raise CoreError(f"GlrConfig.threads must be an integer >= 1, got {self.threads!r}")
         if self.block_size == 1:
             raise CoreError("GlrConfig.block_size must be 0 (automatic) or >= 2, got 1")
@@ -285,7 +287,8 @@ def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> Gl
     hyps = [resolve(model, h) for h in config.hypotheses]
     flt = prepare(model, fwd)
     systems = _systems(model, hyps)
-    raw = each_system(lambda system: system.scan(flt), systems, config.threads)
+    threads = config.threads or usable_threads()
+    raw = each_system(lambda system: system.scan(flt), systems, threads)
     per: dict[str, dict] = {}
     curves: dict[str, tuple] = {}
     fresh, counts, outlier_l = 0, np.zeros(A_EDGES.size + 1, dtype=np.int64), {}
@@ -324,7 +327,7 @@ def _verdict(config: GlrConfig, systems: dict, flt, raw: dict, per: dict, curves
         extra = {"runner_up": rival, "runner_up_statistic": per[rival]["statistic"]}
     if config.residual_test and isolation == "single":  # (an ambiguous result stays so)
         residual = residual_pass(systems, flt, raw, best, b["onset_index"],
-                                 config.threads)
+                                 config.threads or usable_threads())
         more_outliers = kind_of(best) == "outliers" and residual["hypothesis"] == best
         if residual["statistic"] > threshold and not more_outliers:
             isolation = "unexplained"

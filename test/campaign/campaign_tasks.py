@@ -42,10 +42,13 @@ def page_faults_of_big_arrays(_x: int = 0, n: int = 40) -> dict:
     flight's analysis does with its arrays), and the worker's malloc/BLAS environment."""
     import resource
 
+    from flight_fdi.core.threads import usable_threads
+
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for _ in range(n):
         a = np.ones(1 << 17)
         del a
     return {"faults": resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before,
             "trim": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
-            "blas": os.environ.get("OPENBLAS_NUM_THREADS")}
+            "blas": os.environ.get("OPENBLAS_NUM_THREADS"),
+            "analysis_threads": usable_threads()}

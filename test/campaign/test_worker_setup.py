@@ -1,6 +1,6 @@
 """What the engine does to its Dask workers: glibc's malloc thresholds (Dask's nanny freezes the
 mmap threshold at 128 kB through MALLOC_TRIM_THRESHOLD_, so every large array faults in fresh
-pages: +37 % per flight, docs/scaling.md), one BLAS thread per worker, and ``warm`` on each."""
+pages: +37 % per flight, docs/scaling.md), one BLAS and one analysis thread per worker, and ``warm`` on each."""
 from __future__ import annotations
 
 import os
@@ -46,5 +46,6 @@ def test_the_embedded_cluster_starts_its_workers_without_the_malloc_setting_and_
     # test session, the other clusters' nannies have put Dask's value here)
     assert all(r["trim"] == os.environ.get("MALLOC_TRIM_THRESHOLD_") for r in out), out
     assert all(r["blas"] == "1" for r in out), out
+    assert all(r["analysis_threads"] == 1 for r in out), out  # one core per worker
     assert all(r["faults"] < FEW for r in out), out
     assert pids == list(workers.values())  # warmed once, in the worker process

@@ -5,7 +5,6 @@ seed method (chi^2 J with effective dof, UDU^T / LDL^T localisation, Fisher test
 """
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import SimpleNamespace
@@ -15,6 +14,7 @@ import numpy as np
 from ..diagnosis import DiagnosisConfig, SeedDiagnosis, diagnose
 from ..errors import CoreError
 from ..ldl import localization
+from ..threads import usable_threads
 from .backward import ACC_A, ACC_R, GYR_A, GYR_R, REF, backward_sweep
 from .data import NavSteps, RefRows
 from .filter import Ins3dForward, run_forward, white_variance
@@ -87,7 +87,7 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
              fwd.x_prior, fwd.P_prior, fwd.S, fwd.nu, rank_tol, x_s, sd_s, terms, dof, norm, vt,
              d, eta, I3, oe, oI)
     if threads is None:
-        threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
+        threads = usable_threads()
     if threads > 1:             # the second core: the fault blocks (the kernel releases the GIL)
         with ThreadPoolExecutor(max_workers=1) as pool:
             faults = pool.submit(backward_sweep, *sweep, 2)
