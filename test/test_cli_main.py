@@ -2,6 +2,7 @@
 imported, so ``analyze`` does not pay for SciPy's statistics), and the whole list for help."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -39,3 +40,17 @@ def test_analyze_does_not_import_the_voter_statistics():
             "print('scipy.stats' in sys.modules, 'flight_fdi.core.voting' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+def _blas_threads_seen_by_the_command(env: dict) -> str:
+    code = ("import flight_fdi.cli.main, os, numpy; "
+            "print(os.environ.get('OPENBLAS_NUM_THREADS'))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True, timeout=120)
+    return out.stdout.strip()
+
+
+def test_the_command_runs_openblas_on_one_thread_unless_the_user_says_otherwise():
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    assert _blas_threads_seen_by_the_command(env) == "1"
+    assert _blas_threads_seen_by_the_command(env | {"OPENBLAS_NUM_THREADS": "2"}) == "2"

@@ -7,9 +7,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
-from flight_fdi import __version__
+# The estimators' matrices are at most ~20 x 20: OpenBLAS's worker threads never pay there, and
+# their spinning cost GLR ~40 % more CPU and the single-axis analyze ~10 % (docs/performance.md).
+# Before numpy loads; a user's own setting wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from flight_fdi import __version__  # noqa: E402
 
 #: subcommand name -> its module; each module has ``register(subparsers)`` that adds the parser
 #: of that name with ``func=run``
