@@ -15,7 +15,6 @@ of the replay the filter is flushed (``Ins3dMode.finish``) before the recording 
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +60,6 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     from .bag_player import BagPlayer
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
-    from .smoother_node import write_json
 
     gate = gate or GateConfig()
     bag = Path(bag)
@@ -91,23 +89,11 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
             return (n.get(state, 0) >= c["published_states"]
                     and n.get(innov, 0) >= c["published"] and n.get(model, 0) >= 1)
 
-        g.spin_until(settled, "recording the filter's last outputs")
-        replay_s = time.monotonic() - player.started_at
-        recorded = g.close_recording(rec)
-        n_played, acks = player.published, player.ack_timeouts
-        for node in (player, flt, rec):
-            g.drop(node)
-        t_analysis = time.monotonic()
-        result = g.smoother_result(AnalysisConfig(gate=gate), {
+        run = g.finish(player, flt, rec, settled, AnalysisConfig(gate=gate), {
             "bag": str(recording), "channel": "ins3d", "output_json": str(result_json),
-            "publish_smoothed": False})
-    result["bag"] = str(bag)
-    if source is not None:
-        result["source"] = source
-    write_json(result, result_json)
-    return PipelineRun(result=result, recording=recording, result_json=result_json,
-                       messages_played=n_played, recorded=recorded, replay_s=replay_s,
-                       analysis_s=time.monotonic() - t_analysis, ack_timeouts=acks)
+            "publish_smoothed": False}, bag, result_json,
+            {} if source is None else {"source": source})
+    return run
 
 
 __all__ = ["ACK_WINDOW", "filter_parameters3d", "run_pipeline3d"]

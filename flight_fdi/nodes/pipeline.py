@@ -258,6 +258,30 @@ class Graph:
             raise PipelineError(f"recording failed: {rec.error}")
         return rec.counts()
 
+    def finish(self, player: Any, flt: Any, rec: Any, settled: Any, config: Any,
+               params: dict[str, Any], bag: Path, result_json: Path,
+               extra: dict[str, Any]) -> "PipelineRun":
+        """The end of every replay: spin until ``settled`` (the recorder holds the filter's last
+        outputs), close the recording, drop the three nodes, run the smoother on the recording
+        with ``params`` (``params['bag']``: the recording) and write its result -- ``bag`` (the input, as analyze names it) and
+        ``extra`` added -- to ``result_json``."""
+        from .smoother_node import write_json
+
+        self.spin_until(settled, "recording the filter's last outputs")
+        replay_s = time.monotonic() - player.started_at
+        recorded = self.close_recording(rec)
+        played, ack_timeouts = player.published, player.ack_timeouts
+        for node in (player, flt, rec):
+            self.drop(node)
+        t_analysis = time.monotonic()
+        result = self.smoother_result(config, params)
+        result["bag"] = str(bag)
+        result.update(extra)
+        write_json(result, result_json)
+        return PipelineRun(result=result, recording=Path(params["bag"]), result_json=result_json,
+                           messages_played=played, recorded=recorded, replay_s=replay_s,
+                           analysis_s=time.monotonic() - t_analysis, ack_timeouts=ack_timeouts)
+
     def smoother_result(self, config: Any, params: dict[str, Any]) -> dict:
         """Build the smoother node, spin until its analysis of the recording is done and return
         a copy of its result (PipelineError when it failed)."""
@@ -297,7 +321,6 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     from .bag_player import BagPlayer
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
-    from .smoother_node import write_json
 
     if config is None:
         config = AnalysisConfig()
@@ -334,24 +357,12 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
             return (all(counts.get(t, 0) >= c["published"] for t in topics)
                     and counts.get(model_topic, 0) >= 1)
 
-        g.spin_until(settled, "recording the filter's last outputs")
-        replay_s = time.monotonic() - player.started_at
-        recorded = g.close_recording(rec)
-        played, ack_timeouts = player.published, player.ack_timeouts
-        for node in (player, flt, rec):
-            g.drop(node)
-        t_analysis = time.monotonic()
-        result = g.smoother_result(config, {
+        run = g.finish(player, flt, rec, settled, config, {
             "bag": str(recording), "channel": channel, "output_json": str(result_json),
             # analyze's t0: the earliest usable INS / reference stamp
-            "flight_start_s": flight.t0_ns * 1e-9, "publish_smoothed": False})
-    result["bag"] = str(bag)  # the input, as flight-fdi analyze names it
-    result["input"] = input_section
-    result["source"] = spec.describe()
-    write_json(result, result_json)
-    return PipelineRun(result=result, recording=recording, result_json=result_json,
-                       messages_played=played, recorded=recorded, replay_s=replay_s,
-                       analysis_s=time.monotonic() - t_analysis, ack_timeouts=ack_timeouts)
+            "flight_start_s": flight.t0_ns * 1e-9, "publish_smoothed": False},
+            bag, result_json, {"input": input_section, "source": spec.describe()})
+    return run
 
 
 def run_pipeline(bag: str | Path, out_dir: str | Path, channel: str = "x", **kwargs: Any) -> dict:
