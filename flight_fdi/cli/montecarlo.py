@@ -123,26 +123,27 @@ def run(args: argparse.Namespace) -> int:
                            progress=not args.no_progress,
                            on_record=records.write if records else None,
                            scheduler=spec.scheduler, done=records.done if records else None)
-    emit_result(result, out, args.json, format_metrics(result.metrics),
-                f"{len(result.records)} flights of {config.duration_s:g} s in "
-                f"{result.elapsed_s:.1f} s on {result.engine}"
-                + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
-                + (f"; full result in {out}" if out else "")
-                + (f"; records in {args.records}" if args.records else ""))
+    emit_result(result, out, args, format_metrics(result.metrics),
+                f"{len(result.records)} flights of {config.duration_s:g} s")
     return 0
 
 
-def emit_result(result, out: Path | None, as_json: bool, table: str, summary: str) -> None:
+def emit_result(result, out: Path | None, args: argparse.Namespace, table: str,
+                what: str) -> None:
     """A study's output (both models): the full result to ``--out``; on stdout ``--json``'s
-    document, or the metrics ``table`` and a ``summary`` line."""
+    document, or the metrics ``table`` and a summary line: ``what`` ran (e.g. "200 flights of
+    600 s"), how long and on which engine, what was resumed and where the files are."""
     if out is not None:
         out.write_text(json.dumps(result.to_dict(with_records=True), indent=1) + "\n")
-    if as_json:
+    if args.json:
         json.dump(result.to_dict(with_records=False), sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
-    else:
-        print(table)
-        print(f"\n{summary}")
+        return
+    print(table)
+    print(f"\n{what} in {result.elapsed_s:.1f} s on {result.engine}"
+          + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
+          + (f"; full result in {out}" if out else "")
+          + (f"; records in {args.records}" if args.records else ""))
 
 
 def open_records(args: argparse.Namespace, study: dict):

@@ -129,13 +129,9 @@ def run_ins3d(args: argparse.Namespace) -> int:
                                done=records.done if records else None)
     except EvalError as exc:
         raise CliError(str(exc)) from None
-    emit_result(result, out, args.json, format_metrics(result.metrics),
+    emit_result(result, out, args, format_metrics(result.metrics),
                 f"{len(result.records)} flights of {config.duration_s:g} s "
-                f"({config.profile}, {config.grade}) in {result.elapsed_s:.1f} s on "
-                f"{result.engine}"
-                + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
-                + (f"; full result in {out}" if out else "")
-                + (f"; records in {args.records}" if args.records else ""))
+                f"({config.profile}, {config.grade})")
     return 0
 
 
