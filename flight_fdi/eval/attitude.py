@@ -20,7 +20,8 @@ from flight_fdi.core.actuator import ActuatorConfig, run_attitude
 from flight_fdi.sim.attitude import ActuatorFault, AttitudeSimConfig, simulate_attitude
 
 from .errors import EvalError
-from .montecarlo import _stats, parallel_map, type_errors
+from .decisions import stats_of
+from .montecarlo import parallel_map, type_errors
 
 DEFAULT_LEAK_LEVELS = (5e-6, 1e-5, 1.5e-5, 2e-5, 5e-5)
 
@@ -96,13 +97,13 @@ def summarize_attitude(records: list[dict]) -> dict:
     levels = sorted({r["level"] for r in faulty})
     return {
         "errors": type_errors([r["declared"] for r in nominal], [r["declared"] for r in faulty]),
-        "nominal_max_abs_mean": _stats(r["max_abs_mean"] for r in nominal),
-        "delay_s": _stats(r["delay_s"] for r in faulty),
+        "nominal_max_abs_mean": stats_of(r["max_abs_mean"] for r in nominal),
+        "delay_s": stats_of(r["delay_s"] for r in faulty),
         "by_level": [{"level": lv, "n": sum(r["level"] == lv for r in faulty),
                       "detected": float(np.mean([r["declared"] for r in faulty
                                                  if r["level"] == lv])),
-                      "delay_median_s": _stats(r["delay_s"] for r in faulty
-                                               if r["level"] == lv)["median"]}
+                      "delay_median_s": stats_of(r["delay_s"] for r in faulty
+                                                 if r["level"] == lv)["median"]}
                      for lv in levels],
     }
 

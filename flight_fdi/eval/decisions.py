@@ -72,7 +72,7 @@ def isolated(record: dict, method: str) -> bool:
 
 # --------------------------------------------------------------------------- statistics
 
-def _stats(values: Iterable[float]) -> dict:
+def stats_of(values: Iterable[float]) -> dict:
     v = np.asarray([x for x in values if x is not None], dtype=float)
     if v.size == 0:
         return {"n": 0, "mean": None, "std": None, "median": None, "p05": None, "p95": None,
@@ -82,17 +82,17 @@ def _stats(values: Iterable[float]) -> dict:
             "p95": float(np.percentile(v, 95)), "min": float(v.min()), "max": float(v.max())}
 
 
-def _diff(a: float | None, b: float | None) -> float | None:
+def diff_or_none(a: float | None, b: float | None) -> float | None:
     return None if a is None or b is None else a - b
 
 
-def _rate(num: int, den: int) -> float | None:
+def rate_of(num: int, den: int) -> float | None:
     return num / den if den else None
 
 
-def _pct(x: float | None) -> str:
+def fmt_pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.1f}%"
 
 
-def _num(x: float | None, spec: str = ".3g") -> str:
+def fmt_num(x: float | None, spec: str = ".3g") -> str:
     return "-" if x is None else format(x, spec)

@@ -54,8 +54,8 @@ from flight_fdi.core.analysis import AnalysisConfig, run_analysis
 from flight_fdi.sim import FaultSpec, SimConfig, simulate
 
 from .decisions import (AMBIGUOUS, DETECTORS, FAULT_KINDS, ISOLATION_LEVEL,  # noqa: F401
-                        KINDS, LEVEL_UNITS, METHODS, SEED_DECLARED, TRUE_ELEMENT, _num, _pct,
-                        _stats, declared, glr_class, isolated, predicted_class)
+                        KINDS, LEVEL_UNITS, METHODS, SEED_DECLARED, TRUE_ELEMENT, fmt_num, fmt_pct,
+                        stats_of, declared, glr_class, isolated, predicted_class)
 from .errors import EvalError
 from .parallel import parallel_map
 from .records import recorded_flights

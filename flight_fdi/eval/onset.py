@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-from .decisions import (FAULT_KINDS, LEVEL_UNITS, _num, _stats, declared, glr_class,
+from .decisions import (FAULT_KINDS, LEVEL_UNITS, fmt_num, stats_of, declared, glr_class,
                         isolated)
 
 
@@ -37,17 +37,17 @@ def onset_errors(records: Sequence[dict]) -> dict:
 
         def row(group: list[dict]) -> dict:
             err = [named_onset(r) - r["onset_s"] for r in group if named_onset(r) is not None]
-            a = _stats(abs(e) for e in err)
+            a = stats_of(abs(e) for e in err)
             return {"n": len(group), "isolated": sum(isolated(r, "glr") for r in group),
                     "named": len(err), "median_abs_s": a["median"], "p95_abs_s": a["p95"],
-                    "median_s": _stats(err)["median"]}
+                    "median_s": stats_of(err)["median"]}
 
         levels = sorted({r["level"] for r in rs})
         out[kind] = {"unit": LEVEL_UNITS[kind][0], "all": row(rs),
                      "by_level": [{"level": lv, **row([r for r in rs if r["level"] == lv])}
                                   for lv in levels]}
     named = [r for r in records if named_onset(r) is not None]
-    out["all"] = {"named": len(named), "median_abs_s": _stats(
+    out["all"] = {"named": len(named), "median_abs_s": stats_of(
         abs(named_onset(r) - r["onset_s"]) for r in named)["median"]}
     return out
 
@@ -64,10 +64,11 @@ def format_onset_errors(table: dict) -> str:
         for r in t["by_level"] + [{"level": "all", **t["all"]}]:
             lvl = r["level"] if r["level"] == "all" else f"{r['level']:g} {t['unit']}"
             lines.append(f"| {kind} | {lvl} | {r['n']} | {r['isolated']} | {r['named']} | "
-                         f"{_num(r['median_abs_s'], '.2f')} | {_num(r['p95_abs_s'], '.1f')} | "
-                         f"{_num(r['median_s'], '.2f')} |")
+                         f"{fmt_num(r['median_abs_s'], '.2f')} | "
+                         f"{fmt_num(r['p95_abs_s'], '.1f')} | "
+                         f"{fmt_num(r['median_s'], '.2f')} |")
     lines.append(f"\nall named faults: n {table['all']['named']}, median |onset error| "
-                 f"{_num(table['all']['median_abs_s'], '.2f')} s")
+                 f"{fmt_num(table['all']['median_abs_s'], '.2f')} s")
     return "\n".join(lines)
 
 

@@ -9,7 +9,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .decisions import (AMBIGUOUS, DETECTORS, FAULT_KINDS, ISOLATION_LEVEL, KINDS, LEVEL_UNITS,
-                        METHODS, _diff, _rate, _stats, declared, isolated, predicted_class)
+                        METHODS, declared, diff_or_none, isolated, predicted_class, rate_of,
+                        stats_of)
 from .onset import onset_errors
 
 
@@ -81,16 +82,16 @@ def by_level(records: Sequence[dict], kind: str) -> list[dict]:
         n = len(rs)
         row: dict[str, Any] = {"level": level, "unit": unit, "n": n}
         for det in DETECTORS:
-            row[f"{det}_detected"] = _rate(sum(declared(r, det) for r in rs), n)
+            row[f"{det}_detected"] = rate_of(sum(declared(r, det) for r in rs), n)
         for m in METHODS:
-            row[f"{m}_isolated"] = _rate(sum(isolated(r, m) for r in rs), n)
+            row[f"{m}_isolated"] = rate_of(sum(isolated(r, m) for r in rs), n)
         delays = [r["first_alarm_after_onset_s"] - r["onset_s"] for r in rs
                   if r["first_alarm_after_onset_s"] is not None]
-        row["delay_median_s"] = _stats(delays)["median"]
+        row["delay_median_s"] = stats_of(delays)["median"]
         ok = [r for r in rs if isolated(r, "glr")]
-        row["glr_onset_error_median_s"] = _stats(
+        row["glr_onset_error_median_s"] = stats_of(
             abs(r["glr"]["onset_s"] - r["onset_s"]) for r in ok)["median"]
-        row["glr_magnitude_error_median"] = _stats(
+        row["glr_magnitude_error_median"] = stats_of(
             abs(r["glr"]["magnitude"] / r["magnitude"] - 1.0) for r in ok)["median"]
         out.append(row)
     return out
@@ -121,37 +122,37 @@ def summarize(records: Sequence[dict]) -> dict:
         "flights": {k: sum(r["kind"] == k for r in records) for k in KINDS},
         "false_alarms": {
             "in_flight": {
-                "per_sample_exceed_rate": _rate(sum(r["exceeded"] for r in nominal), n_samples),
-                "per_flight_rate": _rate(sum(bool(r["alarms"]) for r in nominal), len(nominal)),
+                "per_sample_exceed_rate": rate_of(sum(r["exceeded"] for r in nominal), n_samples),
+                "per_flight_rate": rate_of(sum(bool(r["alarms"]) for r in nominal), len(nominal)),
                 "flights_with_alarm": sum(bool(r["alarms"]) for r in nominal),
                 "faulty_flights_alarm_before_onset": sum(r["false_alarms"] > 0 for r in faulty),
             },
             "seed": {
-                "per_sample_J_exceed_rate": _rate(sum(r["seed"]["J_exceeded"] for r in nominal),
+                "per_sample_J_exceed_rate": rate_of(sum(r["seed"]["J_exceeded"] for r in nominal),
                                                   n_valid),
-                "per_flight_rate": _rate(sum(declared(r, "seed") for r in nominal),
+                "per_flight_rate": rate_of(sum(declared(r, "seed") for r in nominal),
                                          len(nominal)),
             },
-            "glr": {"per_flight_rate": _rate(sum(declared(r, "glr") for r in nominal),
+            "glr": {"per_flight_rate": rate_of(sum(declared(r, "glr") for r in nominal),
                                              len(nominal))},
         },
         "error_rates": {det: error_rates(records, det) for det in DETECTORS},
         "missed_detections": {det: {k: sum(not declared(r, det) for r in faulty
                                            if r["kind"] == k) for k in kinds}
                               for det in DETECTORS},
-        "detection_delay_s": {k: _stats(r["first_alarm_after_onset_s"] - r["onset_s"]
+        "detection_delay_s": {k: stats_of(r["first_alarm_after_onset_s"] - r["onset_s"]
                                         for r in faulty if r["kind"] == k
                                         and r["first_alarm_after_onset_s"] is not None)
                               for k in kinds},
         "confusion": {m: confusion_matrix(records, m) for m in METHODS},
-        "onset_error_s": {m: {k: _stats(_diff(r[m]["onset_s"], r["onset_s"]) for r in faulty
-                                        if r["kind"] == k and isolated(r, m))
+        "onset_error_s": {m: {k: stats_of(diff_or_none(r[m]["onset_s"], r["onset_s"])
+                                          for r in faulty if r["kind"] == k and isolated(r, m))
                               for k in kinds} for m in METHODS},
-        "onset_error_detected_s": {m: {k: _stats(_diff(r[m]["onset_s"], r["onset_s"])
+        "onset_error_detected_s": {m: {k: stats_of(diff_or_none(r[m]["onset_s"], r["onset_s"])
                                                  for r in faulty
                                                  if r["kind"] == k and declared(r, m))
                                        for k in kinds} for m in METHODS},
-        "magnitude_error_relative": {"glr": {k: _stats(r["glr"]["magnitude"] / r["magnitude"]
+        "magnitude_error_relative": {"glr": {k: stats_of(r["glr"]["magnitude"] / r["magnitude"]
                                                        - 1.0 for r in faulty
                                                        if r["kind"] == k and isolated(r, "glr"))
                                              for k in kinds}},

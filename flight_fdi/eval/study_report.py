@@ -2,7 +2,7 @@
 Markdown tables of :func:`flight_fdi.eval.study_metrics.summarize`'s output)."""
 from __future__ import annotations
 
-from .decisions import ISOLATION_LEVEL, METHODS, _num, _pct
+from .decisions import ISOLATION_LEVEL, METHODS, fmt_num, fmt_pct
 from .onset import format_onset_errors
 
 
@@ -14,21 +14,21 @@ def format_metrics(metrics: dict) -> str:
              "",
              "false alarms on nominal flights:",
              "  in-flight gate: per sample "
-             f"{_num(fa['in_flight']['per_sample_exceed_rate'], '.2e')}"
-             f" (beta^2 > gate), per flight {_pct(fa['in_flight']['per_flight_rate'])} "
+             f"{fmt_num(fa['in_flight']['per_sample_exceed_rate'], '.2e')}"
+             f" (beta^2 > gate), per flight {fmt_pct(fa['in_flight']['per_flight_rate'])} "
              f"(M-of-N alarm)",
-             f"  seed method: per sample {_num(fa['seed']['per_sample_J_exceed_rate'], '.2e')}"
-             f" (J > gamma^2), per flight {_pct(fa['seed']['per_flight_rate'])}",
-             f"  GLR: per flight {_pct(fa['glr']['per_flight_rate'])}",
+             f"  seed method: per sample {fmt_num(fa['seed']['per_sample_J_exceed_rate'], '.2e')}"
+             f" (J > gamma^2), per flight {fmt_pct(fa['seed']['per_flight_rate'])}",
+             f"  GLR: per flight {fmt_pct(fa['glr']['per_flight_rate'])}",
              "",
              "| detector | type I (false alarm) | type II (missed) | confidently wrong element "
              "| ambiguous |",
              "|---|---|---|---|---|"]
     for det, e in metrics["error_rates"].items():
-        wrong = _pct(e.get("wrong_isolation_rate")) if "wrong_isolation_rate" in e else "n/a"
-        amb = _pct(e.get("ambiguous_rate")) if "ambiguous_rate" in e else "n/a"
-        lines.append(f"| {det} | {_pct(e['type_I'])} ({e['false_alarms']}/{e['nominal']}) | "
-                     f"{_pct(e['type_II'])} ({e['missed']}/{e['faulty']}) | {wrong} | {amb} |")
+        wrong = fmt_pct(e.get("wrong_isolation_rate")) if "wrong_isolation_rate" in e else "n/a"
+        amb = fmt_pct(e.get("ambiguous_rate")) if "ambiguous_rate" in e else "n/a"
+        lines.append(f"| {det} | {fmt_pct(e['type_I'])} ({e['false_alarms']}/{e['nominal']}) | "
+                     f"{fmt_pct(e['type_II'])} ({e['missed']}/{e['faulty']}) | {wrong} | {amb} |")
     for m, cm in metrics["confusion"].items():
         lines += ["", f"confusion matrix, {m} (rows: true, columns: isolated)",
                   "| true \\ isolated | " + " | ".join(cm["predicted"]) + " |",
@@ -37,19 +37,20 @@ def format_metrics(metrics: dict) -> str:
             lines.append(f"| {name} | " + " | ".join(str(c) for c in row) + " |")
     for kind, d in metrics["detection_delay_s"].items():
         lines += ["", f"in-flight detection delay, {kind}: n {d['n']}, median "
-                  f"{_num(d['median'], '.1f')} s, 5-95% {_num(d['p05'], '.1f')} .. "
-                  f"{_num(d['p95'], '.1f')} s"]
+                  f"{fmt_num(d['median'], '.1f')} s, 5-95% {fmt_num(d['p05'], '.1f')} .. "
+                  f"{fmt_num(d['p95'], '.1f')} s"]
     lines.append("")
     for m in METHODS:
         for which, label in (("onset_error_s", "isolated"), ("onset_error_detected_s",
                                                              "detected")):
             for kind, d in metrics[which][m].items():
                 lines.append(f"onset error {m}, {kind} ({label}): n {d['n']}, median "
-                             f"{_num(d['median'], '.2f')} s, 5-95% {_num(d['p05'], '.2f')} .. "
-                             f"{_num(d['p95'], '.2f')} s")
+                             f"{fmt_num(d['median'], '.2f')} s, "
+                             f"5-95% {fmt_num(d['p05'], '.2f')} .. "
+                             f"{fmt_num(d['p95'], '.2f')} s")
     for kind, d in metrics["magnitude_error_relative"]["glr"].items():
         lines.append(f"magnitude error glr, {kind} (relative, isolated): n {d['n']}, median "
-                     f"{_pct(d['median'])}, 5-95% {_pct(d['p05'])} .. {_pct(d['p95'])}")
+                     f"{fmt_pct(d['median'])}, 5-95% {fmt_pct(d['p05'])} .. {fmt_pct(d['p95'])}")
     for kind, rows in metrics["by_level"].items():
         lines += ["", f"{kind} faults by magnitude:",
                   "| level | n | in-flight detected | median delay s | seed detected | "
@@ -57,11 +58,11 @@ def format_metrics(metrics: dict) -> str:
                   "GLR magnitude err |", "|---" * 10 + "|"]
         for r in rows:
             lines.append(
-                f"| {r['level']:g} {r['unit']} | {r['n']} | {_pct(r['in_flight_detected'])} | "
-                f"{_num(r['delay_median_s'], '.1f')} | {_pct(r['seed_detected'])} | "
-                f"{_pct(r['seed_isolated'])} | {_pct(r['glr_detected'])} | "
-                f"{_pct(r['glr_isolated'])} | {_num(r['glr_onset_error_median_s'], '.1f')} | "
-                f"{_pct(r['glr_magnitude_error_median'])} |")
+                f"| {r['level']:g} {r['unit']} | {r['n']} | {fmt_pct(r['in_flight_detected'])} | "
+                f"{fmt_num(r['delay_median_s'], '.1f')} | {fmt_pct(r['seed_detected'])} | "
+                f"{fmt_pct(r['seed_isolated'])} | {fmt_pct(r['glr_detected'])} | "
+                f"{fmt_pct(r['glr_isolated'])} | {fmt_num(r['glr_onset_error_median_s'], '.1f')} | "
+                f"{fmt_pct(r['glr_magnitude_error_median'])} |")
     lines += ["", f"smallest fault isolated in >= {100 * ISOLATION_LEVEL:.0f}% of runs "
               "(at that level and every larger one):"]
     for m, per in metrics["smallest_isolated_95"].items():
