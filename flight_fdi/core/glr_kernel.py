@@ -64,6 +64,18 @@ def transitions(F, norm, dt, H, K, A, G):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def fault_measurement(H, E, R_sel, D):
+    """D_k = H_k E + R_sel for every sample: how the fault state shows in the measurement
+    (compiled rather than one numpy product over all samples, which a multithreaded BLAS would
+    split across threads that then spin beside the scan)."""
+    for k in range(H.shape[0]):
+        matmul(H[k], E, D[k])
+        for i in range(D.shape[1]):
+            for a in range(D.shape[2]):
+                D[k, i, a] += R_sel[i, a]
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
     """The hypothesis-free d-blocks M_dd, lambda_d, backwards, as the products with G_k the
     hypotheses need (at step k, of M_dd and lambda_d of step k+1; zero for k = N-1)::

@@ -255,9 +255,10 @@ class System:
         D_k = H_k E + R_sel of every sample (how the fault state shows in the measurement;
         computed once per filter's H)."""
         if self._D[0] is not flt.H:
-            N, m, n = flt.H.shape
-            D = (flt.H.reshape(N * m, n) @ self.E).reshape(N, m, -1) + self.R_sel
-            self._D = (flt.H, np.ascontiguousarray(D))
+            N, m, _ = flt.H.shape
+            D = np.empty((N, m, self.E.shape[1]))
+            kernel.fault_measurement(flt.H, self.E, self.R_sel, D)
+            self._D = (flt.H, D)
         return self._D[1], self.Fpsi, self.norm_psi, self.persists
 
     def _per_second(self, name: str) -> float:
