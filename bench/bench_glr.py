@@ -7,8 +7,10 @@ the second pass -- in one thread (``GlrConfig(threads=1)``) and with the fault s
 ``--threads`` threads (the default, 2), as CPU time (process time, all threads) and wall time,
 best of ``--repeat``, interleaved. The baseline measured in the same run is the forward filter
 (``run_forward``) on the same flight: the ratio isolate / forward carries over between loads.
-Target (issue 13): <= 0.2 s. Exits 1 when isolate (the better of its one-thread CPU time and its
-threaded wall time) takes more than ``--budget`` seconds or misses the fault.
+It prints the BLAS threading in effect (GLR calls no BLAS on the flight's arrays: its time
+should not depend on it). Target (issue 13): <= 0.2 s. Exits 1 when isolate (the better of its
+one-thread CPU time and its threaded wall time) takes more than ``--budget`` seconds or misses
+the fault.
 
     .venv/bin/python bench/bench_glr.py [--hours 3] [--repeat 3] [--budget 0.2] [--threads 2]
 """
@@ -57,6 +59,23 @@ def flight(hours: float, bias: float, onset_s: float, jitter_s: float = 0.0, see
     return model, t, dv + model.R[0, 0] ** 0.5 * rng.standard_normal(N)
 
 
+def blas_threading() -> str:
+    """Which BLAS threading is in effect: the environment's OPENBLAS_NUM_THREADS and the thread
+    count numpy's bundled OpenBLAS reports (GLR makes no BLAS call on the flight's arrays, so
+    its time should not depend on it)."""
+    import ctypes
+    import glob
+
+    env = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
+    libs = glob.glob(str(Path(np.__file__).parents[1] / "numpy.libs" / "*openblas*"))
+    for lib in libs:
+        for name in ("scipy_openblas_get_num_threads64_", "openblas_get_num_threads"):
+            fn = getattr(ctypes.CDLL(lib), name, None)
+            if fn is not None:
+                return f"OPENBLAS_NUM_THREADS={env}: numpy's OpenBLAS uses {fn()} thread(s)"
+    return f"OPENBLAS_NUM_THREADS={env} (numpy's BLAS thread count unknown)"
+
+
 def best_of(fn, repeat: int) -> tuple:
     """(best CPU s, best wall s, last result) of fn() over ``repeat`` runs."""
     cpu, wall, out = [], [], None
@@ -97,6 +116,7 @@ def main() -> int:
     args = ap.parse_args()
     print(f"GLR isolate over every onset, {args.hours:g}-hour flight at 10 Hz, best of "
           f"{args.repeat}; load average before: {os.getloadavg()[0]:.1f}")
+    print(f"BLAS: {blas_threading()}")
     ok = True
     for label, jitter in (("regular stamps", 0.0), ("1 ms Gaussian jitter", 1e-3)):
         m = measure(args.hours, jitter, args.repeat, args.threads)

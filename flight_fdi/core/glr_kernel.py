@@ -75,49 +75,6 @@ def fault_measurement(H, E, R_sel, D):
                 D[k, i, a] += R_sel[i, a]
 
 
-@njit(cache=True, error_model="numpy", nogil=True)
-def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
-    """The hypothesis-free d-blocks M_dd, lambda_d, backwards, as the products with G_k the
-    hypotheses need (at step k, of M_dd and lambda_d of step k+1; zero for k = N-1)::
-
-        MG_k = M_dd G_k,   GMG_k = G_k^T M_dd G_k,   Glam_k = G_k^T lambda_d
-
-    ``with_M`` False: Glam only (MG, GMG untouched)."""
-    N, m, n = H.shape
-    M, lam = np.zeros((n, n)), np.zeros(n)
-    MA, HtSinv = np.empty((n, n)), np.empty((n, m))
-    lam_new = np.empty(n)
-    for k in range(N - 1, -1, -1):
-        for i in range(m):
-            acc = 0.0
-            for r in range(n):
-                acc += G[k, r, i] * lam[r]
-            Glam[k, i] = acc
-        for r in range(n):                          # lambda_d <- A^T lambda_d - H^T w
-            acc = 0.0
-            for j in range(n):
-                acc += A[k, j, r] * lam[j]
-            for i in range(m):
-                acc -= H[k, i, r] * w[k, i]
-            lam_new[r] = acc
-        lam[:] = lam_new
-        if not with_M:
-            continue
-        matmul(M, G[k], MG[k])
-        matmul(G[k].T, MG[k], GMG[k])
-        matmul(M, A[k], MA)                         # M_dd <- A^T M_dd A + H^T S^-1 H
-        matmul(H[k].T, Sinv[k], HtSinv)
-        for r in range(n):
-            for c in range(r, n):
-                acc = 0.0
-                for j in range(n):
-                    acc += A[k, j, r] * MA[j, c]
-                for i in range(m):
-                    acc += HtSinv[r, i] * H[k, i, c]
-                M[r, c] = acc
-                M[c, r] = acc
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def fault_transition(Fpsi, norm_psi, persists, dt, Psi, work):
     """Psi = expm(A_bar dt) of the fault state (its series Fpsi), with the rows and columns of
@@ -141,92 +98,184 @@ def psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def lambda_f_step(Psi, D, Glam_k, w_k, lam_f, lam_new):
-    """lambda_f <- Psi^T lambda_f + GD^T lambda_d + D^T w = Psi^T lambda_f + D^T (Glam + w)."""
-    q = lam_f.shape[0]
+def lambda_f_step(Psi, D, Glam_k, w_k, lam_f, lam_new, q, m):
+    """lambda_f <- Psi^T lambda_f + GD^T lambda_d + D^T w = Psi^T lambda_f + D^T (Glam + w)
+    (q fault states, m measurements)."""
     for a in range(q):
         acc = 0.0
         for b in range(q):
             acc += Psi[b, a] * lam_f[b]
-        for i in range(D.shape[0]):
+        for i in range(m):
             acc += D[i, a] * (Glam_k[i] + w_k[i])
         lam_new[a] = acc
-    lam_f[:] = lam_new
+    for a in range(q):
+        lam_f[a] = lam_new[a]
 
 
-@njit(cache=True, error_model="numpy", nogil=True)
-def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, D_all, Fpsi, norm_psi, persists,
-                    i0, num, den, cross):
-    """num[h], den[h], cross[h] for every onset (module doc) of the faults that enter as
-    f = e_i0[h] (several hypotheses can share one fault state, e.g. a step and a ramp of the
-    same instrument: the step's states are part of the ramp's). A, G: :func:`transitions`; MG,
-    GMG, Glam: :func:`filter_information` (so that GD^T M_dd = D^T MG^T, GD^T M_dd GD =
-    D^T GMG D, GD^T lambda_d = D^T Glam); D_all: D_k of every sample."""
-    N, m, n = H.shape
-    q = D_all.shape[2]
-    Mff, Mfd, lam_f = np.zeros((q, q)), np.zeros((q, n)), np.zeros(q)
-    Psi, work = np.zeros((q, q)), np.empty((q, q))
-    GD, SD = np.empty((n, q)), np.empty((m, q))
-    MddGD, GMGD = np.empty((n, q)), np.empty((m, q))
-    PtMfd, PtMfdG, Y = np.empty((q, n)), np.empty((q, m)), np.empty((q, q))
-    PtMff, Mff_new, lam_new = np.empty((q, q)), np.empty((q, q)), np.empty(q)
-    dt_held = np.nan
-    for k in range(N - 1, -1, -1):
-        dt_held = psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work)
-        D = D_all[k]
-        matmul(G[k], D, GD)
-        matmul(Sinv[k], D, SD)
-        for h in range(i0.shape[0]):                # cross = (M_ff Psi + M_fd GD)[i0, i0]
-            e = i0[h]
+@njit(cache=True, error_model="numpy", inline="always")
+def matmul_sized(A, B, out, rows, inner, cols):
+    """out = A B over the leading rows x inner and inner x cols blocks: :func:`matmul` with
+    the sizes given, so that a kernel compiled for constant sizes has loops of known length
+    (same products in the same order, the same bits)."""
+    for i in range(rows):
+        for j in range(cols):
             acc = 0.0
-            for a in range(q):
-                acc += Mff[e, a] * Psi[a, e]
-            for b in range(n):
-                acc += Mfd[e, b] * GD[b, e]
-            cross[h, k] = acc
-        lambda_f_step(Psi, D, Glam[k], w[k], lam_f, lam_new)
-        matmul(Psi.T, Mfd, PtMfd)
-        matmul(PtMfd, G[k], PtMfdG)
-        matmul(PtMfdG, D, Y)                        # Y = Psi^T M_fd GD
-        matmul(MG[k], D, MddGD)                     # M_dd GD
-        matmul(GMG[k], D, GMGD)
-        matmul(Psi.T, Mff, PtMff)
-        matmul(PtMff, Psi, Mff_new)
-        for a in range(q):                          # M_ff
-            for b in range(a, q):
-                acc = Mff_new[a, b] + Y[a, b] + Y[b, a]
-                for i in range(m):
-                    acc += D[i, a] * (GMGD[i, b] + SD[i, b])
-                Mff[a, b] = acc
-                Mff[b, a] = acc
-        for a in range(q):                          # M_fd = (Psi^T M_fd + GD^T M_dd) A - D^T S^-1 H
-            for b in range(n):
-                PtMfd[a, b] += MddGD[b, a]
-        matmul(PtMfd, A[k], Mfd)
-        for a in range(q):
-            for b in range(n):
+            for k in range(inner):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
+#: the (n, m, q) compiled with constant sizes: the INS channel's fault systems (a step or ramp
+#: of an instrument, 4 fault states; the reference's jump and outlier, 2). LLVM unrolls their
+#: loops; any other size runs the generic scan (sizes read from the arrays), same arithmetic.
+SPECIALISED = ((4, 1, 4), (4, 1, 2))
+
+
+def _scan(sizes):
+    """:func:`hypothesis_scan` compiled for ``sizes`` = (n, m, q) (all 0: read from the
+    arrays). numba keys its cache on the closure's value: each size compiles once."""
+    n_fixed, m_fixed, q_fixed = sizes
+
+    @njit(cache=True, error_model="numpy", nogil=True)
+    def hypothesis_scan(A, G, H, Sinv, w, dt, MG, GMG, Glam, D_all, Fpsi, norm_psi, persists,
+                        i0, num, den, cross):
+        """num[h], den[h], cross[h] for every onset (module doc) of the faults that enter as
+        f = e_i0[h] (several hypotheses can share one fault state, e.g. a step and a ramp of
+        the same instrument: the step's states are part of the ramp's). A, G:
+        :func:`transitions`; MG, GMG, Glam: :func:`filter_information` (so that GD^T M_dd =
+        D^T MG^T, GD^T M_dd GD = D^T GMG D, GD^T lambda_d = D^T Glam); D_all: D_k of every
+        sample."""
+        N = H.shape[0]
+        n = H.shape[2] if n_fixed == 0 else n_fixed
+        m = H.shape[1] if m_fixed == 0 else m_fixed
+        q = D_all.shape[2] if q_fixed == 0 else q_fixed
+        Mff, Mfd, lam_f = np.zeros((q, q)), np.zeros((q, n)), np.zeros(q)
+        Psi, work = np.zeros((q, q)), np.empty((q, q))
+        GD, SD = np.empty((n, q)), np.empty((m, q))
+        MddGD, GMGD = np.empty((n, q)), np.empty((m, q))
+        PtMfd, PtMfdG, Y = np.empty((q, n)), np.empty((q, m)), np.empty((q, q))
+        PtMff, Mff_new, lam_new = np.empty((q, q)), np.empty((q, q)), np.empty(q)
+        dt_held = np.nan
+        for k in range(N - 1, -1, -1):
+            dt_held = psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work)
+            D, Gk = D_all[k], G[k]
+            matmul_sized(Gk, D, GD, n, m, q)
+            matmul_sized(Sinv[k], D, SD, m, m, q)
+            for h in range(i0.shape[0]):            # cross = (M_ff Psi + M_fd GD)[i0, i0]
+                e = i0[h]
                 acc = 0.0
+                for a in range(q):
+                    acc += Mff[e, a] * Psi[a, e]
+                for b in range(n):
+                    acc += Mfd[e, b] * GD[b, e]
+                cross[h, k] = acc
+            lambda_f_step(Psi, D, Glam[k], w[k], lam_f, lam_new, q, m)
+            matmul_sized(Psi.T, Mfd, PtMfd, q, q, n)
+            matmul_sized(PtMfd, Gk, PtMfdG, q, n, m)
+            matmul_sized(PtMfdG, D, Y, q, m, q)     # Y = Psi^T M_fd GD
+            matmul_sized(MG[k], D, MddGD, n, m, q)  # M_dd GD
+            matmul_sized(GMG[k], D, GMGD, m, m, q)
+            matmul_sized(Psi.T, Mff, PtMff, q, q, q)
+            matmul_sized(PtMff, Psi, Mff_new, q, q, q)
+            for a in range(q):                      # M_ff
+                for b in range(a, q):
+                    acc = Mff_new[a, b] + Y[a, b] + Y[b, a]
+                    for i in range(m):
+                        acc += D[i, a] * (GMGD[i, b] + SD[i, b])
+                    Mff[a, b] = acc
+                    Mff[b, a] = acc
+            for a in range(q):          # M_fd = (Psi^T M_fd + GD^T M_dd) A - D^T S^-1 H
+                for b in range(n):
+                    PtMfd[a, b] += MddGD[b, a]
+            matmul_sized(PtMfd, A[k], Mfd, q, n, n)
+            for a in range(q):
+                for b in range(n):
+                    acc = 0.0
+                    for i in range(m):
+                        acc += SD[i, a] * H[k, i, b]
+                    Mfd[a, b] -= acc
+            for h in range(i0.shape[0]):
+                num[h, k] = lam_f[i0[h]]
+                den[h, k] = Mff[i0[h], i0[h]]
+
+    return hypothesis_scan
+
+
+def _information(sizes):
+    """:func:`filter_information` compiled for ``sizes`` = (n, m, q) (q unused)."""
+    n_fixed, m_fixed, _ = sizes
+
+    @njit(cache=True, error_model="numpy", nogil=True)
+    def filter_information(A, G, H, Sinv, w, with_M, MG, GMG, Glam):
+        """The hypothesis-free d-blocks M_dd, lambda_d, backwards, as the products with G_k
+        the hypotheses need (at step k, of M_dd and lambda_d of step k+1; zero for k = N-1)::
+
+            MG_k = M_dd G_k,   GMG_k = G_k^T M_dd G_k,   Glam_k = G_k^T lambda_d
+
+        ``with_M`` False: Glam only (MG, GMG untouched)."""
+        N = H.shape[0]
+        n = H.shape[2] if n_fixed == 0 else n_fixed
+        m = H.shape[1] if m_fixed == 0 else m_fixed
+        M, lam = np.zeros((n, n)), np.zeros(n)
+        MA, HtSinv = np.empty((n, n)), np.empty((n, m))
+        lam_new = np.empty(n)
+        for k in range(N - 1, -1, -1):
+            for i in range(m):
+                acc = 0.0
+                for r in range(n):
+                    acc += G[k, r, i] * lam[r]
+                Glam[k, i] = acc
+            for r in range(n):                      # lambda_d <- A^T lambda_d - H^T w
+                acc = 0.0
+                for j in range(n):
+                    acc += A[k, j, r] * lam[j]
                 for i in range(m):
-                    acc += SD[i, a] * H[k, i, b]
-                Mfd[a, b] -= acc
-        for h in range(i0.shape[0]):
-            num[h, k] = lam_f[i0[h]]
-            den[h, k] = Mff[i0[h], i0[h]]
+                    acc -= H[k, i, r] * w[k, i]
+                lam_new[r] = acc
+            for r in range(n):
+                lam[r] = lam_new[r]
+            if not with_M:
+                continue
+            Gk = G[k]
+            matmul_sized(M, Gk, MG[k], n, n, m)
+            matmul_sized(Gk.T, MG[k], GMG[k], m, n, m)
+            matmul_sized(M, A[k], MA, n, n, n)      # M_dd <- A^T M_dd A + H^T S^-1 H
+            matmul_sized(H[k].T, Sinv[k], HtSinv, n, m, m)
+            for r in range(n):
+                for c in range(r, n):
+                    acc = 0.0
+                    for j in range(n):
+                        acc += A[k, j, r] * MA[j, c]
+                    for i in range(m):
+                        acc += HtSinv[r, i] * H[k, i, c]
+                    M[r, c] = acc
+                    M[c, r] = acc
+
+    return filter_information
 
 
-@njit(cache=True, error_model="numpy", nogil=True)
-def hypothesis_num(w, dt, Glam, D_all, Fpsi, norm_psi, persists, i0, num):
-    """num(theta) = lambda_theta[i0] alone (the lambda recursion of :func:`hypothesis_scan`
-    without M): for the second pass, whose den and cross are the first pass's."""
-    N, m, q = D_all.shape
-    lam_f, lam_new = np.zeros(q), np.empty(q)
-    Psi, work = np.zeros((q, q)), np.empty((q, q))
-    dt_held = np.nan
-    for k in range(N - 1, -1, -1):
-        dt_held = psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work)
-        lambda_f_step(Psi, D_all[k], Glam[k], w[k], lam_f, lam_new)
-        for h in range(i0.shape[0]):
-            num[h, k] = lam_f[i0[h]]
+def _num(sizes):
+    """:func:`hypothesis_num` compiled for ``sizes`` = (n, m, q) (n unused)."""
+    _, m_fixed, q_fixed = sizes
+
+    @njit(cache=True, error_model="numpy", nogil=True)
+    def hypothesis_num(w, dt, Glam, D_all, Fpsi, norm_psi, persists, i0, num):
+        """num(theta) = lambda_theta[i0] alone (the lambda recursion of
+        :func:`hypothesis_scan` without M): for the second pass, whose den and cross are the
+        first pass's."""
+        N = D_all.shape[0]
+        m = D_all.shape[1] if m_fixed == 0 else m_fixed
+        q = D_all.shape[2] if q_fixed == 0 else q_fixed
+        lam_f, lam_new = np.zeros(q), np.empty(q)
+        Psi, work = np.zeros((q, q)), np.empty((q, q))
+        dt_held = np.nan
+        for k in range(N - 1, -1, -1):
+            dt_held = psi_at(k, dt, dt_held, Fpsi, norm_psi, persists, Psi, work)
+            lambda_f_step(Psi, D_all[k], Glam[k], w[k], lam_f, lam_new, q, m)
+            for h in range(i0.shape[0]):
+                num[h, k] = lam_f[i0[h]]
+
+    return hypothesis_num
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -289,3 +338,23 @@ def onset_statistics(num, den, cross, edges, l, ok, counts):
             i = np.searchsorted(edges, a)
         counts[i] += 1
     return fresh
+
+
+#: the kernels compiled for one size (n, m, q), by kernel
+_FACTORIES = {"filter_information": _information, "hypothesis_scan": _scan,
+              "hypothesis_num": _num}
+_COMPILED: dict = {}
+
+
+def kernel_for(name: str, n: int, m: int, q: int = 0):
+    """The kernel ``name`` (``filter_information``, ``hypothesis_scan``, ``hypothesis_num``)
+    for a filter of n states and m measurements and a fault system of q states: compiled for
+    those sizes when (n, m, q) is in :data:`SPECIALISED` (q = 0: the filter's kernel, for the
+    n, m of any of them), else the generic kernel (sizes read from the arrays)."""
+    sizes = (n, m, q)
+    if not (sizes in SPECIALISED or q == 0 and (n, m) in {s[:2] for s in SPECIALISED}):
+        sizes = (0, 0, 0)
+    key = (name, sizes)
+    if key not in _COMPILED:
+        _COMPILED[key] = _FACTORIES[name](sizes)
+    return _COMPILED[key]

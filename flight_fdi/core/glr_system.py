@@ -121,8 +121,9 @@ class Filter:
         kept (it does not depend on the innovations)."""
         w = np.ascontiguousarray(w)
         Glam = np.empty_like(self.Glam)
-        kernel.filter_information(self.A, self.G, self.H, self.Sinv, w, False, self.MG,
-                                  self.GMG, Glam)
+        _, m, n = self.H.shape
+        kernel.kernel_for("filter_information", n, m)(self.A, self.G, self.H, self.Sinv, w,
+                                                      False, self.MG, self.GMG, Glam)
         return Filter(self.t, self.dt, self.H, self.Sinv, w, self.A, self.G, self.MG, self.GMG,
                       Glam)
 
@@ -180,7 +181,7 @@ def prepare(model: LinearModel, fwd: Any) -> Filter:
     A, G = np.empty((N, n, n)), np.empty((N, n, m))
     kernel.transitions(sm.series.F, sm.series.norm, dt, Hs, Ks, A, G)
     MG, GMG, Glam = np.empty((N, n, m)), np.empty((N, m, m)), np.empty((N, m))
-    kernel.filter_information(A, G, Hs, Sinv, w, True, MG, GMG, Glam)
+    kernel.kernel_for("filter_information", n, m)(A, G, Hs, Sinv, w, True, MG, GMG, Glam)
     return Filter(t, dt, Hs, Sinv, w, A, G, MG, GMG, Glam)
 
 
@@ -271,8 +272,10 @@ class System:
         """{hypothesis name: (num, den, cross)} for every onset."""
         N, h = flt.t.size, len(self.hyps)
         num, den, cross = np.empty((h, N)), np.empty((h, N)), np.empty((h, N))
-        kernel.hypothesis_scan(flt.A, flt.G, flt.H, flt.Sinv, flt.w, flt.dt, flt.MG, flt.GMG,
-                               flt.Glam, *self._args(flt), self.i0, num, den, cross)
+        _, m, n = flt.H.shape
+        scan = kernel.kernel_for("hypothesis_scan", n, m, self.E.shape[1])
+        scan(flt.A, flt.G, flt.H, flt.Sinv, flt.w, flt.dt, flt.MG, flt.GMG, flt.Glam,
+             *self._args(flt), self.i0, num, den, cross)
         out = {}
         for i, hyp in enumerate(self.hyps):
             c = self._per_second(hyp.name)
@@ -283,7 +286,9 @@ class System:
     def num(self, flt: Filter) -> dict:
         """{hypothesis name: num} alone (the lambda recursion)."""
         out = np.empty((len(self.hyps), flt.t.size))
-        kernel.hypothesis_num(flt.w, flt.dt, flt.Glam, *self._args(flt), self.i0, out)
+        _, m, n = flt.H.shape
+        kernel.kernel_for("hypothesis_num", n, m, self.E.shape[1])(
+            flt.w, flt.dt, flt.Glam, *self._args(flt), self.i0, out)
         return {hyp.name: out[i] * self._per_second(hyp.name) for i, hyp in enumerate(self.hyps)}
 
     def signature(self, flt: Filter, k0: int, name: str) -> np.ndarray:

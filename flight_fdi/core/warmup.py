@@ -26,7 +26,10 @@ def warm() -> None:
         fwd = run_forward(ins, t, rng.normal(0, 0.1, N), gate=gate)
         bwd = run_backward(ins, fwd)
         diagnose(ins, fwd, bwd)
-    run_backward(_two_states(), run_forward(_two_states(), t, rng.normal(0, 0.1, N)))
+    two = _two_states()
+    fwd = run_forward(two, t, rng.normal(0, 0.1, N))
+    run_backward(two, fwd)
+    warm_glr(two, fwd, hypotheses=("step:v", "ramp:v", "reference_jump", "reference_outlier"))
     ti = np.arange(5 * N) * 0.02
     run_analysis(ins, ti, rng.normal(0, 0.1, ti.size), t[t < ti[-1]],
                  np.zeros((t < ti[-1]).sum()), config=AnalysisConfig())
@@ -54,7 +57,8 @@ def warm() -> None:
 
 def _two_states():
     """A 2-state model: its size is not specialised, so it compiles the generic backward sweep
-    (``information.smooth_pass``, any n) that a model file of another size runs."""
+    (``information.smooth_pass``, any n) and GLR kernels (``glr_kernel.kernel_for``) that a
+    model file of another size runs."""
     from .models import LinearModel
 
     return LinearModel(name="warm_cv", state_names=("p", "v"), state_units=("m", "m/s"),
@@ -76,15 +80,16 @@ def preload(model, config=None) -> None:
     warm_glr(model, res.fwd)  # (GLR's second pass, which only a fault flight runs)
 
 
-def warm_glr(model, fwd) -> None:
+def warm_glr(model, fwd, hypotheses=None) -> None:
     """Every GLR kernel, the second pass's included (``isolate`` runs it only when one
-    hypothesis explains a fault)."""
+    hypothesis explains a fault); ``hypotheses``: the default set unless given."""
     from .glr import GlrConfig, isolate
     from .glr_system import prepare, resolve, systems
 
-    isolate(model, fwd)
+    config = GlrConfig() if hypotheses is None else GlrConfig(hypotheses=hypotheses)
+    isolate(model, fwd, config)
     flt = prepare(model, fwd)
-    hyps = [resolve(model, h) for h in GlrConfig().hypotheses]
+    hyps = [resolve(model, h) for h in config.hypotheses]
     for system in {id(s): s for s in systems(model, hyps).values()}.values():
         system.num(flt.with_innovations(flt.w))
         system.signature(flt, 5, system.hyps[0].name)

@@ -12,7 +12,8 @@ from scipy.linalg import expm
 
 from flight_fdi.core import ins_channel
 from flight_fdi.core.glr import DEFAULT_HYPOTHESES, GlrConfig, isolate
-from flight_fdi.core.glr_kernel import onset_statistics
+from flight_fdi.core import glr_kernel
+from flight_fdi.core.glr_kernel import kernel_for, onset_statistics
 from flight_fdi.core.glr_system import each_system, prepare, resolve, systems
 from flight_fdi.core.glr_threshold import A_EDGES, bin_counts
 from flight_fdi.core.kalman import GateConfig, run_forward
@@ -159,6 +160,26 @@ def test_threads_change_nothing(flight):
     assert one.per_hypothesis == two.per_hypothesis
     for name in DEFAULT_HYPOTHESES:
         np.testing.assert_array_equal(one.curves[name][1], two.curves[name][1])
+
+
+def test_kernels_compiled_per_size_equal_the_generic_ones(flight, monkeypatch):
+    # the INS channel's fault systems run kernels compiled for their sizes (n, m, q) = (4, 1, 4)
+    # and (4, 1, 2), the loops unrolled; the generic kernels (sizes read from the arrays, what
+    # a model of another size runs) give the same bits, the second pass included
+    model, fwd = flight
+    for name in ("filter_information", "hypothesis_scan", "hypothesis_num"):
+        assert kernel_for(name, 4, 1, 4) is not kernel_for(name, 3, 1, 4)
+    assert kernel_for("hypothesis_scan", 4, 1, 2) is not kernel_for("hypothesis_scan", 4, 1, 4)
+    assert kernel_for("hypothesis_scan", 3, 1, 4) is kernel_for("hypothesis_scan", 5, 2, 1)
+    sized = isolate(model, fwd, GlrConfig(curve_points=0, threads=1))
+    monkeypatch.setattr(glr_kernel, "SPECIALISED", ())
+    generic = isolate(model, fwd, GlrConfig(curve_points=0, threads=1))
+    assert sized.residual is not None
+    assert (sized.hypothesis, sized.statistic, sized.threshold, sized.residual) == \
+        (generic.hypothesis, generic.statistic, generic.threshold, generic.residual)
+    assert sized.per_hypothesis == generic.per_hypothesis
+    for name in DEFAULT_HYPOTHESES:
+        np.testing.assert_array_equal(sized.curves[name][1], generic.curves[name][1])
 
 
 def test_compiled_onset_statistics_equal_the_numpy_formulas(flight):
