@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.special import chdtri
 
 from .errors import CoreError
 from .ldl import DEFAULT_RANK_TOL, Localization, ldl, localize, seed_threshold, udu
@@ -19,6 +18,7 @@ from .models import LinearModel
 from .records import ForwardResult
 from .scaled import scaled_model
 from .smoother import BackwardResult
+from .special import chi2_isf
 
 __all__ = ["VERDICTS", "DiagnosisConfig", "ElementReport", "Localization", "SeedDiagnosis",
            "diagnose", "fisher", "fisher_threshold", "ldl", "localize", "udu"]
@@ -211,7 +211,9 @@ def _strongest_episode(t: np.ndarray, J: np.ndarray, viol_k: np.ndarray, full: i
                        config: DiagnosisConfig) -> tuple[int, int, int] | None:
     """(start, end, peak) of the J episode with the largest peak among those lasting
     ``persistence_s`` whose peak exceeds the chi2(full) quantile; None when there is none."""
-    strong = float(chdtri(full, config.episode_probability))
+    if full < 1:
+        return None
+    strong = chi2_isf(config.episode_probability, full)
     min_run = _min_steps(t, config.persistence_s)
     episodes = []
     for s0, e0 in _runs(viol_k.any(axis=1)):

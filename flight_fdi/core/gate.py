@@ -12,9 +12,9 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from scipy.special import chdtri
 
 from .errors import CoreError
+from .special import chi2_isf
 
 # alarm states, as in msg_defs/msg/Innovation.msg
 ALARM_CLEAR = 0
@@ -34,9 +34,8 @@ def is_int(value: Any) -> bool:
 def _gate_threshold(rule: str, probability: float, m: int) -> float:
     if rule == "seed":
         return m + 3.0 * math.sqrt(2.0 * m)
-    # chdtri(m, p) is the chi2(m) upper quantile chi2.isf(p, m), accurate for tiny p (and it
-    # spares importing scipy.stats)
-    return float(chdtri(m, probability))
+    # the chi2(m) upper quantile chi2.isf(p, m), accurate for tiny p (core/special: no SciPy)
+    return chi2_isf(probability, m)
 
 
 @dataclass(frozen=True)

@@ -3,11 +3,8 @@ P(max |Z| > u) over all onsets and hypotheses, in closed form with Owen's T func
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import erfc, owens_t
 
-
-def _Q(u: float) -> float:
-    return 0.5 * float(erfc(u / np.sqrt(2.0)))
+from .special import brentq, normal_sf as _Q, owens_t
 
 
 def first_crossing_probability(u: float, c: np.ndarray) -> np.ndarray:
@@ -50,8 +47,6 @@ def threshold(fresh: int, counts: np.ndarray, p_false_alarm: float) -> float:
 
     def bound(u: float) -> float:
         return fresh * 2.0 * _Q(u) + float(counts @ _crossing_from_a(u, edges))
-
-    from scipy.optimize import brentq  # (here: importing scipy.optimize costs ~0.2 s)
 
     hi = 8.0
     while bound(hi) > p_false_alarm:

@@ -17,6 +17,7 @@ from scipy.stats import chi2, multivariate_normal
 from flight_fdi.core import CoreError, attitude_axis, ins_channel
 from flight_fdi.core.glr import GlrConfig, first_crossing_probability, isolate
 from flight_fdi.core.kalman import GateConfig, run_forward
+from flight_fdi.core.glr_threshold import A_EDGES, threshold as glr_threshold
 
 DEG_H = np.pi / 180.0 / 3600.0  # rad/s per deg/h
 
@@ -318,6 +319,42 @@ def test_threshold_closed_forms():
     # smooth step signatures: far fewer effective onsets than samples
     steps = isolate(model, fwd, GlrConfig(hypotheses=("accel_bias_step", "gyro_drift_step")))
     assert steps.threshold < chi2.isf(1e-3 / (2 * t.size), 1) - 3.0
+
+
+def _scipy_threshold(fresh, counts, p_false_alarm):
+    """The threshold's root search written with SciPy's erfc, owens_t and brentq (what
+    glr_threshold used before core/special replaced them)."""
+    from scipy.optimize import brentq
+    from scipy.special import erfc, owens_t
+
+    counts = np.asarray(counts)[:A_EDGES.size]
+    keep = counts > 0
+    a, n = np.clip(A_EDGES[keep], 1e-300, 1.0), counts[keep].astype(float)
+
+    def bound(u):
+        q = 0.5 * float(erfc(u / np.sqrt(2.0)))
+        cross = 4.0 * owens_t(u, a) - 4.0 * (0.5 * q - owens_t(u, 1.0 / a))
+        return fresh * 2.0 * q + float(n @ np.maximum(cross, 0.0))
+
+    hi = 8.0
+    while bound(hi) > p_false_alarm:
+        hi *= 2.0
+    return brentq(lambda x: bound(x) - p_false_alarm, 0.0, hi, xtol=1e-10, rtol=1e-12) ** 2
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_threshold_equals_the_scipy_root_search(seed):
+    # random bin counts like a flight's (steps near a = 1e-4, outliers near a = 1), 1-3 hours
+    rng = np.random.default_rng(seed)
+    counts = np.zeros(A_EDGES.size + 1, dtype=np.int64)
+    for centre, total in ((rng.uniform(80, 140), rng.integers(1e5, 5e5)),
+                          (rng.uniform(200, 240), rng.integers(1e4, 2e5))):
+        idx = np.clip(rng.normal(centre, 8.0, int(total)).astype(int), 0, A_EDGES.size - 1)
+        counts += np.bincount(idx, minlength=counts.size)
+    for p_fa in (1e-2, 1e-3, 1e-6):
+        fresh = int(rng.integers(1, 20))
+        assert glr_threshold(fresh, counts, p_fa) == \
+            pytest.approx(_scipy_threshold(fresh, counts, p_fa), rel=1e-12)
 
 
 @pytest.mark.parametrize("u", [0.5, 2.0, 4.5])
