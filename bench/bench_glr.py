@@ -27,6 +27,7 @@ from scipy.linalg import expm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from flight_fdi.blas_env import openblas_threads  # noqa: E402
 from flight_fdi.core import GlrConfig, ins_channel, isolate  # noqa: E402
 from flight_fdi.core.kalman import run_forward  # noqa: E402
 
@@ -63,17 +64,9 @@ def blas_threading() -> str:
     """Which BLAS threading is in effect: the environment's OPENBLAS_NUM_THREADS and the thread
     count numpy's bundled OpenBLAS reports (GLR makes no BLAS call on the flight's arrays, so
     its time should not depend on it)."""
-    import ctypes
-    import glob
-
-    env = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
-    libs = glob.glob(str(Path(np.__file__).parents[1] / "numpy.libs" / "*openblas*"))
-    for lib in libs:
-        for name in ("scipy_openblas_get_num_threads64_", "openblas_get_num_threads"):
-            fn = getattr(ctypes.CDLL(lib), name, None)
-            if fn is not None:
-                return f"OPENBLAS_NUM_THREADS={env}: numpy's OpenBLAS uses {fn()} thread(s)"
-    return f"OPENBLAS_NUM_THREADS={env} (numpy's BLAS thread count unknown)"
+    n = openblas_threads()
+    return (f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}: numpy's "
+            f"OpenBLAS uses {'an unknown number of' if n is None else n} thread(s)")
 
 
 def best_of(fn, repeat: int) -> tuple:

@@ -7,13 +7,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
 import sys
 
-# The estimators' matrices are at most ~20 x 20: OpenBLAS's worker threads never pay there, and
-# their spinning cost GLR ~40 % more CPU and the single-axis analyze ~10 % (docs/performance.md).
-# Before numpy loads; a user's own setting wins.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from flight_fdi.blas_env import one_blas_thread
+
+one_blas_thread()  # (before numpy loads; a user's own OPENBLAS_NUM_THREADS wins)
 
 from flight_fdi import __version__  # noqa: E402
 
