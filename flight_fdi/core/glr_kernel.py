@@ -32,6 +32,13 @@ with M_dd and lambda_d through G, shared by the hypotheses: M_dd G, G^T M_dd G, 
     M_ff     <- Psi^T M_ff Psi + Y + Y^T + GD^T M_dd GD + D^T S^-1 D,   Y = Psi^T M_fd GD
     M_fd     <- (Psi^T M_fd + GD^T M_dd) A - D^T S^-1 H
     lambda_f <- Psi^T lambda_f + GD^T lambda_d + D^T w
+
+The three recursions over the samples (:func:`filter_information`, :func:`hypothesis_scan`,
+:func:`hypothesis_num`) are compiled per size (n, m, q) with the sizes as compile-time
+constants for the INS channel's fault systems (:data:`SPECIALISED`; LLVM unrolls their small
+loops, ~2.5x faster), and generically for any other size: :func:`kernel_for`. Same source, same
+order of operations, the same bits. No numpy product over the flight's arrays is left outside
+the kernels (a multithreaded BLAS would split it and leave its threads spinning).
 """
 from __future__ import annotations
 
