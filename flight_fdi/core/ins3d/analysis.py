@@ -19,7 +19,7 @@ from ..errors import CoreError
 from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .filter import Ins3dForward, run_forward
-from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, joint, thresholds_for
+from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, thresholds_for
 from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
@@ -158,8 +158,7 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig) -> None:
     out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
     out.seed = seed_method(model, out.backward, cfg)
     out.glr = glr_curves(model, steps, out.backward)
-    f = out.backward.first
-    out.joint = joint(out.backward.eta[f], out.backward.I3[f], model.rows)
+    out.joint = out.backward.joint
     out.isolation = isolate(out.glr, out.thresholds)
     resolve(model, steps, refs, fwd, out.glr, out.isolation)
 

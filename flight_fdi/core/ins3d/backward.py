@@ -108,31 +108,6 @@ def fault_gamma(F, dt, tt, s, sB, G):
                 G[i, col0 + 3 + c] = (ga * tt + g1) * sB[col0 + 3 + c] / s[i]
 
 
-@njit(cache=True, inline="always")
-def _gain(P_j, Hs, S_j, inv_s, HP, K, Si, work):
-    """Si = S^-1, HP = H' P (scaled, rows x n) and K = P H' S^-1 (n x rows) of one update
-    (P_j physical, Hs scaled)."""
-    rows, n = Hs.shape
-    for i in range(rows):
-        for c in range(rows):
-            work[i, c] = S_j[i, c]
-            work[i, rows + c] = 1.0 if i == c else 0.0
-    solve(work, rows)
-    for i in range(rows):
-        for c in range(rows):
-            Si[i, c] = work[i, rows + c]
-    for i in range(rows):
-        for b in range(n):
-            HP[i, b] = 0.0
-        for a in range(n):
-            h = Hs[i, a]
-            if h != 0.0:
-                ha = h * inv_s[a]
-                for b in range(n):
-                    HP[i, b] += ha * P_j[a, b] * inv_s[b]
-    matmul(HP.T, Si, K)
-
-
 @njit(cache=True)
 def _adjoint_update(lam, Lam, zeta, Z, Om, Hs, K, Si, nu, sB, M, KtM, KtZ, Kl, Snu, faults):
     """The update j of the adjoint recursion (module docstring), in place (``faults``: also
@@ -348,10 +323,11 @@ def _write_faults(j0, j1, zeta, Om, eta_o, I_o):
 
 @njit(cache=True, nogil=True)
 def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il, im, rows,
-                   x_pr, P_pr, S, nu, rank_tol, x_s_o, sd_s_o, terms_o, dof_o, norm_o, vt_o,
-                   d_o, eta_o, I_o, oe_o, oI_o, part):
+                   x_pr, P_pr, K_pr, Si_pr, nu, rank_tol, x_s_o, sd_s_o, terms_o, dof_o, norm_o,
+                   vt_o, d_o, eta_o, I_o, oe_o, oI_o, part):
     """The backward sweep (module docstring). Per update j (sorted by step; x_pr, P_pr the
-    forward prior before it, physical; S, nu its innovation covariance and innovation) it
+    forward prior before it, K_pr its gain, Si_pr = S^-1, all scaled: ``Ins3dForward``; nu the
+    innovation) it
     writes, with ``part`` & 1, the combination at its boundary: x_s, sd_s (physical), the
     cumulative element terms J(i/k), their effective dof and the normalised residuals, v~ and
     dD (seed method; physical units), the outlier information oe (rows,), oI (rows, rows); with
@@ -367,11 +343,10 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
     zeta, Z, Om = np.zeros(pB), np.zeros((n, pB)), np.zeros((pB, pB))
     T2, lt, zero, PhiT = np.empty((n, pB)), np.empty((n, n)), np.zeros((n, n)), np.empty((n, n))
     nz, cnt, grows = np.empty((n, n), np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
-    HP, Kg, Si = np.empty((rows, n)), np.empty((n, rows)), np.empty((rows, rows))
-    work = np.empty((rows, 2 * rows))
+    HP = np.empty((rows, n))
     M, KtM, KtZ = np.empty((n, rows)), np.empty((rows, rows)), np.empty((rows, pB))
     Kl, Snu = np.empty(rows), np.empty(rows)
-    xf, Pf, x_s, PW = np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n))
+    x_s, PW = np.empty(n), np.empty((n, n))
     U, L, HPW = np.empty((n, n)), np.empty((n, n)), np.empty((rows, n))
     ref, Lam_d, q, vt, dd, psd = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
                                   np.empty(n), np.empty(n))
@@ -383,15 +358,10 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
             j0 -= 1
         if j0 < j1:
             for j in range(j1 - 1, j0 - 1, -1):
-                Hs = scaled_H(s, acc[j], il, im, rows)
-                _gain(P_pr[j], Hs, S[j], inv_s, HP, Kg, Si, work)
-                _adjoint_update(lam, Lam, zeta, Z, Om, Hs, Kg, Si, nu[j], sB, M, KtM, KtZ,
-                                Kl, Snu, faults)
+                _adjoint_update(lam, Lam, zeta, Z, Om, scaled_H(s, acc[j], il, im, rows),
+                                K_pr[j], Si_pr[j], nu[j], sB, M, KtM, KtZ, Kl, Snu, faults)
             if comb:
-                for a in range(n):
-                    xf[a] = x_pr[j0, a] * inv_s[a]
-                    for b in range(n):
-                        Pf[a, b] = P_pr[j0, a, b] * inv_s[a] * inv_s[b]
+                xf, Pf = x_pr[j0], P_pr[j0]
                 if not _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d,
                                 informative, q, vt, dd, terms_o[j0], dof_o[j0], norm_o[j0],
                                 psd):

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..rotation import dcm_array
 from ..errors import CoreError
@@ -101,6 +102,17 @@ def ref_rows(steps: NavSteps, t_ins: np.ndarray, v_ins: np.ndarray, t_ref: np.nd
     return RefRows(t_ref, v_i - v_ref, np.ascontiguousarray(r_ref), step.astype(np.int64), a_i)
 
 
+@njit(cache=True)
+def _weighted_means(y, w, b, dt, out):
+    """out[i] = sum_{k in [b_i, b_i+1)} y_k w_k / dt_i (y, out: one row per step)."""
+    for i in range(b.size - 1):
+        for c in range(y.shape[1]):
+            acc = 0.0
+            for k in range(b[i], b[i + 1]):
+                acc += y[k, c] * w[k]
+            out[i, c] = acc / dt[i]
+
+
 def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSteps, RefRows]:
     """The same flight on a coarser step grid: consecutive steps are merged into one between the
     boundaries that carry reference updates, and at least every ``max_dt`` seconds (a merged
@@ -122,16 +134,16 @@ def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSte
     bins = np.floor((t - t[last]) / max_dt + 1e-9).astype(np.int64)
     keep[1:] |= (bins[1:] != bins[:-1]) & (last[1:] == last[:-1])
     b = np.flatnonzero(keep)                       # kept boundaries, b[0] = 0, b[-1] = K
-    starts = b[:-1]
-    dt = np.add.reduceat(steps.dt, starts)
-    w = steps.dt
+    dt = np.add.reduceat(steps.dt, b[:-1])
 
     def mean(y: np.ndarray) -> np.ndarray:
-        yw = y * w.reshape((-1,) + (1,) * (y.ndim - 1))
-        return np.add.reduceat(yw, starts, axis=0) / dt.reshape((-1,) + (1,) * (y.ndim - 1))
+        out = np.empty((b.size - 1,) + y.shape[1:])
+        _weighted_means(np.ascontiguousarray(y).reshape(K, -1), steps.dt, b, dt,
+                        out.reshape(b.size - 1, -1))
+        return out
 
-    coarse = NavSteps(t[b], dt, np.ascontiguousarray(mean(steps.C)), mean(steps.f_n),
-                      mean(steps.w_b), mean(steps.v), mean(steps.lat), mean(steps.h))
+    coarse = NavSteps(t[b], dt, mean(steps.C), mean(steps.f_n), mean(steps.w_b),
+                      mean(steps.v), mean(steps.lat), mean(steps.h))
     step = np.searchsorted(b, refs.step).astype(np.int64)
     return coarse, RefRows(refs.t, refs.z, refs.r, step, refs.a)
 

@@ -30,14 +30,31 @@ from .model import Ins3dModel, discretize, fill_F
 from .sparse import congruence, mul_left, row_pattern
 
 
+def scale_factors(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(s_j / s_i, 1 / (s_i s_j)) (n, n): what ``_scale`` multiplies Phi and Qd by."""
+    return s[None, :] / s[:, None], 1.0 / (s[:, None] * s[None, :])
+
+
 @njit(cache=True)
-def _scale(Phi, Qd, s):
-    """Phi' = T^-1 Phi T, Qd' = T^-1 Qd T^-1 (T = diag(s)), in place."""
-    n = s.size
+def _scale(Phi, Qd, ratio, inv_ss):
+    """Phi' = T^-1 Phi T, Qd' = T^-1 Qd T^-1 (T = diag(s)), in place; ``ratio``, ``inv_ss``:
+    ``scale_factors(s)`` (products: no division per step)."""
+    n = ratio.shape[0]
     for i in range(n):
         for j in range(n):
-            Phi[i, j] *= s[j] / s[i]
-            Qd[i, j] /= s[i] * s[j]
+            Phi[i, j] *= ratio[i, j]
+            Qd[i, j] *= inv_ss[i, j]
+
+
+@njit(cache=True)
+def propagate(x, P, C, f_n, v, lat, h, dt, bias, qc, ratio, inv_ss, F, Phi, Qd, T, xt, nz, cnt):
+    """One propagation step on the scaled state (in place): F of the step (``model.fill_F``),
+    Phi, Qd (``model.discretize``) scaled, x = Phi x, P = Phi P Phi' + Qd; F, Phi, Qd, T (n, n),
+    xt (n), nz (n, n), cnt (n) scratch."""
+    fill_F(F, C, f_n, v, lat, h, bias)
+    discretize(F, dt, qc, Phi, Qd)
+    _scale(Phi, Qd, ratio, inv_ss)
+    predict(x, P, Phi, Qd, T, xt, nz, cnt)
 
 
 @njit(cache=True)
@@ -55,11 +72,14 @@ def scaled_H(s, a, il, im, rows):
 
 
 @njit(cache=True)
-def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o):
-    """One reference update (scaled x, P; z, r physical); fills output row j. Joseph form,
-    expanded: P <- P - K H P - (K H P)' + K S K' (= (I - K H) P (I - K H)' + K R K' for any
-    K), computed in O(n^2 rows^2)."""
+def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o, K_o,
+            Si_o):
+    """One reference update (scaled x, P; z, r physical); fills output row j (and the scaled
+    gain K' = T^-1 K and S^-1 into K_o[j], Si_o[j] when they have that row; also of a
+    rejected update). Joseph form, expanded: P <- P - K H P - (K H P)' + K S K'
+    (= (I - K H) P (I - K H)' + K R K' for any K), computed in O(n^2 rows^2)."""
     n = x.size
+    keep = K_o.shape[0] > j
     Hs = scaled_H(s, a, il, im, rows)
     HP = np.zeros((rows, n))
     mul_left(Hs, P, HP, False)
@@ -90,15 +110,24 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
         b2 += nu[i] * Sinu[i]
     b2_o[j] = b2
     exc_o[j] = b2 > thr
-    if reject and b2 > thr:
-        return
     K = np.zeros((n, rows))                     # P H' S^-1
     for a_ in range(n):
         for i in range(rows):
             hp = HP[i, a_]
-            x[a_] += hp * Sinu[i]
             for c in range(rows):
                 K[a_, c] += hp * A[i, rows + c]
+    if keep:
+        for a_ in range(n):
+            for c in range(rows):
+                K_o[j, a_, c] = K[a_, c]
+        for i in range(rows):
+            for c in range(rows):
+                Si_o[j, i, c] = A[i, rows + c]
+    if reject and b2 > thr:
+        return
+    for a_ in range(n):
+        for i in range(rows):
+            x[a_] += HP[i, a_] * Sinu[i]
     KS = np.zeros((n, rows))                    # K S (= P H')
     for a_ in range(n):
         for i in range(rows):
@@ -114,12 +143,10 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
 
 
 @njit(cache=True)
-def predict(x, P, Phi, Qd, T, xt):
+def predict(x, P, Phi, Qd, T, xt, nz, cnt):
     """x <- Phi x, P <- Phi P Phi' + Qd (exactly symmetric), over the nonzero entries of Phi
-    (T (n, n), xt (n) scratch)."""
+    (T (n, n), xt (n), nz (n, n) int, cnt (n) int scratch)."""
     n = x.size
-    nz = np.empty((n, n), dtype=np.int64)
-    cnt = np.empty(n, dtype=np.int64)
     row_pattern(Phi, nz, cnt)
     for i in range(n):
         acc = 0.0
@@ -132,14 +159,15 @@ def predict(x, P, Phi, Qd, T, xt):
 
 
 @njit(cache=True, nogil=True)
-def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il, im, rows, thr,
-             reject, keep_cov, keep_prior, x_o, sd_o, nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o,
-             xpr_o, Ppr_o):
+def _forward(C, f_n, v, lat, h, dt, bias, qc, s, ratio, inv_ss, x0, P0, ref_step, z, r, acc, il,
+             im, rows, thr, reject, keep_cov, keep_prior, x_o, sd_o, nu_o, S_o, b2_o, b2r_o,
+             exc_o, Ppost_o, xpr_o, Ppr_o, K_o, Si_o):
     n = s.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
     Qd = np.empty((n, n))
     T, xt = np.empty((n, n)), np.empty(n)
+    nz, cnt = np.empty((n, n), dtype=np.int64), np.empty(n, dtype=np.int64)
     x = x0 / s
     P = P0.copy()
     for i in range(n):
@@ -150,18 +178,16 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, x0, P0, ref_step, z, r, acc, il
     K = dt.size
     for k in range(K + 1):
         if k > 0:
-            fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], bias)
-            discretize(F, dt[k - 1], qc, Phi, Qd)
-            _scale(Phi, Qd, s)
-            predict(x, P, Phi, Qd, T, xt)
+            propagate(x, P, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], dt[k - 1],
+                      bias, qc, ratio, inv_ss, F, Phi, Qd, T, xt, nz, cnt)
         while j < m and ref_step[j] == k:
-            if keep_prior:
+            if keep_prior:                      # scaled
                 for a in range(n):
-                    xpr_o[j, a] = x[a] * s[a]
+                    xpr_o[j, a] = x[a]
                     for b in range(n):
-                        Ppr_o[j, a, b] = P[a, b] * s[a] * s[b]
+                        Ppr_o[j, a, b] = P[a, b]
             _update(x, P, s, z[j], r[j], acc[j], il, im, rows, thr, reject, j, nu_o, S_o,
-                    b2_o, b2r_o, exc_o)
+                    b2_o, b2r_o, exc_o, K_o, Si_o)
             if keep_cov:
                 for a in range(n):
                     for b in range(n):
@@ -191,11 +217,27 @@ class Ins3dForward:
     threshold: float
     threshold_row: float
     P_post: np.ndarray | None = None   # (M, n, n) posterior covariances (keep_cov)
-    x_prior: np.ndarray | None = None  # (M, n) state before each update (keep_prior)
-    P_prior: np.ndarray | None = None  # (M, n, n) its covariance (keep_prior)
+    # keep_prior, in scaled coordinates x' = T^-1 x (T = diag(s)): what the post-flight
+    # kernels work in (``x_prior``, ``P_prior``: the same in physical units)
+    xs_prior: np.ndarray | None = None  # (M, n) state before each update
+    Ps_prior: np.ndarray | None = None  # (M, n, n) its covariance
+    Ks: np.ndarray | None = None        # (M, n, rows) the gain T^-1 K (also of a rejected one)
+    S_inv: np.ndarray | None = None     # (M, rows, rows) S^-1
+    s: np.ndarray | None = None         # (n,) the scales
     x0: np.ndarray | None = None       # (n,) the initial state
     P0: np.ndarray | None = None       # (n, n) its covariance
     fused: np.ndarray | None = None    # (M,) bool: the update was fused (not rejected)
+
+    @property
+    def x_prior(self) -> np.ndarray | None:
+        """(M, n) the state before each update, physical units (keep_prior)."""
+        return None if self.xs_prior is None else self.xs_prior * self.s
+
+    @property
+    def P_prior(self) -> np.ndarray | None:
+        """(M, n, n) its covariance, physical units (keep_prior)."""
+        return None if self.Ps_prior is None else \
+            self.Ps_prior * self.s[:, None] * self.s[None, :]
 
 
 def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
@@ -228,19 +270,22 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     nu, S = np.empty((m, rows)), np.empty((m, rows, rows))
     b2, b2r, exc = np.empty(m), np.empty((m, rows)), np.zeros(m, dtype=np.bool_)
     Pp = np.empty((m if keep_cov else 0, n, n))
-    xpr, Ppr = np.empty((m if keep_prior else 0, n)), np.empty((m if keep_prior else 0, n, n))
+    mp = m if keep_prior else 0
+    xpr, Ppr = np.empty((mp, n)), np.empty((mp, n, n))
+    Ks, Si = np.empty((mp, n, rows)), np.empty((mp, rows, rows))
     thr, thr_row = gate.threshold(rows), gate.threshold(1)
     order = np.argsort(refs.step, kind="stable")
     _forward(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, model.kernel_params(),
-             model.qc(), s, x0, P0, refs.step[order], np.ascontiguousarray(refs.z[order]),
+             model.qc(), s, *scale_factors(s), x0, P0, refs.step[order], np.ascontiguousarray(refs.z[order]),
              white_variance(model, refs.r[order]), np.ascontiguousarray(refs.a[order]),
              model.il, model.im if model.n_markov else 0, rows, thr, gate.action == "reject",
-             keep_cov, keep_prior, x_o, sd_o, nu, S, b2, b2r, exc, Pp, xpr, Ppr)
+             keep_cov, keep_prior, x_o, sd_o, nu, S, b2, b2r, exc, Pp, xpr, Ppr, Ks, Si)
     return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,
                         b2r > thr_row, alarm_states(exc, gate), thr, thr_row,
-                        Pp if keep_cov else None, xpr if keep_prior else None,
-                        Ppr if keep_prior else None, x0, P0,
+                        Pp if keep_cov else None, *((xpr, Ppr, Ks, Si) if keep_prior else
+                                                    (None,) * 4), s, x0, P0,
                         ~exc if gate.action == "reject" else np.ones(m, dtype=bool))
 
 
-__all__ = ["Ins3dForward", "predict", "run_forward", "scaled_H", "white_variance"]
+__all__ = ["Ins3dForward", "predict", "propagate", "run_forward", "scale_factors", "scaled_H",
+           "white_variance"]

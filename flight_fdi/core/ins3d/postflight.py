@@ -18,7 +18,8 @@ from ..threads import usable_threads
 from .backward import ACC_A, ACC_R, GYR_A, GYR_R, REF, backward_sweep
 from .data import NavSteps, RefRows
 from .filter import Ins3dForward, run_forward, white_variance
-from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, resolved_time
+from .glr3d import (AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, joint,
+                    resolved_time)
 from .model import IBA, IBG, Ins3dModel
 from .signature import signature_stats
 
@@ -41,6 +42,7 @@ class Ins3dBackward:
     oI: np.ndarray           # (M, rows, rows)
     sB: np.ndarray           # (pB,) scales of the fault columns (SI per scaled unit)
     first: np.ndarray        # (U,) first update of every boundary with updates (the onsets)
+    joint: dict[str, np.ndarray] | None = None   # glr3d.joint over the onsets
 
 
 def fault_scales(model: Ins3dModel, duration: float) -> np.ndarray:
@@ -65,13 +67,14 @@ def _kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
 
 def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
                  rank_tol: float, threads: int | None = None) -> Ins3dBackward:
-    """The backward sweep (``refs`` sorted by step, ``fwd`` run with keep_prior=True); with
-    ``threads`` = 2 (default: when the process may run on two or more cores) the combination
-    and the fault blocks run on one core each (on an idle machine the sweep's wall time drops
-    by about a third; its CPU time rises by about as much: both carry (lambda, Lambda)). When
+    """The backward sweep (``refs`` sorted by step, ``fwd`` run with keep_prior=True) and the
+    3-dof statistics of its fault blocks (``glr3d.joint``); with ``threads`` = 2 (default: when
+    the process may run on two or more cores) the combination and the fault blocks with the
+    3-dof statistics run on one core each (on an idle machine the sweep's wall time drops by
+    about a third; its CPU time rises by about as much: both carry (lambda, Lambda)). When
     the forward pass rejected updates (gate action ``reject``), the sweep runs on a forward pass
     that fuses every update (``backward.py``: the post-flight part judges all the data)."""
-    if fwd.P_prior is None:
+    if fwd.Ps_prior is None:
         raise CoreError("ins3d backward: the forward pass must keep its priors (keep_prior)")
     if fwd.fused is not None and not np.all(fwd.fused):
         fwd = run_forward(model, steps, refs, x0=fwd.x0, P0=fwd.P0, keep_prior=True)
@@ -84,23 +87,30 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
     oe, oI = np.empty((m, rows)), np.empty((m, rows, rows))
     sweep = (*args[:8], *args[9:], np.ascontiguousarray(refs.z), white_variance(model, refs.r),
              np.ascontiguousarray(refs.a), model.il, model.im if model.n_markov else 0, rows,
-             fwd.x_prior, fwd.P_prior, fwd.S, fwd.nu, rank_tol, x_s, sd_s, terms, dof, norm, vt,
-             d, eta, I3, oe, oI)
+             fwd.xs_prior, fwd.Ps_prior, fwd.Ks, fwd.S_inv, fwd.nu, rank_tol, x_s, sd_s, terms,
+             dof, norm, vt, d, eta, I3, oe, oI)
+    first = np.flatnonzero(np.r_[True, refs.step[1:] != refs.step[:-1]]) if m else \
+        np.zeros(0, dtype=np.int64)
+
+    def faults() -> dict[str, np.ndarray]:
+        backward_sweep(*sweep, 2)
+        return joint(eta[first], I3[first], rows)
+
     if threads is None:
         threads = usable_threads()
-    if threads > 1:             # the second core: the fault blocks (the kernel releases the GIL)
+    if threads > 1:             # the second core: the fault blocks (the kernels release the GIL)
         with ThreadPoolExecutor(max_workers=1) as pool:
-            faults = pool.submit(backward_sweep, *sweep, 2)
+            fault_part = pool.submit(faults)
             k = backward_sweep(*sweep, 1)
-            faults.result()
+            stats = fault_part.result()
     else:
         k = backward_sweep(*sweep, 3)
+        stats = joint(eta[first], I3[first], rows) if k < 0 else None
     if k >= 0:
         raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
                         f"t = {steps.t[k]:.3f} s")
-    first = np.flatnonzero(np.r_[True, refs.step[1:] != refs.step[:-1]]) if m else \
-        np.zeros(0, dtype=np.int64)
-    return Ins3dBackward(refs.t, x_s, sd_s, terms, dof, norm, vt, d, eta, I3, oe, oI, sB, first)
+    return Ins3dBackward(refs.t, x_s, sd_s, terms, dof, norm, vt, d, eta, I3, oe, oI, sB, first,
+                         stats)
 
 
 def seed_method(model: Ins3dModel, bwd: Ins3dBackward, config: DiagnosisConfig
@@ -140,7 +150,7 @@ def data_up_to(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForw
     e, d = np.zeros(refs.t.size), np.zeros(refs.t.size)
     tau = direction(model, cv, float(steps.t[0]), float(steps.t[-1] - steps.t[0]))
     signature_stats(*args, np.ascontiguousarray(refs.a), model.il,
-                    model.im if model.n_markov else 0, model.rows, fwd.P_prior, fwd.S, fwd.nu,
+                    model.im if model.n_markov else 0, model.rows, fwd.Ks, fwd.S_inv, fwd.nu,
                     k0, tau, e, d)
     return np.where(d > 0, e * e / np.where(d > 0, d, 1.0), 0.0)
 

@@ -6,7 +6,7 @@ For a fault b along the direction tau of the fault vector (``backward.FAULT_COLU
 at boundary k0, the forward filter's (which ignores it) prior error and innovations move by::
 
     rho_j = H' mu_j + D tau           (d nu_j / d b)
-    mu <- mu - K_j rho_j              (update j, K_j = P_j H' S_j^-1)
+    mu <- mu - K_j rho_j              (update j, K_j = P_j H' S_j^-1 of the forward filter)
     mu <- Phi_k mu + Gamma_k tau      (step k >= k0)
 
 with mu = 0 at k0; then e(t) = sum_{t_j <= t} rho' S^-1 nu, d(t) = sum rho' S^-1 rho give
@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..information import solve
 from .backward import REF, fault_gamma
 from .filter import scaled_H
 from .model import fill_F, transition
@@ -26,18 +25,18 @@ from .model import fill_F, transition
 
 @njit(cache=True, nogil=True)
 def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows,
-                    P_pr, S, nu, k0, tau, e_o, d_o):
-    """Cumulative e and d (module docstring) at every update j (0 before the onset)."""
+                    K_pr, Si_pr, nu, k0, tau, e_o, d_o):
+    """Cumulative e and d (module docstring) at every update j (0 before the onset); K_pr,
+    Si_pr: the forward filter's scaled gains and S^-1 (``Ins3dForward.Ks``, ``S_inv``)."""
     n = s.size
     pB = sB.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
     F2 = np.empty((n, n))
     G = np.empty((n, pB))
-    mu = np.zeros(n)
+    mu = np.zeros(n)                            # scaled: T^-1 mu
     mu2 = np.empty(n)
-    u = np.empty(n)
-    rho, Sr, A = np.empty(rows), np.empty(rows), np.empty((rows, rows + 1))
+    rho, Sr = np.empty(rows), np.empty(rows)
     e = 0.0
     d = 0.0
     j = 0
@@ -49,31 +48,25 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
     for k in range(k0, dt.size + 1):
         while j < m and ref_step[j] == k:
             Hs = scaled_H(s, acc[j], il, im, rows)
-            for i in range(rows):               # A = [S | rho], rho = H mu + D tau
+            for i in range(rows):               # rho = H mu + D tau
                 r_i = sB[REF + i] * tau[REF + i]
                 for b in range(n):
                     r_i += Hs[i, b] * mu[b]
                 rho[i] = r_i
+            for i in range(rows):               # S^-1 rho
+                acc_ = 0.0
                 for c in range(rows):
-                    A[i, c] = S[j, i, c]
-                A[i, rows] = r_i
-            solve(A, rows)
-            for i in range(rows):
-                Sr[i] = A[i, rows]
+                    acc_ += Si_pr[j, i, c] * rho[c]
+                Sr[i] = acc_
                 e += Sr[i] * nu[j, i]
                 d += Sr[i] * rho[i]
             e_o[j] = e
             d_o[j] = d
-            for b in range(n):                  # mu -= P' H' S^-1 rho (P' = P / s s')
+            for a in range(n):                  # mu -= K rho (K = P H' S^-1)
                 acc_ = 0.0
                 for i in range(rows):
-                    acc_ += Hs[i, b] * Sr[i]
-                u[b] = acc_ / s[b]
-            for a in range(n):
-                acc_ = 0.0
-                for b in range(n):
-                    acc_ += P_pr[j, a, b] * u[b]
-                mu[a] -= acc_ / s[a]
+                    acc_ += K_pr[j, a, i] * rho[i]
+                mu[a] -= acc_
             j += 1
         if k == dt.size:
             break

@@ -49,7 +49,9 @@ def row_pattern(A, nz, cnt):
 @njit(cache=True)
 def congruence(A, nz, cnt, P, Q, T):
     """P <- A P A' + Q (P symmetric, exactly symmetric afterwards) over the row pattern
-    (nz, cnt) of A; T (n, n) scratch."""
+    (nz, cnt) of A; T (n, n) scratch. Entry (i, j), i <= j: Q_ij + sum_m (A P)_ik A_jk over the
+    pattern k = nz[j, m] in order; computed as row j of A times (A P)' so that the inner loops
+    run over contiguous rows."""
     n = P.shape[0]
     for i in range(n):                          # T = A P
         for c in range(n):
@@ -59,14 +61,20 @@ def congruence(A, nz, cnt, P, Q, T):
             f = A[i, k]
             for c in range(n):
                 T[i, c] += f * P[k, c]
-    for i in range(n):                          # P = T A' + Q (upper triangle, mirrored)
-        for j in range(i, n):
-            acc = Q[i, j]
-            for m in range(cnt[j]):
-                k = nz[j, m]
-                acc += T[i, k] * A[j, k]
-            P[i, j] = acc
-            P[j, i] = acc
+    for i in range(n):                          # T <- T' = (A P)'
+        for c in range(i + 1, n):
+            T[i, c], T[c, i] = T[c, i], T[i, c]
+    for j in range(n):                          # P_ji = Q_ji + sum_m A_jk T'_ki, i <= j
+        for i in range(j + 1):
+            P[j, i] = Q[j, i]
+        for m in range(cnt[j]):
+            k = nz[j, m]
+            f = A[j, k]
+            for i in range(j + 1):
+                P[j, i] += f * T[k, i]
+    for j in range(n):                          # mirrored
+        for i in range(j):
+            P[i, j] = P[j, i]
 
 
 @njit(cache=True)

@@ -4,8 +4,7 @@ Two parts, both pure logic (no rclpy):
 
 * :class:`Ins3dStream` -- the filter itself: ``predict`` takes one propagation step and
   ``update`` one reference row, calling the same compiled kernels as the batch
-  ``filter.run_forward`` (``model.fill_F``, ``model.discretize``, ``filter._scale``,
-  ``filter.predict``, ``filter._update``) on the same scaled state, so its states, innovations and gates equal the
+  ``filter.run_forward`` (``filter.propagate``, ``filter._update``) on the same scaled state, so its states, innovations and gates equal the
   batch filter's bit for bit (test/ins3d_nodes/test_stream.py).
 * :class:`Ins3dAssembler` -- the contract topics (/ins/imu, /ins/velocity, /ins/fix,
   /reference/velocity) turned into those steps and rows as ``bagio.ins3d_input.build_input``
@@ -33,18 +32,8 @@ from numba import njit
 
 from ..gate import AlarmLogic, GateConfig
 from .data import NavSteps, nav_steps
-from .filter import _scale, _update, predict, white_variance
-from .model import Ins3dModel, discretize, fill_F
-
-
-@njit(cache=True)
-def _predict(x, P, C, f_n, v, lat, h, dt, bias, qc, s, F, Phi, Qd, T, xt):
-    """One propagation step on the scaled state (in place), exactly as the batch kernel's loop
-    body."""
-    fill_F(F, C, f_n, v, lat, h, bias)
-    discretize(F, dt, qc, Phi, Qd)
-    _scale(Phi, Qd, s)
-    predict(x, P, Phi, Qd, T, xt)
+from .filter import _update, propagate, scale_factors, white_variance
+from .model import Ins3dModel
 
 
 @dataclass
@@ -77,17 +66,20 @@ class Ins3dStream:
         self._bias, self._qc = model.kernel_params(), model.qc()
         self._F, self._Phi, self._Qd = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
         self._T, self._xt = np.empty((n, n)), np.empty(n)
+        self._nz, self._cnt = np.empty((n, n), dtype=np.int64), np.empty(n, dtype=np.int64)
+        self._ratio, self._inv_ss = scale_factors(self.s)
         self.threshold, self.threshold_row = gate.threshold(model.rows), gate.threshold(1)
         self._alarm = AlarmLogic(gate.alarm_m, gate.alarm_n)
         rows = model.rows
         self._out = (np.empty((1, rows)), np.empty((1, rows, rows)), np.empty(1),
                      np.empty((1, rows)), np.zeros(1, dtype=np.bool_))
+        self._no_gain = (np.empty((0, n, rows)), np.empty((0, rows, rows)))
 
     def predict(self, steps: NavSteps, k: int = 0) -> None:
         """Propagate over step ``k`` of ``steps``."""
-        _predict(self._x, self._P, steps.C[k], steps.f_n[k], steps.v[k], steps.lat[k],
-                 steps.h[k], steps.dt[k], self._bias, self._qc, self.s, self._F, self._Phi,
-                 self._Qd, self._T, self._xt)
+        propagate(self._x, self._P, steps.C[k], steps.f_n[k], steps.v[k], steps.lat[k],
+                  steps.h[k], steps.dt[k], self._bias, self._qc, self._ratio, self._inv_ss,
+                  self._F, self._Phi, self._Qd, self._T, self._xt, self._nz, self._cnt)
 
     def update(self, z: np.ndarray, r: np.ndarray, a: np.ndarray) -> Ins3dUpdate:
         """Fuse one reference row: z (3,) = v_INS - v_ref, r (3,) its published variances,
@@ -97,7 +89,8 @@ class Ins3dStream:
         nu, S, b2, b2r, exc = self._out
         _update(self._x, self._P, self.s, np.asarray(z, dtype=float), r_white,
                 np.asarray(a, dtype=float), m.il, m.im if m.n_markov else 0, m.rows,
-                self.threshold, self.gate.action == "reject", 0, nu, S, b2, b2r, exc)
+                self.threshold, self.gate.action == "reject", 0, nu, S, b2, b2r, exc,
+                *self._no_gain)
         exceeded = bool(exc[0])
         return Ins3dUpdate(nu[0].copy(), S[0].copy(), float(b2[0]), b2r[0].copy(), exceeded,
                            b2r[0] > self.threshold_row, self._alarm.push(exceeded),
