@@ -33,7 +33,7 @@ from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d  # noqa: E402
 from flight_fdi.sim.trajectory import TrajectoryConfig  # noqa: E402
 
 STAGES = ("manoeuvres", "coarsen", "run_forward", "observability", "run_backward", "seed_method",
-          "glr_curves", "joint", "isolate", "resolve")
+          "glr_curves", "isolate", "resolve")
 
 
 def timed(stats: dict):

@@ -252,8 +252,9 @@ def test_merged_steps_match_the_per_step_analysis():
 
 
 def test_the_two_threads_of_the_sweep_equal_one(short):
-    """The combination and the fault blocks on two threads (each carries the same (lambda,
-    Lambda)) give exactly the one-thread sweep."""
+    """The combination and the fault blocks with their 3-dof statistics on two threads (each
+    carries the same (lambda, Lambda)) give exactly the one-thread sweep."""
+    from flight_fdi.core.ins3d.glr3d import joint
     from flight_fdi.core.ins3d.postflight import run_backward
     a = short
     one = run_backward(a.model, a.steps, a.refs, a.forward, 1e-9, threads=1)
@@ -261,3 +262,30 @@ def test_the_two_threads_of_the_sweep_equal_one(short):
     for k in ("x_s", "sd_s", "terms", "dof", "normalized", "v_tilde", "d", "eta", "I3", "oe",
               "oI"):
         np.testing.assert_array_equal(getattr(one, k), getattr(two, k), err_msg=k)
+    f = one.first
+    ref = joint(one.eta[f], one.I3[f], a.model.rows)
+    assert set(one.joint) == set(two.joint) == set(ref) == {"accelerometer_step", "gyro_step",
+                                                             "reference_jump"}
+    for k in ref:
+        np.testing.assert_array_equal(one.joint[k], ref[k], err_msg=k)
+        np.testing.assert_array_equal(two.joint[k], ref[k], err_msg=k)
+
+
+def test_merged_steps_carry_the_dt_weighted_means():
+    """coarsen: every merged step's C, f_n, w_b, v, lat, h is the dt-weighted mean of its
+    steps (numpy's average as the reference; one compiled pass), dt their sum; the updates
+    land on the merged boundaries."""
+    inp = from_flight(flight("cruise_turns", 120.0, "navigation", "baro", 5))
+    st = inp.steps
+    cs, cr = coarsen(st, inp.refs, 0.1)
+    b = np.searchsorted(st.t, cs.t)
+    np.testing.assert_array_equal(st.t[b], cs.t)
+    np.testing.assert_array_equal(cs.t[cr.step], st.t[inp.refs.step])
+    for i in (0, 1, len(cs) // 2, len(cs) - 1):
+        sl = slice(b[i], b[i + 1])
+        assert cs.dt[i] == pytest.approx(st.dt[sl].sum(), rel=1e-15)
+        for k in ("C", "f_n", "w_b", "v", "lat", "h"):
+            ref = np.average(getattr(st, k)[sl], axis=0, weights=st.dt[sl])
+            np.testing.assert_allclose(getattr(cs, k)[i], ref, rtol=1e-14, atol=1e-15,
+                                       err_msg=k)
+    assert cs.C.flags.c_contiguous and cs.C.shape == (len(cs), 3, 3)

@@ -17,6 +17,7 @@ the last N updates) of ``kalman.alarm_states``; ``action="reject"`` skips a gate
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +26,7 @@ from numba import njit
 from ..errors import CoreError
 from ..information import solve
 from ..kalman import GateConfig, alarm_states
+from ..threads import usable_threads
 from .data import NavSteps, RefRows
 from .model import Ins3dModel, discretize, fill_F
 from .sparse import congruence, mul_left, row_pattern
@@ -159,27 +161,40 @@ def predict(x, P, Phi, Qd, T, xt, nz, cnt):
 
 
 @njit(cache=True, nogil=True)
-def _forward(C, f_n, v, lat, h, dt, bias, qc, s, ratio, inv_ss, x0, P0, ref_step, z, r, acc, il,
-             im, rows, thr, reject, keep_cov, keep_prior, x_o, sd_o, nu_o, S_o, b2_o, b2r_o,
-             exc_o, Ppost_o, xpr_o, Ppr_o, K_o, Si_o):
+def _discretize_steps(C, f_n, v, lat, h, dt, bias, qc, ratio, inv_ss, k0, k1, Phi_o, Qd_o):
+    """The scaled Phi', Qd' of steps k0 .. k1-1 into Phi_o[0 .. k1-k0-1], Qd_o (as
+    ``propagate`` computes them): what the second thread prepares for ``_forward``."""
+    n = ratio.shape[0]
+    F = np.empty((n, n))
+    for k in range(k0, k1):
+        fill_F(F, C[k], f_n[k], v[k], lat[k], h[k], bias)
+        discretize(F, dt[k], qc, Phi_o[k - k0], Qd_o[k - k0])
+        _scale(Phi_o[k - k0], Qd_o[k - k0], ratio, inv_ss)
+
+
+@njit(cache=True, nogil=True)
+def _forward(C, f_n, v, lat, h, dt, bias, qc, s, ratio, inv_ss, b0, b1, Phi_pre, Qd_pre, x, P,
+             j, ref_step, z, r, acc, il, im, rows, thr, reject, keep_cov, keep_prior, x_o, sd_o,
+             nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o, xpr_o, Ppr_o, K_o, Si_o):
+    """The boundaries b0 .. b1-1 (scaled x, P in place; j: the first update not yet fused;
+    returns the next). Boundary k > 0 first takes step k-1: with its Phi', Qd' from Phi_pre,
+    Qd_pre (row k-1 - max(b0-1, 0)) when given, else computed here."""
     n = s.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
     Qd = np.empty((n, n))
     T, xt = np.empty((n, n)), np.empty(n)
     nz, cnt = np.empty((n, n), dtype=np.int64), np.empty(n, dtype=np.int64)
-    x = x0 / s
-    P = P0.copy()
-    for i in range(n):
-        for c in range(n):
-            P[i, c] /= s[i] * s[c]
-    j = 0
     m = ref_step.size
-    K = dt.size
-    for k in range(K + 1):
+    pre = Phi_pre.shape[0] > 0
+    s0 = max(b0 - 1, 0)
+    for k in range(b0, b1):
         if k > 0:
-            propagate(x, P, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], dt[k - 1],
-                      bias, qc, ratio, inv_ss, F, Phi, Qd, T, xt, nz, cnt)
+            if pre:
+                predict(x, P, Phi_pre[k - 1 - s0], Qd_pre[k - 1 - s0], T, xt, nz, cnt)
+            else:
+                propagate(x, P, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1],
+                          dt[k - 1], bias, qc, ratio, inv_ss, F, Phi, Qd, T, xt, nz, cnt)
         while j < m and ref_step[j] == k:
             if keep_prior:                      # scaled
                 for a in range(n):
@@ -196,6 +211,39 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, ratio, inv_ss, x0, P0, ref_step
         for i in range(n):
             x_o[k, i] = x[i] * s[i]
             sd_o[k, i] = np.sqrt(max(P[i, i], 0.0)) * s[i]
+    return j
+
+
+def _filter(steps: NavSteps, bias: np.ndarray, qc: np.ndarray, s: np.ndarray, x0: np.ndarray,
+            P0: np.ndarray, updates: tuple, threads: int, chunk: int = 512) -> None:
+    """Run ``_forward`` over the whole flight (``updates``: its arguments from ``ref_step``
+    on). With ``threads`` > 1 and more than two chunks of steps, a second thread computes the
+    Phi', Qd' of the next ``chunk`` steps while the filter takes the current ones (the same
+    kernels: the same numbers)."""
+    nav = (steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, bias, qc)
+    ratio, inv_ss = scale_factors(s)
+    n, K = s.size, len(steps)
+    x, P = x0 / s, P0 / (s[:, None] * s[None, :])
+    if threads < 2 or K <= 2 * chunk:
+        none = np.empty((0, n, n))
+        _forward(*nav, s, ratio, inv_ss, 0, K + 1, none, none, x, P, 0, *updates)
+        return
+    bounds = [*range(0, K + 1, chunk), K + 1]
+    buf = [(np.empty((chunk, n, n)), np.empty((chunk, n, n))) for _ in range(2)]
+
+    def steps_of(c: int) -> None:
+        _discretize_steps(*nav, ratio, inv_ss, max(bounds[c] - 1, 0), bounds[c + 1] - 1,
+                          *buf[c % 2])
+
+    j = 0
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        ready = pool.submit(steps_of, 0)
+        for c in range(len(bounds) - 1):
+            ready.result()
+            if c + 2 < len(bounds):
+                ready = pool.submit(steps_of, c + 1)
+            j = _forward(*nav, s, ratio, inv_ss, bounds[c], bounds[c + 1], *buf[c % 2], x, P, j,
+                         *updates)
 
 
 @dataclass
@@ -252,10 +300,13 @@ def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
 def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                 gate: GateConfig = GateConfig(), x0: np.ndarray | None = None,
                 P0: np.ndarray | None = None, keep_cov: bool = False,
-                keep_prior: bool = False) -> Ins3dForward:
+                keep_prior: bool = False, threads: int | None = None) -> Ins3dForward:
     """Filter the whole flight (x0 default 0, P0 default diag(model.p0())); ``keep_cov``
     keeps the posterior covariance of every update, ``keep_prior`` the state and covariance
-    before every update (what the two-filter combination and GLR need)."""
+    before every update (what the two-filter combination and GLR need). ``threads`` (default
+    ``threads.usable_threads()``): with 2, the discretisation of the steps runs ahead on a
+    second thread (``_filter``; on an idle machine the pass takes about a third less wall
+    time, the results are the same)."""
     n, rows = model.n, model.rows
     p0 = model.p0()
     P0 = np.diag(p0) if P0 is None else np.asarray(P0, dtype=float)
@@ -275,11 +326,12 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     Ks, Si = np.empty((mp, n, rows)), np.empty((mp, rows, rows))
     thr, thr_row = gate.threshold(rows), gate.threshold(1)
     order = np.argsort(refs.step, kind="stable")
-    _forward(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, model.kernel_params(),
-             model.qc(), s, *scale_factors(s), x0, P0, refs.step[order], np.ascontiguousarray(refs.z[order]),
+    _filter(steps, model.kernel_params(), model.qc(), s, x0, P0,
+            (refs.step[order], np.ascontiguousarray(refs.z[order]),
              white_variance(model, refs.r[order]), np.ascontiguousarray(refs.a[order]),
              model.il, model.im if model.n_markov else 0, rows, thr, gate.action == "reject",
-             keep_cov, keep_prior, x_o, sd_o, nu, S, b2, b2r, exc, Pp, xpr, Ppr, Ks, Si)
+             keep_cov, keep_prior, x_o, sd_o, nu, S, b2, b2r, exc, Pp, xpr, Ppr, Ks, Si),
+            usable_threads() if threads is None else threads)
     return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,
                         b2r > thr_row, alarm_states(exc, gate), thr, thr_row,
                         Pp if keep_cov else None, *((xpr, Ppr, Ks, Si) if keep_prior else
