@@ -72,12 +72,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..discretize import matmul
-from ..information import solve
-from ..ldl import information_terms, ldl_factor, udu_factor
+from .combination import combination_scratch, combine_boundary
 from .filter import scaled_H
 from .model import IBA, IBG, IPHI, IV, fill_F, transition
-from .sparse import congruence, mul_left, mul_pattern, row_pattern
+from .sparse import congruence, mul_pattern, row_pattern
 
 #: columns of the fault vector b: accelerometer a (x, y, z), r (x, y, z), gyro a, r, then one
 #: offset per reference row
@@ -236,77 +234,6 @@ def _fault_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2):
     mul_pattern(PhiT, nz, cnt, T2, Z)           # Z = Phi' T2
 
 
-@njit(cache=True, inline="always")
-def _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d, informative, q, vt, dd,
-             terms, dof, norm, ps_diag):
-    """The two-filter combination at a boundary from W = Lambda, W v = lambda (module
-    docstring): x_s, diag P_s, P_f W, and the seed method's element terms (UDU' of P_f for the
-    reference pivots, LDL' of W: ``core.ldl``). False when P_f is not positive definite."""
-    n = xf.size
-    for a in range(n):
-        acc = xf[a]
-        for b in range(n):
-            acc += Pf[a, b] * lam[b]
-        x_s[a] = acc
-    PW[:, :] = 0.0
-    mul_left(Pf, Lam, PW, False)
-    for a in range(n):
-        acc = Pf[a, a]
-        for b in range(n):
-            acc -= PW[a, b] * Pf[b, a]
-        ps_diag[a] = acc
-    if udu_factor(Pf, U, ref) >= 0:
-        return False
-    for k in range(n):
-        ref[k] = 1.0 / ref[k]
-    ldl_factor(Lam, ref, rank_tol, L, Lam_d, informative)
-    information_terms(L, Lam_d, informative, lam, q, vt, dd, terms, dof, norm)
-    return True
-
-
-@njit(cache=True)
-def _outliers(Hs, z_j, r_j, x_s, Pf, PW, e_o, I_o, HP, HPW):
-    """Outlier information of one update: eta = R^-1 (z - H x_s), I = R^-1 - R^-1 H P_s H' R^-1
-    with H P_s H' = H P_f H' - (H P_f W) (P_f H')."""
-    rows, n = Hs.shape
-    for i in range(rows):
-        for b in range(n):
-            HP[i, b] = 0.0
-            HPW[i, b] = 0.0
-        for a in range(n):
-            h = Hs[i, a]
-            if h != 0.0:
-                for b in range(n):
-                    HP[i, b] += h * Pf[a, b]
-                    HPW[i, b] += h * PW[a, b]
-    for i in range(rows):
-        res = z_j[i]
-        for a in range(n):
-            res -= Hs[i, a] * x_s[a]
-        e_o[i] = res / r_j[i]
-        for k in range(rows):
-            acc = 0.0
-            for a in range(n):
-                acc += HP[i, a] * Hs[k, a] - HPW[i, a] * HP[k, a]
-            I_o[i, k] = (1.0 / r_j[i] if i == k else 0.0) - acc / (r_j[i] * r_j[k])
-
-
-@njit(cache=True)
-def _write_combination(j0, j1, s, x_s, psd, vt, dd, x_s_o, sd_s_o, terms_o, dof_o, norm_o,
-                       vt_o, d_o):
-    """The combination of one boundary into the rows j0..j1-1 (physical units)."""
-    n = s.size
-    for j in range(j0, j1):
-        for a in range(n):
-            x_s_o[j, a] = x_s[a] * s[a]
-            sd_s_o[j, a] = np.sqrt(max(psd[a], 0.0)) * s[a]
-            terms_o[j, a] = terms_o[j0, a]
-            dof_o[j, a] = dof_o[j0, a]
-            norm_o[j, a] = norm_o[j0, a]
-            vt_o[j, a] = vt[a] * s[a]
-            d_o[j, a] = dd[a] * s[a] * s[a]
-
-
 @njit(cache=True)
 def _write_faults(j0, j1, zeta, Om, eta_o, I_o):
     """eta and the group blocks of Omega into the rows j0..j1-1."""
@@ -323,58 +250,54 @@ def _write_faults(j0, j1, zeta, Om, eta_o, I_o):
 
 @njit(cache=True, nogil=True)
 def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il, im, rows,
-                   x_pr, P_pr, K_pr, Si_pr, nu, rank_tol, x_s_o, sd_s_o, terms_o, dof_o, norm_o,
-                   vt_o, d_o, eta_o, I_o, oe_o, oI_o, part):
-    """The backward sweep (module docstring). Per update j (sorted by step; x_pr, P_pr the
-    forward prior before it, K_pr its gain, Si_pr = S^-1, all scaled: ``Ins3dForward``; nu the
-    innovation) it
-    writes, with ``part`` & 1, the combination at its boundary: x_s, sd_s (physical), the
-    cumulative element terms J(i/k), their effective dof and the normalised residuals, v~ and
-    dD (seed method; physical units), the outlier information oe (rows,), oI (rows, rows); with
-    ``part`` & 2 the fault information eta (pB,) and the group blocks I (3, 6, 6) (scaled fault
-    units, ``sB``). Both parts carry the same (lambda, Lambda): two threads can run one each.
-    Returns the boundary where P_f is not positive definite, or -1."""
-    n, pB, K = s.size, sB.size, dt.size
-    comb, faults = (part & 1) != 0, (part & 2) != 0
+                   x_pr, P_pr, K_pr, Si_pr, nu, rank_tol, out, eta_o, I_o, state, k, j1, part,
+                   kb, jb, lam_b, Lam_b):
+    """The backward sweep (module docstring) from boundary k down (``j1``: the first update
+    after it; the start: k = K, j1 = M, ``state`` = (lambda, Lambda, zeta, Z, Omega) zero).
+    Per update j (sorted by step; x_pr, P_pr the forward prior before it, K_pr its gain, Si_pr
+    = S^-1, all scaled: ``Ins3dForward``; nu the innovation) it writes, with ``part`` & 1, the
+    combination at its boundary into ``out`` (``combination.combine_boundary``); with ``part``
+    & 2 the fault information eta (pB,) and the group blocks I (3, 6, 6) (scaled fault units,
+    ``sB``); with ``part`` & 4 it keeps (lambda, Lambda) of every boundary with updates in
+    lam_b, Lam_b (its k in kb, its updates j0, j1 in jb) and stops before the boundary that
+    finds them full (``combination.combine_kept`` makes the combination from them: on another
+    thread, while the sweep goes on). Returns (the boundary to go on from, -1 at the end; its
+    j1; the boundaries kept; the boundary where P_f is not positive definite, or -1)."""
+    n, pB = s.size, sB.size
+    comb, faults, keep = (part & 1) != 0, (part & 2) != 0, (part & 4) != 0
+    lam, Lam, zeta, Z, Om = state
     inv_s = 1.0 / s
     F, Phi, F2 = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     G = np.zeros((n, pB))
-    lam, Lam = np.zeros(n), np.zeros((n, n))
-    zeta, Z, Om = np.zeros(pB), np.zeros((n, pB)), np.zeros((pB, pB))
     T2, lt, zero, PhiT = np.empty((n, pB)), np.empty((n, n)), np.zeros((n, n)), np.empty((n, n))
     nz, cnt, grows = np.empty((n, n), np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
-    HP = np.empty((rows, n))
     M, KtM, KtZ = np.empty((n, rows)), np.empty((rows, rows)), np.empty((rows, pB))
     Kl, Snu = np.empty(rows), np.empty(rows)
-    x_s, PW = np.empty(n), np.empty((n, n))
-    U, L, HPW = np.empty((n, n)), np.empty((n, n)), np.empty((rows, n))
-    ref, Lam_d, q, vt, dd, psd = (np.empty(n), np.empty(n), np.empty(n), np.empty(n),
-                                  np.empty(n), np.empty(n))
-    informative = np.empty(n, dtype=np.bool_)
-    j1 = ref_step.size
-    for k in range(K, -1, -1):
+    work = combination_scratch(n, rows)
+    count = 0
+    while k >= 0:
         j0 = j1
         while j0 > 0 and ref_step[j0 - 1] == k:
             j0 -= 1
         if j0 < j1:
+            if keep and count == kb.size:
+                break
             for j in range(j1 - 1, j0 - 1, -1):
                 _adjoint_update(lam, Lam, zeta, Z, Om, scaled_H(s, acc[j], il, im, rows),
                                 K_pr[j], Si_pr[j], nu[j], sB, M, KtM, KtZ, Kl, Snu, faults)
-            if comb:
-                xf, Pf = x_pr[j0], P_pr[j0]
-                if not _combine(lam, Lam, xf, Pf, rank_tol, x_s, PW, U, ref, L, Lam_d,
-                                informative, q, vt, dd, terms_o[j0], dof_o[j0], norm_o[j0],
-                                psd):
-                    return k
-                _write_combination(j0, j1, s, x_s, psd, vt, dd, x_s_o, sd_s_o, terms_o, dof_o,
-                                   norm_o, vt_o, d_o)
-                for j in range(j0, j1):
-                    _outliers(scaled_H(s, acc[j], il, im, rows), z[j], r[j], x_s, Pf, PW,
-                              oe_o[j], oI_o[j], HP, HPW)
+            if comb and not combine_boundary(j0, j1, lam, Lam, s, acc, il, im, rows, z, r,
+                                             x_pr, P_pr, rank_tol, out, work):
+                return k, j1, count, k
+            if keep:
+                kb[count], jb[count, 0], jb[count, 1] = k, j0, j1
+                lam_b[count] = lam
+                Lam_b[count] = Lam
+                count += 1
             if faults:
                 _write_faults(j0, j1, zeta, Om, eta_o, I_o)
             j1 = j0
         if k == 0:
+            k = -1
             break
         fill_F(F, C[k - 1], f_n[k - 1], v[k - 1], lat[k - 1], h[k - 1], kp)
         transition(F, dt[k - 1], Phi, F2)
@@ -392,7 +315,8 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
                         ng += 1
                         break
         _adjoint_step(lam, Lam, zeta, Z, Om, PhiT, nz, cnt, G, grows, ng, T2, lt, zero, faults)
-    return -1
+        k -= 1
+    return k, j1, count, -1
 
 
 __all__ = ["ACC_A", "ACC_R", "GROUP_SIZE", "GROUP_START", "GYR_A", "GYR_R", "REF",

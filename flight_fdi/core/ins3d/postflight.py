@@ -5,7 +5,7 @@ seed method (chi^2 J with effective dof, UDU^T / LDL^T localisation, Fisher test
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -16,6 +16,7 @@ from ..errors import CoreError
 from ..ldl import localization
 from ..threads import usable_threads
 from .backward import ACC_A, ACC_R, GYR_A, GYR_R, REF, backward_sweep
+from .combination import combine_kept
 from .data import NavSteps, RefRows
 from .filter import Ins3dForward, run_forward, white_variance
 from .glr3d import (AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, joint,
@@ -66,14 +67,16 @@ def _kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
 
 
 def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
-                 rank_tol: float, threads: int | None = None) -> Ins3dBackward:
+                 rank_tol: float, threads: int | None = None, chunk: int = 256
+                 ) -> Ins3dBackward:
     """The backward sweep (``refs`` sorted by step, ``fwd`` run with keep_prior=True) and the
-    3-dof statistics of its fault blocks (``glr3d.joint``); with ``threads`` = 2 (default: when
-    the process may run on two or more cores) the combination and the fault blocks with the
-    3-dof statistics run on one core each (on an idle machine the sweep's wall time drops by
-    about a third; its CPU time rises by about as much: both carry (lambda, Lambda)). When
-    the forward pass rejected updates (gate action ``reject``), the sweep runs on a forward pass
-    that fuses every update (``backward.py``: the post-flight part judges all the data)."""
+    3-dof statistics of its fault blocks (``glr3d.joint``). With ``threads`` = 2 (default:
+    when the process may run on two or more cores) the sweep keeps (lambda, Lambda) of the
+    next ``chunk`` boundaries with updates and a second thread makes the combination from them
+    while the sweep goes on (``combination.combine_kept``; the same numbers as one thread).
+    When the forward pass rejected updates (gate action ``reject``), the sweep runs on a
+    forward pass that fuses every update (``backward.py``: the post-flight part judges all the
+    data)."""
     if fwd.Ps_prior is None:
         raise CoreError("ins3d backward: the forward pass must keep its priors (keep_prior)")
     if fwd.fused is not None and not np.all(fwd.fused):
@@ -81,36 +84,58 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
     n, rows, m = model.n, model.rows, refs.t.size
     args = _kernel_args(model, steps, refs)
     sB = args[10]
-    x_s, sd_s, terms, norm, vt, d = (np.empty((m, n)) for _ in range(6))
-    dof = np.empty((m, n), dtype=np.int64)
+    out = (*(np.empty((m, n)) for _ in range(3)), np.empty((m, n), dtype=np.int64),
+           *(np.empty((m, n)) for _ in range(3)), np.empty((m, rows)), np.empty((m, rows, rows)))
     eta, I3 = np.empty((m, sB.size)), np.zeros((m, 3, 6, 6))
-    oe, oI = np.empty((m, rows)), np.empty((m, rows, rows))
-    sweep = (*args[:8], *args[9:], np.ascontiguousarray(refs.z), white_variance(model, refs.r),
-             np.ascontiguousarray(refs.a), model.il, model.im if model.n_markov else 0, rows,
-             fwd.xs_prior, fwd.Ps_prior, fwd.Ks, fwd.S_inv, fwd.nu, rank_tol, x_s, sd_s, terms,
-             dof, norm, vt, d, eta, I3, oe, oI)
+    z, r, a = np.ascontiguousarray(refs.z), white_variance(model, refs.r), \
+        np.ascontiguousarray(refs.a)
+    im = model.im if model.n_markov else 0
+    sweep = (*args[:8], *args[9:], z, r, a, model.il, im, rows, fwd.xs_prior, fwd.Ps_prior,
+             fwd.Ks, fwd.S_inv, fwd.nu, rank_tol, out, eta, I3,
+             (np.zeros(n), np.zeros((n, n)), np.zeros(sB.size), np.zeros((n, sB.size)),
+              np.zeros((sB.size, sB.size))))
+    combine = (args[9], a, model.il, im, rows, z, r, fwd.xs_prior, fwd.Ps_prior, rank_tol, out)
     first = np.flatnonzero(np.r_[True, refs.step[1:] != refs.step[:-1]]) if m else \
         np.zeros(0, dtype=np.int64)
-
-    def faults() -> dict[str, np.ndarray]:
-        backward_sweep(*sweep, 2)
-        return joint(eta[first], I3[first], rows)
-
     if threads is None:
         threads = usable_threads()
-    if threads > 1:             # the second core: the fault blocks (the kernels release the GIL)
+    if threads > 1:
         with ThreadPoolExecutor(max_workers=1) as pool:
-            fault_part = pool.submit(faults)
-            k = backward_sweep(*sweep, 1)
-            stats = fault_part.result()
+            bad, last = _sweep_beside_combination(pool, sweep, combine, len(steps), m, chunk)
+            stats = joint(eta[first], I3[first], rows)      # beside the last combination
+            bad = max(bad, last.result())
     else:
-        k = backward_sweep(*sweep, 3)
-        stats = joint(eta[first], I3[first], rows) if k < 0 else None
-    if k >= 0:
+        bad = backward_sweep(*sweep, len(steps), m, 3, *_kept(0, n))[3]
+        stats = joint(eta[first], I3[first], rows)
+    if bad >= 0:
         raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
-                        f"t = {steps.t[k]:.3f} s")
-    return Ins3dBackward(refs.t, x_s, sd_s, terms, dof, norm, vt, d, eta, I3, oe, oI, sB, first,
-                         stats)
+                        f"t = {steps.t[bad]:.3f} s")
+    return Ins3dBackward(refs.t, *out[:7], eta, I3, *out[7:], sB, first, stats)
+
+
+def _kept(size: int, n: int) -> tuple:
+    """Buffers of ``size`` boundaries for the sweep's kept (lambda, Lambda)."""
+    return (np.empty(size, dtype=np.int64), np.empty((size, 2), dtype=np.int64),
+            np.empty((size, n)), np.empty((size, n, n)))
+
+
+def _sweep_beside_combination(pool: ThreadPoolExecutor, sweep: tuple, combine: tuple, K: int,
+                              m: int, chunk: int) -> tuple[int, Future]:
+    """The sweep (fault blocks) on this thread, ``chunk`` boundaries at a time, and the
+    combination of the previous chunk on the ``pool``'s thread (two buffers; the kernels
+    release the GIL). Returns the boundary where P_f is not positive definite (or -1) and the
+    last combination still running (its result: the same)."""
+    n = combine[0].size
+    buf = [_kept(chunk, n), _kept(chunk, n)]
+    k, j1, c, bad = K, m, 0, -1
+    done = None
+    while k >= 0:
+        k, j1, count, _ = backward_sweep(*sweep, k, j1, 6, *buf[c % 2])
+        if done is not None:                    # the other buffer is free again
+            bad = max(bad, done.result())
+        done = pool.submit(combine_kept, count, *buf[c % 2], *combine)
+        c += 1
+    return bad, done
 
 
 def seed_method(model: Ins3dModel, bwd: Ins3dBackward, config: DiagnosisConfig
