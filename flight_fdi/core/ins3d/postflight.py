@@ -5,7 +5,8 @@ seed method (chi^2 J with effective dof, UDU^T / LDL^T localisation, Fisher test
 """
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -100,10 +101,14 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
     if threads is None:
         threads = usable_threads()
     if threads > 1:
-        with ThreadPoolExecutor(max_workers=1) as pool:
-            bad, last = _sweep_beside_combination(pool, sweep, combine, len(steps), m, chunk)
-            stats = joint(eta[first], I3[first], rows)      # beside the last combination
-            bad = max(bad, last.result())
+        stats = {k: np.empty(first.size) for k in joint(eta[:0], I3[:0], rows)}
+
+        def joint_at(onsets: np.ndarray) -> None:       # rows of the onsets a chunk passed
+            at = np.searchsorted(first, onsets)
+            for k, v in joint(eta[onsets], I3[onsets], rows).items():
+                stats[k][at] = v
+
+        bad = _sweep_beside_combination(sweep, combine, len(steps), m, chunk, joint_at)
     else:
         bad = backward_sweep(*sweep, len(steps), m, 3, *_kept(0, n))[3]
         stats = joint(eta[first], I3[first], rows)
@@ -119,23 +124,31 @@ def _kept(size: int, n: int) -> tuple:
             np.empty((size, n)), np.empty((size, n, n)))
 
 
-def _sweep_beside_combination(pool: ThreadPoolExecutor, sweep: tuple, combine: tuple, K: int,
-                              m: int, chunk: int) -> tuple[int, Future]:
-    """The sweep (fault blocks) on this thread, ``chunk`` boundaries at a time, and the
-    combination of the previous chunk on the ``pool``'s thread (two buffers; the kernels
-    release the GIL). Returns the boundary where P_f is not positive definite (or -1) and the
-    last combination still running (its result: the same)."""
+def _sweep_beside_combination(sweep: tuple, combine: tuple, K: int, m: int, chunk: int,
+                              then: Callable[[np.ndarray], None]) -> int:
+    """The sweep (fault blocks) on this thread, ``chunk`` boundaries at a time, and on a
+    second thread the combination of the previous chunk, then ``then`` of the first updates of
+    its boundaries (two buffers; the kernels release the GIL). Returns the boundary where P_f
+    is not positive definite, or -1."""
     n = combine[0].size
     buf = [_kept(chunk, n), _kept(chunk, n)]
+
+    def combination(count: int, kb: np.ndarray, jb: np.ndarray, *kept: np.ndarray) -> int:
+        bad = combine_kept(count, kb, jb, *kept, *combine)
+        then(jb[count - 1::-1, 0] if count else jb[:0, 0])
+        return bad
+
     k, j1, c, bad = K, m, 0, -1
-    done = None
-    while k >= 0:
-        k, j1, count, _ = backward_sweep(*sweep, k, j1, 6, *buf[c % 2])
-        if done is not None:                    # the other buffer is free again
-            bad = max(bad, done.result())
-        done = pool.submit(combine_kept, count, *buf[c % 2], *combine)
-        c += 1
-    return bad, done
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        done = None
+        while k >= 0:
+            k, j1, count, _ = backward_sweep(*sweep, k, j1, 6, *buf[c % 2])
+            if done is not None:                # the other buffer is free again
+                bad = max(bad, done.result())
+            done = pool.submit(combination, count, *buf[c % 2])
+            c += 1
+        bad = max(bad, done.result())
+    return bad
 
 
 def seed_method(model: Ins3dModel, bwd: Ins3dBackward, config: DiagnosisConfig
