@@ -4,8 +4,8 @@ filter + RTS smoother on the same flight, in the same run (a script, not a test;
 
 The flight: ``cruise_turns``, navigation grade, INS at 100 Hz (/ins/imu, /ins/velocity: the
 propagation steps), GNSS velocity at 10 Hz (east and north rows). The model:
-``Ins3dModel.from_grade(rows=2, vertical="damped")`` with the reference Markov states and the latency state:
-12 + 2 + 1 = 15 states, as ``analyze_ins3d`` uses it.
+``Ins3dModel.from_grade(rows=2, vertical="damped")`` with the reference Markov states and the
+latency state: 12 + 2 + 1 = 15 states, as ``analyze_ins3d`` uses it.
 
 The baseline (``filterpy.kalman.KalmanFilter``, Joseph-form update, and its ``rts_smoother``) runs
 the model as the issue defines it -- discretised per INS step at the actual dt: Phi_k, Q_k of

@@ -46,6 +46,11 @@ class Ins3dBackward:
     first: np.ndarray        # (U,) first update of every boundary with updates (the onsets)
     joint: dict[str, np.ndarray] | None = None   # glr3d.joint over the onsets
 
+    def at_onsets(self, a: np.ndarray) -> np.ndarray:
+        """The rows of a per-update array at the onsets (``first``); the array itself when
+        every boundary carries one update (no copy)."""
+        return a if self.first.size == self.t.size else a[self.first]
+
 
 def fault_scales(model: Ins3dModel, duration: float) -> np.ndarray:
     """SI per scaled unit of every fault column: the grade's bias sigma for a step, that over
@@ -111,7 +116,8 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
         bad = _sweep_beside_combination(sweep, combine, len(steps), m, chunk, joint_at)
     else:
         bad = backward_sweep(*sweep, len(steps), m, 3, *_kept(0, n))[3]
-        stats = joint(eta[first], I3[first], rows)
+        on = slice(None) if first.size == m else first      # (no copy when all are)
+        stats = joint(eta[on], I3[on], rows)
     if bad >= 0:
         raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
                         f"t = {steps.t[bad]:.3f} s")
@@ -155,18 +161,19 @@ def seed_method(model: Ins3dModel, bwd: Ins3dBackward, config: DiagnosisConfig
                 ) -> SeedDiagnosis:
     """The single-axis seed method (``diagnose``) on the sweep's element terms, one sample per
     boundary with updates."""
-    f = bwd.first
-    loc = localization(bwd.v_tilde[f], bwd.d[f], bwd.terms[f], bwd.dof[f], bwd.normalized[f])
-    t = bwd.t[f]
+    at = bwd.at_onsets
+    loc = localization(at(bwd.v_tilde), at(bwd.d), at(bwd.terms), at(bwd.dof),
+                       at(bwd.normalized))
+    t = at(bwd.t)
     return diagnose(SimpleNamespace(n=model.n, state_names=list(model.names)),
                     SimpleNamespace(t=t), SimpleNamespace(t=t, rank_tol=config.rank_tol,
                                                           localization=loc), config)
 
 
 def glr_curves(model: Ins3dModel, steps: NavSteps, bwd: Ins3dBackward) -> dict[str, GlrCurve]:
-    f = bwd.first
-    return curves(hypotheses(model.rows), bwd.t[f], float(steps.t[0]),
-                  float(steps.t[-1] - steps.t[0]), bwd.eta[f], bwd.I3[f], bwd.sB, bwd.t,
+    at = bwd.at_onsets
+    return curves(hypotheses(model.rows), at(bwd.t), float(steps.t[0]),
+                  float(steps.t[-1] - steps.t[0]), at(bwd.eta), at(bwd.I3), bwd.sB, bwd.t,
                   bwd.oe, bwd.oI)
 
 

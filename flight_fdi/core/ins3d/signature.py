@@ -7,7 +7,7 @@ at boundary k0, the forward filter's (which ignores it) prior error and innovati
 
     rho_j = H' mu_j + D tau           (d nu_j / d b)
     mu <- mu - K_j rho_j              (update j, K_j = P_j H' S_j^-1 of the forward filter)
-    mu <- Phi_k mu + Gamma_k tau      (step k >= k0)
+    mu <- Phi_k mu + Gamma_k tau      (step k >= k0; Phi_k mu = mu + F mu dt + F F mu dt^2 / 2)
 
 with mu = 0 at k0; then e(t) = sum_{t_j <= t} rho' S^-1 nu, d(t) = sum rho' S^-1 rho give
 b^ = e / d and GLR(t) = e^2 / d. With all the data it equals the backward sweep's
@@ -20,7 +20,8 @@ from numba import njit
 
 from .backward import REF, fault_gamma
 from .filter import scaled_H
-from .model import fill_F, transition
+from .model import fill_F
+from .sparse import row_pattern
 
 
 @njit(cache=True, nogil=True)
@@ -31,11 +32,10 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
     n = s.size
     pB = sB.size
     F = np.empty((n, n))
-    Phi = np.empty((n, n))
-    F2 = np.empty((n, n))
+    nz, cnt = np.empty((n, n), np.int64), np.empty(n, np.int64)
     G = np.empty((n, pB))
     mu = np.zeros(n)                            # scaled: T^-1 mu
-    mu2 = np.empty(n)
+    y, Fy, FFy = np.empty(n), np.empty(n), np.empty(n)
     rho, Sr = np.empty(rows), np.empty(rows)
     e = 0.0
     d = 0.0
@@ -72,18 +72,27 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
             break
         fill_F(F, C[k], f_n[k], v[k], lat[k], h[k], kp)
         fault_gamma(F, dt[k], tt[k], s, sB, G)
-        transition(F, dt[k], Phi, F2)
-        for a in range(n):                      # mu <- Phi' mu + Gamma' tau (scaled)
-            acc_ = 0.0
-            for b in range(n):
-                f = Phi[a, b]
-                if f != 0.0:
-                    acc_ += f * s[b] * mu[b]
+        row_pattern(F, nz, cnt)
+        for a in range(n):
+            y[a] = s[a] * mu[a]
+        _mul_vec(F, nz, cnt, y, Fy)
+        _mul_vec(F, nz, cnt, Fy, FFy)
+        h2 = 0.5 * dt[k] * dt[k]
+        for a in range(n):                      # mu <- Phi' mu + Gamma' tau (scaled), with
+            acc_ = y[a] + Fy[a] * dt[k] + FFy[a] * h2   # Phi = I + F dt + (F dt)^2 / 2
             for c in range(pB):
                 acc_ += G[a, c] * tau[c] * s[a]
-            mu2[a] = acc_ / s[a]
-        for a in range(n):
-            mu[a] = mu2[a]
+            mu[a] = acc_ / s[a]
+
+
+@njit(cache=True, inline="always")
+def _mul_vec(A, nz, cnt, x, out):
+    """out = A x over the row pattern (nz, cnt) of A."""
+    for i in range(A.shape[0]):
+        acc = 0.0
+        for m in range(cnt[i]):
+            acc += A[i, nz[i, m]] * x[nz[i, m]]
+        out[i] = acc
 
 
 __all__ = ["signature_stats"]
