@@ -142,7 +142,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
     with ThreadPoolExecutor(max_workers=1) as pool:     # the second core: the Gramian
         obs = pool.submit(observability, model, steps, refs, P0=P0) if with_observability \
             else None
-        fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post)
+        fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post,
+                          threads=1 if obs is not None else None)   # one thread per core
         out = Ins3dAnalysis(model, fwd, None, turns, steps, refs,
                             thresholds=thresholds_for(model.grade.name))
         if thresholds is not None:

@@ -214,15 +214,22 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, ratio, inv_ss, b0, b1, Phi_pre,
     return j
 
 
+#: bytes of one chunk's Phi', Qd' (``_filter``): the hand-over between the threads stays in
+#: the cores' caches
+CHUNK_BYTES = 1 << 19
+
+
 def _filter(steps: NavSteps, bias: np.ndarray, qc: np.ndarray, s: np.ndarray, x0: np.ndarray,
-            P0: np.ndarray, updates: tuple, threads: int, chunk: int = 512) -> None:
+            P0: np.ndarray, updates: tuple, threads: int, chunk: int | None = None) -> None:
     """Run ``_forward`` over the whole flight (``updates``: its arguments from ``ref_step``
     on). With ``threads`` > 1 and more than two chunks of steps, a second thread computes the
-    Phi', Qd' of the next ``chunk`` steps while the filter takes the current ones (the same
-    kernels: the same numbers)."""
+    Phi', Qd' of the next ``chunk`` steps (default: ``CHUNK_BYTES`` of them, 64 to 512 steps)
+    while the filter takes the current ones (the same kernels: the same numbers)."""
     nav = (steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, bias, qc)
     ratio, inv_ss = scale_factors(s)
     n, K = s.size, len(steps)
+    if chunk is None:
+        chunk = int(np.clip(CHUNK_BYTES // (16 * n * n), 64, 512))
     x, P = x0 / s, P0 / (s[:, None] * s[None, :])
     if threads < 2 or K <= 2 * chunk:
         none = np.empty((0, n, n))
@@ -305,8 +312,8 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     keeps the posterior covariance of every update, ``keep_prior`` the state and covariance
     before every update (what the two-filter combination and GLR need). ``threads`` (default
     ``threads.usable_threads()``): with 2, the discretisation of the steps runs ahead on a
-    second thread (``_filter``; on an idle machine the pass takes about a third less wall
-    time, the results are the same)."""
+    second thread (``_filter``; the results are the same: it pays when that core is idle --
+    ``analyze_ins3d`` passes 1 while the observability Gramian runs beside)."""
     n, rows = model.n, model.rows
     p0 = model.p0()
     P0 = np.diag(p0) if P0 is None else np.asarray(P0, dtype=float)

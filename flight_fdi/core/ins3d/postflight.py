@@ -73,13 +73,14 @@ def _kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
 
 
 def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
-                 rank_tol: float, threads: int | None = None, chunk: int = 256
+                 rank_tol: float, threads: int | None = None, chunk: int | None = None
                  ) -> Ins3dBackward:
     """The backward sweep (``refs`` sorted by step, ``fwd`` run with keep_prior=True) and the
     3-dof statistics of its fault blocks (``glr3d.joint``). With ``threads`` = 2 (default:
     when the process may run on two or more cores) the sweep keeps (lambda, Lambda) of the
-    next ``chunk`` boundaries with updates and a second thread makes the combination from them
-    while the sweep goes on (``combination.combine_kept``; the same numbers as one thread).
+    next ``chunk`` boundaries with updates (default: 0.5 MB of them) and a second thread makes
+    the combination from them while the sweep goes on (``combination.combine_kept``; the same
+    numbers as one thread).
     When the forward pass rejected updates (gate action ``reject``), the sweep runs on a
     forward pass that fuses every update (``backward.py``: the post-flight part judges all the
     data)."""
@@ -106,6 +107,8 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
     if threads is None:
         threads = usable_threads()
     if threads > 1:
+        if chunk is None:
+            chunk = max(64, (1 << 19) // (8 * n * (n + 1)))
         stats = {k: np.empty(first.size) for k in joint(eta[:0], I3[:0], rows)}
 
         def joint_at(onsets: np.ndarray) -> None:       # rows of the onsets a chunk passed
