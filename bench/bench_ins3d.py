@@ -10,10 +10,10 @@ backward information filter with the fault blocks, the seed method, the GLR curv
 hypothesis and onset, the isolation and the ambiguity-resolved time -- per stage and in all.
 Target: <= 5 s on the 2-core machine. The JIT kernels are loaded (or compiled) first, on a short
 flight. The FilterPy baseline is bench/bench_ins3d_filterpy.py. The observability Gramian runs on
-the second core beside the forward pass (its stage time overlaps); so do one of the two parts of
-the backward sweep and the rival's signature. On a shared machine the wall time follows the
-load: the CPU times and ``taskset -c 0`` (one core: wall = the sum of the CPU) say what a quiet
-machine gives.
+the second core beside the forward pass (its stage time overlaps); so do the two-filter
+combination beside the backward sweep (with the 3-dof statistics) and the rival's signature.
+On a shared machine the wall time follows the load: the CPU times and ``taskset -c 0`` (one
+core: wall = the sum of the CPU) say what a quiet machine gives.
 """
 from __future__ import annotations
 
