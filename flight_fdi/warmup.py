@@ -16,6 +16,7 @@ import time
 def warm_ins3d() -> None:
     from .bagio.ins3d_input import from_flight
     from .core.ins3d.analysis import analyze_ins3d
+    from .core.ins3d.filter import run_forward
     from .core.ins3d.model import Ins3dModel
     from .core.ins3d.stream import Ins3dStream
     from .sim.faults import FaultSpec3D, parse_fault
@@ -29,6 +30,10 @@ def warm_ins3d() -> None:
     inp = from_flight(flight)
     for rows in (2, 3):
         analyze_ins3d(inp.steps, inp.refs, rows=rows).post_flight_dict()
+        # the forward filter with its discretisation running ahead on a second thread (what
+        # analyze_ins3d does without the observability Gramian: the Monte Carlo engine)
+        run_forward(Ins3dModel.from_grade("navigation", rows=rows), inp.steps, inp.refs,
+                    threads=2)
         stream = Ins3dStream(Ins3dModel.from_grade("navigation", rows=rows, latency=True,
                                                    ref_markov=(0.02, 0.03, 30.0)))
         stream.predict(inp.steps, 0)

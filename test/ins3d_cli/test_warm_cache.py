@@ -1,0 +1,29 @@
+"""After ``make setup`` the 3-D analysis only loads compiled code: with and without the
+observability Gramian (the Monte Carlo engine leaves it out), on two threads (the forward
+filter's discretisation then runs ahead on the second one) and on one."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+_ANALYZE = """
+import sys
+from flight_fdi.bagio.ins3d_input import read_ins3d
+from flight_fdi.core.ins3d.analysis import analyze_ins3d
+inp = read_ins3d(sys.argv[1])
+print('--- analysis', flush=True)
+for obs in (True, False):
+    analyze_ins3d(inp.steps, inp.refs, with_observability=obs).post_flight_dict()
+"""
+
+
+def test_analysis_compiles_nothing_after_setup(bag3d):
+    for threads in ("2", "1"):
+        env = {**os.environ, "NUMBA_DEBUG_CACHE": "1", "FLIGHT_FDI_THREADS": threads}
+        proc = subprocess.run([sys.executable, "-c", _ANALYZE, str(bag3d)], capture_output=True,
+                              text=True, timeout=300, env=env)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        after = proc.stdout.split("--- analysis")[1]
+        assert "data loaded" in after
+        assert "saved" not in after, [ln for ln in after.splitlines() if "saved" in ln]
