@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from flight_fdi.eval.parallel import parallel_map
 from flight_fdi.bagio.ins3d_input import from_flight
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
 from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
@@ -25,10 +26,12 @@ KINDS = ("step", "ramp", "jump", "outliers")
 
 
 def one(profile: str, duration: float, grade: str, seed: int) -> dict:
+    """The largest GLR per hypothesis kind (and its hypothesis) of one nominal flight."""
     cfg = Sim3DConfig(TrajectoryConfig(profile=profile, duration_s=duration, rate_hz=100.0,
                                        seed=seed), grade=grade, seed=seed)
     inp = from_flight(simulate3d(cfg))
-    a = analyze_ins3d(inp.steps, inp.refs, grade=grade)
+    a = analyze_ins3d(inp.steps, inp.refs, grade=grade, with_observability=False,
+                      **inp.vertical())   # the flight's own height loop, as the evaluation
     best = {k: max((c.statistic, n) for n, c in a.glr.items() if c.hypothesis.kind == k)
             for k in KINDS}
     return {"profile": profile, "seed": seed, "grade": grade, "duration_s": duration,
@@ -37,27 +40,44 @@ def one(profile: str, duration: float, grade: str, seed: int) -> dict:
             "verdict": a.post_flight_dict()["verdict"]}
 
 
+def _one(item: tuple) -> dict:
+    return one(*item)
+
+
+def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
+    """Per kind: the largest, median and 90 % quantile of the flights' maxima."""
+    out = {}
+    for k in KINDS:
+        m = np.array([r["max"][k] for r in rows])
+        out[k] = {"max": float(m.max()), "median": float(np.median(m)),
+                  "q90": float(np.quantile(m, 0.9))}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flights", type=int, default=20)
     ap.add_argument("--duration", type=float, default=1800.0)
     ap.add_argument("--grade", default="navigation")
     ap.add_argument("--seed0", type=int, default=1000)
+    ap.add_argument("--profiles", default="cruise_turns,random,survey_grid")
+    ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", default="")
     a = ap.parse_args()
-    rows = []
+    profs = [p for p in a.profiles.split(",") if p]
+    items = [(profs[i % len(profs)], a.duration, a.grade, a.seed0 + i) for i in range(a.flights)]
     t0 = time.time()
-    for i in range(a.flights):
-        prof = ("cruise_turns", "random", "survey_grid")[i % 3]
-        rows.append(one(prof, a.duration, a.grade, a.seed0 + i))
-        r = rows[-1]
-        print(f"{i + 1}/{a.flights} {prof} seed {r['seed']}: "
+
+    def arrived(r: dict) -> None:
+        print(f"{r['profile']} seed {r['seed']}: "
               + ", ".join(f"{k} {r['max'][k]:.1f} ({r['argmax'][k]})" for k in KINDS)
               + f" -> {r['verdict']}  [{time.time() - t0:.0f} s]", flush=True)
-    for k in KINDS:
-        m = np.array([r["max"][k] for r in rows])
-        print(f"{k}: max over flights {m.max():.1f}, median {np.median(m):.1f}, "
-              f"90 % {np.quantile(m, 0.9):.1f}")
+
+    rows = sorted(parallel_map(_one, items, a.jobs, desc="calibrate", on_result=arrived),
+                  key=lambda r: r["seed"])
+    for k, v in summary(rows).items():
+        print(f"{k}: max over flights {v['max']:.1f}, median {v['median']:.1f}, "
+              f"90 % {v['q90']:.1f}")
     if a.out:
         with open(a.out, "w") as f:
             json.dump(rows, f, indent=1)

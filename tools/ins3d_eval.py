@@ -28,6 +28,17 @@ Studies (``--only`` picks some):
   ``--latency-nominal`` nominal flights (default 50, random profile) and ``--latency-per``
   flights (default 12) of accelerometer steps, gyro steps and GNSS jumps (cruise_turns).
 
+Long flights (docs/ins3d_eval.md, "Long flights"; ``--long-duration`` s, default 7200, profile
+``--long-profile``, default ``random``: a seeded trajectory per flight; per-flight records stream
+to ``<out>/<study>*.jsonl`` and a stopped study resumes from them):
+
+* ``nominal_long``: ``--long-nominal`` nominal flights (default 200), both models, with the
+  largest GLR per hypothesis kind against its threshold;
+* ``faults_long``: per scenario the flights of ``--long-per`` (``gyro_step=90,...``), both
+  models, one study (seed) per scenario; the rate of right isolations per onset bin;
+* ``detectable_long``: the detectable-step table of one long flight per profile of
+  ``--long-detect-profiles`` (default random,cruise_turns).
+
 Progress goes to stderr (one tqdm bar per study) and to ``<out>/progress.log``.
 """
 from __future__ import annotations
@@ -39,13 +50,17 @@ import re
 import sys
 import time
 
-import numpy as np
-
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 DOC = REPO / "docs" / "ins3d_eval.md"
-STUDIES = ("nominal", "faults", "ladder", "ladder_grades", "latency", "detectable")
+STUDIES = ("nominal", "faults", "ladder", "ladder_grades", "latency", "detectable",
+           "nominal_long", "faults_long", "detectable_long")
+#: steps of the detectable-step tables: (GLR hypothesis, scenario of its unit)
+DETECT_STEPS = (("accelerometer_z_step", "accel_step"), ("gyro_x_step", "gyro_step"),
+                ("gyro_y_step", "gyro_step"), ("gyro_z_step", "gyro_step"))
+#: onset bins of the long fault study's by-onset table, as fractions of the flight
+ONSET_BINS = (0.1, 0.25, 0.4, 0.55, 0.7, 0.8)
 #: onsets (s) of the detectable-step table (the fault flights' 1200-s cruise_turns)
 DETECT_ONSETS = (150, 250, 330, 450, 600, 800, 950, 1050, 1150)
 
@@ -144,7 +159,6 @@ def run_ladder_grades(args, out: pathlib.Path) -> None:
 def run_detectable(args, out: pathlib.Path) -> None:
     from flight_fdi.bagio.ins3d_input import from_flight
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
-    from flight_fdi.eval.montecarlo3d import SCENARIOS
     from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
     from flight_fdi.sim.trajectory import TrajectoryConfig
 
@@ -157,29 +171,33 @@ def run_detectable(args, out: pathlib.Path) -> None:
     for label, kw in (("loop, 3 rows", {"rows": 3, **inp.vertical()}),
                       ("damped, 2 rows", {"rows": 2, "vertical": "damped"})):
         a = analyze_ins3d(inp.steps, inp.refs, **kw)
-        ex = a.observability.excited_at
-        rows = {}
-        for name, scen in (("accelerometer_z_step", "accel_step"), ("gyro_x_step", "gyro_step"),
-                           ("gyro_y_step", "gyro_step"), ("gyro_z_step", "gyro_step")):
-            c = a.glr[name]
-            k = np.minimum(np.searchsorted(c.t - c.t[0], DETECT_ONSETS), c.t.size - 1)
-            rows[name] = {"unit": SCENARIOS[scen][5], "values": list(
-                np.sqrt(a.thresholds["step"]) * c.sd[k] / SCENARIOS[scen][6])}
-        doc["models"][label] = {"rows": rows, "turns": a.turns(), "excited_at": {
-            k: ex.get(k) for k in ("ba_z", "bg_x", "bg_y", "bg_z", "phi_u")}}
+        doc["models"][label] = _detect_doc(a, DETECT_ONSETS)
     doc["elapsed_s"] = time.perf_counter() - t0
     _save(out, "detectable", doc, args.code)
+
+
+def _detect_doc(a, onsets) -> dict:
+    """The detectable-step rows, turns and first-excited times of one analysis."""
+    from flight_fdi.eval.long3d import detectable_steps
+
+    ex = a.observability.excited_at
+    return {"rows": detectable_steps(a, onsets, DETECT_STEPS), "turns": a.turns(),
+            "excited_at": {k: ex.get(k) for k in ("ba_z", "bg_x", "bg_y", "bg_z", "phi_u")}}
 
 
 def section_detectable(out: pathlib.Path) -> str:
     doc = _load(out, "detectable")
     if doc is None:
         return "_Not run._"
+    return _detect_table(doc, f"One nominal 1200-s `cruise_turns` flight (seed {doc['seed']}, "
+                              "navigation grade)")
+
+
+def _detect_table(doc: dict, intro: str) -> str:
     on = doc["onsets_s"]
-    lines = [f"One nominal 1200-s `cruise_turns` flight (seed {doc['seed']}, navigation grade), "
-             f"code {doc.get('commit', '?')}: the step whose expected GLR equals the step "
-             "threshold, per onset (detected about half the time; ~1.5x that for 95 %).", "",
-             "| model | step | " + " | ".join(f"{t} s" for t in on) + " |",
+    lines = [f"{intro}, code {doc.get('commit', '?')}: the step whose expected GLR equals the "
+             "step threshold, per onset (detected about half the time; ~1.5x that for 95 %).",
+             "", "| flight / model | step | " + " | ".join(f"{t:g} s" for t in on) + " |",
              "|---" * (2 + len(on)) + "|"]
     for label, m in doc["models"].items():
         for name, r in m["rows"].items():
@@ -193,6 +211,144 @@ def section_detectable(out: pathlib.Path) -> str:
     return "\n".join(lines)
 
 
+# --------------------------------------------------------------------------- long flights
+
+def _long_cfg(args, **kw):
+    from flight_fdi.eval.montecarlo3d import Study3DConfig
+
+    return Study3DConfig(duration_s=args.long_duration, profile=args.long_profile, **kw)
+
+
+def _long_per(args) -> dict[str, int]:
+    from flight_fdi.eval.montecarlo3d import SCENARIOS
+
+    per = {}
+    for item in filter(None, args.long_per.split(",")):
+        name, _, n = item.partition("=")
+        if name not in SCENARIOS or not n.isdigit():
+            raise SystemExit(f"ins3d_eval: bad --long-per item {item!r} (scenario=count)")
+        per[name] = int(n)
+    return per
+
+
+def run_nominal_long(args, out: pathlib.Path) -> None:
+    from flight_fdi.eval.long3d import run_recorded
+
+    cfg = _long_cfg(args, nominal=args.long_nominal, per_scenario=0, seed=args.seed + 6)
+    res = run_recorded(cfg, out / "nominal_long.jsonl", args.jobs, progress=True)
+    _save(out, "nominal_long", res.to_dict(), args.code)
+
+
+def _fault_seed(args, scenario: str) -> int:
+    """One study per scenario, its seed from the scenario's place in SCENARIOS (stable whatever
+    --long-per holds)."""
+    from flight_fdi.eval.montecarlo3d import SCENARIOS
+
+    return args.seed + 10 + list(SCENARIOS).index(scenario)
+
+
+def run_faults_long(args, out: pathlib.Path) -> None:
+    from flight_fdi.eval.long3d import merge_records, run_recorded
+
+    parts, doc = [], {"config": {}, "elapsed_s": 0.0}
+    for scen, n in _long_per(args).items():
+        cfg = _long_cfg(args, nominal=0, per_scenario=n, scenarios=(scen,),
+                        seed=_fault_seed(args, scen))
+        log(out, f"faults_long: {n} {scen} flights (seed {cfg.seed})")
+        res = run_recorded(cfg, out / f"faults_long_{scen}.jsonl", args.jobs, progress=True)
+        parts.append(res.records)
+        doc["config"][scen] = cfg.describe()
+        doc["elapsed_s"] += res.elapsed_s
+        doc["engine"] = res.engine
+    doc["flights"] = merge_records(parts)
+    _save(out, "faults_long", doc, args.code)
+
+
+def run_detectable_long(args, out: pathlib.Path) -> None:
+    from flight_fdi.bagio.ins3d_input import from_flight
+    from flight_fdi.core.ins3d.analysis import analyze_ins3d
+    from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
+    from flight_fdi.sim.trajectory import TrajectoryConfig
+
+    t0, seed = time.perf_counter(), args.seed + 8
+    onsets = [round(f * args.long_duration) for f in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7,
+                                                       0.8, 0.9, 0.97)]
+    doc: dict = {"onsets_s": onsets, "seed": seed, "duration_s": args.long_duration,
+                 "models": {}}
+    for prof in filter(None, args.long_detect_profiles.split(",")):
+        fl = simulate3d(Sim3DConfig(TrajectoryConfig(profile=prof, duration_s=args.long_duration,
+                                                     seed=seed), grade="navigation", seed=seed))
+        inp = from_flight(fl)
+        a = analyze_ins3d(inp.steps, inp.refs, rows=3, **inp.vertical())
+        doc["models"][f"{prof}, loop, 3 rows"] = _detect_doc(a, onsets)
+    doc["thresholds"] = dict(a.thresholds)
+    doc["elapsed_s"] = time.perf_counter() - t0
+    _save(out, "detectable_long", doc, args.code)
+
+
+def _long_records(out: pathlib.Path, name: str) -> tuple[dict | None, list[dict], str, float]:
+    """(the finished study's JSON or None, its records -- from the .jsonl files of an
+    unfinished one --, a note saying it is partial, the flights' duration)."""
+    from flight_fdi.eval.long3d import merge_records
+
+    doc = _load(out, name)
+    if doc is not None:
+        c = doc["config"]
+        return doc, doc["flights"], "", c.get("duration_s") or next(iter(c.values()))[
+            "duration_s"]
+    parts, dur = [], 0.0
+    for p in sorted(out.glob(f"{name}*.jsonl")):
+        lines = p.read_text().splitlines()
+        dur = json.loads(lines[0])["study"]["duration_s"]
+        parts.append([json.loads(x) for x in lines[1:] if x.strip()])
+    recs = merge_records(parts)
+    note = (f"**Partial: {len(recs)} flights had finished when this was rendered (the run did "
+            "not complete).**\n\n") if recs else ""
+    return None, recs, note, dur
+
+
+def section_nominal_long(out: pathlib.Path) -> str:
+    from flight_fdi.core.ins3d.glr3d import thresholds_for
+    from flight_fdi.eval.long3d import format_nominal_maxima, nominal_maxima
+
+    doc, recs, note, dur = _long_records(out, "nominal_long")
+    if not recs:
+        return "_Not run._"
+    head = note + (_settings(doc) if doc else "")
+    return "\n".join([head, "", _nominal_table(recs), "", format_nominal_maxima(
+        nominal_maxima(recs, thresholds_for("navigation", dur)))])
+
+
+def section_faults_long(out: pathlib.Path) -> str:
+    from flight_fdi.eval.long3d import format_by_onset
+    from flight_fdi.eval.metrics3d import format_metrics, summarize
+
+    doc, recs, note, dur = _long_records(out, "faults_long")
+    if not recs:
+        return "_Not run._"
+    head = note
+    if doc:
+        c = next(iter(doc["config"].values()))
+        seeds = ", ".join(f"{s} {v['seed']}" for s, v in doc["config"].items())
+        head = (f"Settings: {len(recs)} flights of {c['duration_s']:g} s, profile "
+                f"`{c['profile']}`, grade {c['grade']}, seeds {seeds}, GNSS latency "
+                f"{1000 * c['gnss_latency_s']:g} ms + Markov noise, onsets in "
+                f"{c['onset_window'][0]:g}-{c['onset_window'][1]:g} of the flight; "
+                f"{doc['elapsed_s'] / 60:.1f} min on {doc.get('engine', '?')}; code "
+                f"{doc.get('commit', '?')}.")
+    text = re.sub(r"nominal flights:\n\n(\|.*\n)+\n", "", format_metrics(summarize(recs)))
+    return head + "\n\n" + text + "\n\n" + format_by_onset(recs, dur, ONSET_BINS)
+
+
+def section_detectable_long(out: pathlib.Path) -> str:
+    doc = _load(out, "detectable_long")
+    if doc is None:
+        return "_Not run._"
+    return _detect_table(doc, f"One nominal {doc['duration_s']:g}-s flight per profile (seed "
+                              f"{doc['seed']}, navigation grade; step threshold "
+                              f"{doc['thresholds']['step']:g})")
+
+
 def _load(out: pathlib.Path, name: str) -> dict | None:
     p = out / f"{name}.json"
     return json.loads(p.read_text()) if p.exists() else None
@@ -204,20 +360,24 @@ def _partial(out: pathlib.Path, name: str) -> int:
 
 
 def section_nominal(out: pathlib.Path) -> str:
-    from flight_fdi.eval.metrics3d import summarize
-
     doc = _load(out, "nominal")
     if doc is None:
         n = _partial(out, "nominal")
         if not n:
             return "_Not run._"
         recs = [json.loads(s) for s in (out / "nominal.jsonl").open()]
-        m = summarize(recs)
         head = (f"**Partial: {n} of the planned flights had finished when this was rendered "
                 f"(the run did not complete).**\n\n")
     else:
-        m, head = summarize(doc["flights"]), _settings(doc) + "\n\n"
-    lines = [head, "| model | nominal flights | false isolation (confident sensor) | "
+        recs, head = doc["flights"], _settings(doc) + "\n\n"
+    return head + _nominal_table(recs)
+
+
+def _nominal_table(recs: list[dict]) -> str:
+    from flight_fdi.eval.metrics3d import summarize
+
+    m = summarize(recs)
+    lines = ["| model | nominal flights | false isolation (confident sensor) | "
              "ambiguous / unexplained | declared, no sensor (seed method) | any fault declared "
              "| named as |", "|---|---|---|---|---|---|---|"]
     for model in m["models"]:
@@ -285,18 +445,20 @@ def _pct(x) -> str:
     return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
-def render(out: pathlib.Path) -> None:
-    text = DOC.read_text()
+def render(out: pathlib.Path, doc: pathlib.Path = DOC) -> None:
+    text = doc.read_text()
     for name, fn in (("nominal", section_nominal), ("faults", section_faults),
                      ("ladder", section_ladder), ("latency", section_latency),
-                     ("detectable", section_detectable)):
+                     ("detectable", section_detectable), ("nominal_long", section_nominal_long),
+                     ("faults_long", section_faults_long),
+                     ("detectable_long", section_detectable_long)):
         begin, end = f"<!-- BEGIN GENERATED {name} -->", f"<!-- END GENERATED {name} -->"
         if begin not in text:
             continue
         a, rest = text.split(begin, 1)
         _, b = rest.split(end, 1)
         text = f"{a}{begin}\n{fn(out)}\n{end}{b}"
-    DOC.write_text(text)
+    doc.write_text(text)
 
 
 def main() -> int:
@@ -318,14 +480,23 @@ def main() -> int:
     ap.add_argument("--latency-ms", type=float, default=80.0)
     ap.add_argument("--latency-nominal", type=int, default=50)
     ap.add_argument("--latency-per", type=int, default=12)
+    ap.add_argument("--long-duration", type=float, default=7200.0)
+    ap.add_argument("--long-profile", default="random")
+    ap.add_argument("--long-nominal", type=int, default=200)
+    ap.add_argument("--long-per", default="gyro_step=90,accel_step=30,ref_jump=30,"
+                                          "gyro_ramp=30,accel_ramp=30")
+    ap.add_argument("--long-detect-profiles", default="random,cruise_turns")
     ap.add_argument("--render-only", action="store_true")
+    ap.add_argument("--doc", default=str(DOC), help="the document whose generated sections are "
+                    "rendered (default docs/ins3d_eval.md)")
     args = ap.parse_args()
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if not args.render_only:
         runners = {"nominal": run_nominal, "faults": run_faults, "ladder": run_ladder_study,
                    "ladder_grades": run_ladder_grades, "latency": run_latency,
-                   "detectable": run_detectable}
+                   "detectable": run_detectable, "nominal_long": run_nominal_long,
+                   "faults_long": run_faults_long, "detectable_long": run_detectable_long}
         for name in args.only.split(","):
             if name not in runners:
                 ap.error(f"unknown study {name!r}; choose from {', '.join(STUDIES)}")
@@ -334,9 +505,9 @@ def main() -> int:
             t0 = time.perf_counter()
             runners[name](args, out)
             log(out, f"{name}: done in {(time.perf_counter() - t0) / 60:.1f} min")
-            render(out)
-    render(out)
-    print(f"rendered {DOC.relative_to(REPO)} from {out}")
+            render(out, pathlib.Path(args.doc))
+    render(out, pathlib.Path(args.doc))
+    print(f"rendered {args.doc} from {out}")
     return 0
 
 

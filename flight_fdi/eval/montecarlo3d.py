@@ -252,6 +252,17 @@ def decision(post: dict) -> dict:
     glr = post.get("glr") or {}
     if out["statistic"] is None and "statistic" in glr:
         out["statistic"], out["threshold"] = glr.get("statistic"), glr.get("threshold")
+    out["glr_max"] = glr_max_by_kind(glr.get("statistics") or {})
+    return out
+
+
+def glr_max_by_kind(statistics: Mapping[str, float]) -> dict[str, float]:
+    """The largest GLR statistic per hypothesis kind (the name's last part: ``gyro_x_step`` ->
+    step) -- what a nominal flight's maxima are compared with (the thresholds, per kind)."""
+    out: dict[str, float] = {}
+    for name, st in statistics.items():
+        kind = name.rsplit("_", 1)[-1]
+        out[kind] = max(out.get(kind, -math.inf), float(st))
     return out
 
 
@@ -410,5 +421,5 @@ def run_study(config: Study3DConfig, jobs: int = 1, progress: bool = False,
 
 
 __all__ = ["Case3D", "DEFAULT_LEVELS", "SCENARIOS", "Study3DConfig", "Study3DResult",
-           "combine_channels", "decision", "plan_study", "run_case", "run_cases", "run_study",
-           "study_settings"]
+           "combine_channels", "decision", "glr_max_by_kind", "plan_study", "run_case",
+           "run_cases", "run_study", "study_settings"]

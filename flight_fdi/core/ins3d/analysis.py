@@ -120,8 +120,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
     simulated flight). ``max_dt``: the steps are merged onto the reference grid, at least every
     ``max_dt`` s (``data.coarsen``; None: the input grid). ``post``: also the post-flight part
     (backward sweep, seed method, GLR isolation). ``thresholds``: GLR thresholds per kind
-    (default: the grade's, ``glr3d.thresholds_for``). ``loop``: the INS height loop of
-    ``vertical="loop"`` (default: the simulator's baro loop, its gains at the first step's
+    (default: the grade's for the flight's length, ``glr3d.thresholds_for``). ``loop``: the INS
+    height loop of ``vertical="loop"`` (default: the simulator's baro loop, its gains at the first step's
     latitude and height)."""
     if vertical == "loop" and steps.t.size:
         base = loop or VerticalLoop()
@@ -145,7 +145,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
         fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post,
                           threads=1 if obs is not None else None)   # one thread per core
         out = Ins3dAnalysis(model, fwd, None, turns, steps, refs,
-                            thresholds=thresholds_for(model.grade.name))
+                            thresholds=thresholds_for(model.grade.name,
+                                                      float(steps.t[-1] - steps.t[0])))
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:

@@ -56,9 +56,24 @@ THRESHOLDS_BY_GRADE = {
 THRESHOLDS = THRESHOLDS_BY_GRADE["navigation"]
 
 
-def thresholds_for(grade: str) -> dict[str, float]:
-    """The calibrated thresholds of a grade (tactical's for grades not calibrated)."""
-    return dict(THRESHOLDS_BY_GRADE.get(grade, THRESHOLDS_BY_GRADE["tactical"]))
+#: the flight length the thresholds were calibrated on (s), and the kinds whose onsets are
+#: (nearly) independent per reference epoch: their largest GLR over a flight grows like
+#: 2 ln(number of onsets) (the chi^2 tail ~ exp(-x/2)), so a flight k times longer needs
+#: 2 ln k more for the same false-alarm rate per flight (docs/ins3d_eval.md, "Long flights":
+#: checked on 160 nominal 2-h flights, tools/ins3d_calibrate.py). Steps and ramps (onsets
+#: strongly correlated) keep theirs: 2-h maxima 15.9 / 13.2 under 20 / 20.
+CALIBRATED_LENGTH_S = 1800.0
+LENGTH_KINDS = ("jump", "outliers")
+
+
+def thresholds_for(grade: str, duration_s: float | None = None) -> dict[str, float]:
+    """The calibrated thresholds of a grade (tactical's for grades not calibrated); for a flight
+    longer than ``CALIBRATED_LENGTH_S``, the ``LENGTH_KINDS`` raised by 2 ln(duration / it)."""
+    thr = dict(THRESHOLDS_BY_GRADE.get(grade, THRESHOLDS_BY_GRADE["tactical"]))
+    if duration_s is not None and duration_s > CALIBRATED_LENGTH_S:
+        for k in LENGTH_KINDS:
+            thr[k] += 2.0 * math.log(duration_s / CALIBRATED_LENGTH_S)
+    return thr
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,145 @@
+"""The 3-D model on long flights (issue 15, item 5; docs/ins3d_eval.md, "Long flights").
+
+A gyro step's information comes from the time (x / y) and the turns (z) *after* its onset, so
+the 20-min flights of the first studies leave too little for late onsets. These helpers run the
+same studies (:mod:`flight_fdi.eval.montecarlo3d`) on flight-test-length flights and summarise
+what the longer flights add:
+
+* :func:`run_recorded`: a study whose per-flight records stream to a JSON-lines file and resume
+  from it (:class:`~flight_fdi.eval.records.RecordsFile`): a long study survives a stop;
+* :func:`merge_records`: the records of several studies as one set (indices renumbered);
+* :func:`nominal_maxima`: per hypothesis kind, the nominal flights' largest GLR against the
+  threshold (how close to a false alarm the flights came: the margin on long flights);
+* :func:`by_onset`: the right-isolation rate per scenario, axis and onset bin (where in the
+  flight a fault is isolated in 95 %);
+* :func:`detectable_steps`: from one analysed flight, the step size whose expected GLR equals
+  the threshold, per onset (the GLR's own information: what the flight can show).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .metrics3d import ISOLATION_LEVEL, outcome
+from .montecarlo3d import SCENARIOS, Study3DConfig, Study3DResult, run_study, study_settings
+from .records import RecordsFile
+
+KINDS = ("step", "ramp", "jump", "outliers")
+
+
+def run_recorded(config: Study3DConfig, path: str | Path, jobs: int = 1,
+                 progress: bool = False) -> Study3DResult:
+    """:func:`run_study` with its records streamed to ``path`` (JSON lines, flushed per
+    flight); flights already in the file (an interrupted run of the same study) are not run
+    again."""
+    with RecordsFile(path, study_settings(config)) as rec:
+        return run_study(config, jobs=jobs, progress=progress, on_record=rec.write,
+                         done=rec.done)
+
+
+def merge_records(parts: Sequence[Sequence[dict]]) -> list[dict]:
+    """The records of several studies as one list, flight indices renumbered 0..n-1 in order
+    (each study numbers its flights from 0)."""
+    out: list[dict] = []
+    for recs in parts:
+        for r in sorted(recs, key=lambda r: r["index"]):
+            out.append({**r, "index": len(out)})
+    return out
+
+
+def nominal_maxima(records: Sequence[dict], thresholds: dict[str, float],
+                   model: str = "ins3d") -> dict[str, dict]:
+    """Per hypothesis kind over the nominal flights' records (``glr_max``): the number of
+    flights, the largest and the median maximum, the threshold, and how many flights exceeded
+    it (a flight above the threshold of a kind is a GLR detection of that kind)."""
+    nom = [r[model].get("glr_max") or {} for r in records if r["scenario"] == "nominal"]
+    out = {}
+    for k in KINDS:
+        m = np.array([g[k] for g in nom if k in g], dtype=float)
+        thr = float(thresholds[k])
+        out[k] = {"n": int(m.size), "threshold": thr,
+                  "max": float(m.max()) if m.size else None,
+                  "median": float(np.median(m)) if m.size else None,
+                  "above": int(np.sum(m > thr))}
+    return out
+
+
+def by_onset(records: Sequence[dict], bins_s: Sequence[float], model: str = "ins3d",
+             levels: Sequence[float] | None = None) -> list[dict]:
+    """The rate of ``right`` per (scenario, axis, onset bin) over the faulty flights (optionally
+    only those whose level is in ``levels``): bins [bins_s[i], bins_s[i+1]). A row per
+    non-empty cell, with ``n``, ``right`` and ``rate``; ``reached``: rate >= 95 %."""
+    edges = np.asarray(bins_s, dtype=float)
+    cells: dict[tuple, list[int]] = {}
+    for r in records:
+        if r["scenario"] == "nominal" or (levels is not None and r["level"] not in levels):
+            continue
+        b = int(np.searchsorted(edges, r["onset_s"], side="right")) - 1
+        if not 0 <= b < edges.size - 1:
+            continue
+        c = cells.setdefault((r["scenario"], r["axis"], b), [0, 0])
+        c[0] += 1
+        c[1] += outcome(r, model) == "right"
+    return [{"scenario": s, "axis": a, "bin": (float(edges[b]), float(edges[b + 1])), "n": n,
+             "right": k, "rate": k / n, "reached": k / n >= ISOLATION_LEVEL}
+            for (s, a, b), (n, k) in sorted(cells.items(), key=lambda kv: (
+                list(SCENARIOS).index(kv[0][0]), kv[0][1], kv[0][2]))]
+
+
+def detectable_steps(analysis, onsets_s: Sequence[float], names: Sequence[tuple[str, str]]
+                     ) -> dict[str, dict]:
+    """For each (hypothesis name, scenario) of ``names``: the step whose expected GLR equals the
+    step threshold at each onset (seconds from the first step), sqrt(threshold) x the GLR's
+    magnitude sd there, in the scenario's unit (mg, deg/h). A step of that size is detected
+    about half the time; ~1.5x it in 95 %."""
+    rows = {}
+    thr = float(analysis.thresholds["step"])
+    for name, scen in names:
+        c = analysis.glr[name]
+        k = np.minimum(np.searchsorted(c.t - c.t[0], np.asarray(onsets_s, float)), c.t.size - 1)
+        rows[name] = {"unit": SCENARIOS[scen][5],
+                      "values": [float(v) for v in np.sqrt(thr) * c.sd[k] / SCENARIOS[scen][6]]}
+    return rows
+
+
+def format_nominal_maxima(maxima: dict[str, dict]) -> str:
+    """The table of :func:`nominal_maxima`."""
+    lines = ["largest GLR per hypothesis kind over the nominal flights (3-D model), against the "
+             "threshold of the flight's length:", "",
+             "| kind | flights | median of the flights' maxima | largest | threshold | "
+             "flights above |", "|---|---|---|---|---|---|"]
+    for k, v in maxima.items():
+        if v["n"]:
+            lines.append(f"| {k} | {v['n']} | {v['median']:.1f} | {v['max']:.1f} | "
+                         f"{v['threshold']:.1f} | {v['above']} |")
+    return "\n".join(lines)
+
+
+def format_by_onset(records: Sequence[dict], duration_s: float, fractions: Sequence[float],
+                    model: str = "ins3d") -> str:
+    """Right sensor+axis per scenario, axis and onset bin (bins: ``fractions`` of the flight's
+    ``duration_s``), over all levels and over the scenario's smallest level, as ``right/n``."""
+    recs = [r for r in records if r["scenario"] != "nominal"]
+    if not recs:
+        return ""
+    edges = [round(duration_s * f) for f in fractions]
+    lines = [f"right sensor+axis ({model}) by onset time (right/n):", "",
+             "| scenario | axis | level | " + " | ".join(
+                 f"{a}-{b} s" for a, b in zip(edges[:-1], edges[1:])) + " |",
+             "|---" * (2 + len(edges)) + "|"]
+    for scen in dict.fromkeys(r["scenario"] for r in recs):
+        mine = [r for r in recs if r["scenario"] == scen]
+        for lev in (None, min(r["level"] for r in mine)):
+            cells: dict = {}
+            for row in by_onset(mine, edges, model, None if lev is None else [lev]):
+                cells.setdefault(row["axis"], {})[row["bin"][0]] = f"{row['right']}/{row['n']}"
+            for axis, c in cells.items():
+                lines.append(f"| {scen} | {axis} | {'all' if lev is None else f'{lev:g}'} | "
+                             + " | ".join(c.get(float(a), "-") for a in edges[:-1]) + " |")
+    return "\n".join(lines)
+
+
+__all__ = ["KINDS", "by_onset", "detectable_steps", "format_by_onset", "format_nominal_maxima",
+           "merge_records", "nominal_maxima", "run_recorded"]

@@ -1,0 +1,143 @@
+"""The long-flight evaluation's pieces (flight_fdi/eval/long3d.py, the length rule of the GLR
+thresholds, tools/ins3d_eval.py's long sections): known answers on hand-made records, a resumed
+study equal to an uninterrupted one, the rendered tables from records on disk."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, thresholds_for
+from flight_fdi.eval.long3d import (by_onset, detectable_steps, format_by_onset,
+                                    format_nominal_maxima, merge_records, nominal_maxima,
+                                    run_recorded)
+from flight_fdi.eval.montecarlo3d import SCENARIOS, Study3DConfig, decision, glr_max_by_kind
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_thresholds_grow_with_the_length_for_per_epoch_kinds_only():
+    base = thresholds_for("navigation")
+    assert thresholds_for("navigation", 900.0) == base            # shorter: as calibrated
+    assert thresholds_for("navigation", CALIBRATED_LENGTH_S) == base
+    long = thresholds_for("navigation", 7200.0)
+    assert long["jump"] == pytest.approx(base["jump"] + 2 * math.log(4.0))   # 32.77
+    assert long["outliers"] == pytest.approx(base["outliers"] + 2 * math.log(4.0))
+    assert (long["step"], long["ramp"]) == (base["step"], base["ramp"])
+    assert thresholds_for("tactical", 3600.0)["jump"] == pytest.approx(30.0 + 2 * math.log(2))
+
+
+def test_glr_maxima_per_kind_in_the_decision_record():
+    stats = {"gyro_x_step": 3.0, "accelerometer_z_step": 7.5, "gyro_y_ramp": 2.0,
+             "reference_east_jump": 21.0, "reference_north_jump": 25.5,
+             "reference_up_outliers": 19.0}
+    assert glr_max_by_kind(stats) == {"step": 7.5, "ramp": 2.0, "jump": 25.5, "outliers": 19.0}
+    d = decision({"verdict": "no_fault", "glr": {"statistic": 25.5, "threshold": 30.0,
+                                                 "statistics": stats}})
+    assert d["glr_max"]["jump"] == 25.5 and d["statistic"] == 25.5
+    assert decision({"verdict": "no_fault"})["glr_max"] == {}
+
+
+def _rec(i, scenario="gyro_step", axis="x", level=0.05, onset=1000.0, right=True, glr=None):
+    iso = ({"verdict": "failure", "isolation": "single", "sensor": "gyro", "axis": axis,
+            "kind": "step", "onset_s": onset + 10.0, "magnitude": 1e-7}
+           if right else {"verdict": "no_fault", "isolation": "none", "kind": None})
+    iso.update(candidates=[], onset_interval_s=None)
+    sensor = None if scenario == "nominal" else SCENARIOS[scenario][2]
+    return {"index": i, "scenario": scenario, "sensor": sensor, "axis": axis, "level": level,
+            "onset_s": onset, "ins3d": {**iso, "glr_max": glr or {}}}
+
+
+def test_nominal_maxima_against_the_thresholds():
+    recs = [_rec(i, "nominal", right=False, glr={"step": s, "ramp": 1.0, "jump": j,
+                                                 "outliers": 20.0})
+            for i, (s, j) in enumerate([(5.0, 20.0), (9.0, 31.0), (7.0, 33.0)])]
+    recs.append(_rec(3))                                           # a faulty flight: ignored
+    m = nominal_maxima(recs, thresholds_for("navigation", 7200.0))
+    assert m["step"] == {"n": 3, "threshold": 20.0, "max": 9.0, "median": 7.0, "above": 0}
+    assert m["jump"]["above"] == 1 and m["jump"]["max"] == 33.0    # 31 < 32.77 < 33
+    text = format_nominal_maxima(m)
+    assert "| jump | 3 | 31.0 | 33.0 | 32.8 | 1 |" in text
+
+
+def test_right_rate_per_onset_bin():
+    recs = [_rec(0, onset=800.0), _rec(1, onset=900.0, right=False), _rec(2, onset=2500.0),
+            _rec(3, axis="z", onset=850.0, level=0.2), _rec(4, onset=6000.0),   # 6000: outside
+            _rec(5, "nominal", right=False)]
+    rows = by_onset(recs, [720, 1800, 3000])
+    assert [(r["axis"], r["bin"], r["n"], r["right"], r["reached"]) for r in rows] == [
+        ("x", (720.0, 1800.0), 2, 1, False), ("x", (1800.0, 3000.0), 1, 1, True),
+        ("z", (720.0, 1800.0), 1, 1, True)]
+    assert [r["axis"] for r in by_onset(recs, [720, 1800, 3000], levels=[0.2])] == ["z"]
+    text = format_by_onset(recs, 7200.0, (0.1, 0.25, 0.4))
+    assert "| gyro_step | x | all | 1/2 | 1/1 |" in text
+    assert "| gyro_step | x | 0.05 | 1/2 | 1/1 |" in text
+    assert "| gyro_step | z | 0.05 |" not in text                 # z has no 0.05 flight here
+
+
+def test_merge_renumbers_in_order():
+    a = [{"index": 1, "v": "a1"}, {"index": 0, "v": "a0"}]
+    b = [{"index": 0, "v": "b0"}]
+    assert merge_records([a, b]) == [{"index": 0, "v": "a0"}, {"index": 1, "v": "a1"},
+                                     {"index": 2, "v": "b0"}]
+
+
+def test_detectable_step_is_sqrt_threshold_times_the_sd():
+    t = np.arange(100.0, 200.0, 10.0)
+    unit = SCENARIOS["gyro_step"][6]
+    curve = SimpleNamespace(t=t, sd=unit * np.linspace(0.1, 1.0, t.size))
+    a = SimpleNamespace(thresholds={"step": 16.0}, glr={"gyro_z_step": curve})
+    rows = detectable_steps(a, [0.0, 20.0, 1e6], [("gyro_z_step", "gyro_step")])
+    assert rows["gyro_z_step"]["unit"] == "deg/h"
+    assert rows["gyro_z_step"]["values"] == pytest.approx([0.4, 4 * 0.3, 4.0])
+
+
+@pytest.mark.slow
+def test_a_stopped_study_resumes_from_its_records(tmp_path):
+    cfg = Study3DConfig(nominal=1, per_scenario=1, scenarios=("ref_jump",), duration_s=120.0,
+                        profile="random", seed=5, single_axis=False)
+    path = tmp_path / "r.jsonl"
+    full = run_recorded(cfg, path)
+    assert full.resumed == 0 and len(full.records) == 2
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:2]) + "\n" + lines[2][:30])  # stopped mid-write
+    again = run_recorded(cfg, path)
+    assert again.resumed == 1
+    assert json.dumps(again.records, sort_keys=True) == json.dumps(full.records, sort_keys=True)
+
+
+def test_tool_renders_the_long_sections_from_partial_records(tmp_path):
+    """tools/ins3d_eval.py --render-only on records files of an unfinished long study: the
+    generated sections say partial and carry the tables; other sections are left alone."""
+    cfg = {"duration_s": 7200.0}
+    nominal = [_rec(i, "nominal", right=False, glr={"step": 5.0, "ramp": 4.0, "jump": 20.0,
+                                                    "outliers": 21.0}) for i in range(3)]
+    faults = [_rec(0, onset=900.0), _rec(1, axis="y", onset=4000.0, level=0.1)]
+    for name, recs in (("nominal_long.jsonl", nominal), ("faults_long_gyro_step.jsonl", faults)):
+        with (tmp_path / name).open("w") as f:
+            f.write(json.dumps({"records": "flight_fdi.study/1", "study": cfg}) + "\n")
+            for r in recs:
+                f.write(json.dumps({**r, "single_axis": {
+                                    "verdict": "no_fault", "isolation": "none", "kind": None,
+                                    "candidates": []},
+                                    "kind": "step", "magnitude": 1e-7,
+                                    "onset_in_turn": False, "next_turn_s": None}) + "\n")
+    doc = tmp_path / "doc.md"
+    doc.write_text("keep\n<!-- BEGIN GENERATED nominal_long -->\nold\n"
+                   "<!-- END GENERATED nominal_long -->\n<!-- BEGIN GENERATED faults_long -->\n"
+                   "<!-- END GENERATED faults_long -->\ntail\n")
+    subprocess.run([sys.executable, str(REPO / "tools" / "ins3d_eval.py"), "--render-only",
+                    "--out", str(tmp_path), "--doc", str(doc)], check=True,
+                   capture_output=True, timeout=120)
+    text = doc.read_text()
+    assert text.startswith("keep\n") and text.endswith("tail\n") and "\nold\n" not in text
+    assert "**Partial: 3 flights" in text and "**Partial: 2 flights" in text
+    assert "| jump | 3 | 20.0 | 20.0 | 32.8 | 0 |" in text
+    assert "| gyro_step | x | all | 1/1 | - | - | - | - |" in text
+    assert "| gyro_step | y | all | - | - | - | 1/1 | - |" in text   # 4000 s: 3960-5040
