@@ -22,14 +22,15 @@ from flight_fdi.eval.montecarlo3d import SCENARIOS, Study3DConfig, decision, glr
 REPO = Path(__file__).resolve().parents[2]
 
 
-def test_thresholds_grow_with_the_length_for_per_epoch_kinds_only():
+def test_thresholds_grow_with_the_length_as_calibrated_per_kind():
     base = thresholds_for("navigation")
     assert thresholds_for("navigation", 900.0) == base            # shorter: as calibrated
     assert thresholds_for("navigation", CALIBRATED_LENGTH_S) == base
     long = thresholds_for("navigation", 7200.0)
     assert long["jump"] == pytest.approx(base["jump"] + 2 * math.log(4.0))   # 32.77
     assert long["outliers"] == pytest.approx(base["outliers"] + 2 * math.log(4.0))
-    assert (long["step"], long["ramp"]) == (base["step"], base["ramp"])
+    assert long["step"] == pytest.approx(base["step"] + math.log(4.0))       # 21.39
+    assert long["ramp"] == base["ramp"]
     assert thresholds_for("tactical", 3600.0)["jump"] == pytest.approx(30.0 + 2 * math.log(2))
 
 
@@ -60,7 +61,8 @@ def test_nominal_maxima_against_the_thresholds():
             for i, (s, j) in enumerate([(5.0, 20.0), (9.0, 31.0), (7.0, 33.0)])]
     recs.append(_rec(3))                                           # a faulty flight: ignored
     m = nominal_maxima(recs, thresholds_for("navigation", 7200.0))
-    assert m["step"] == {"n": 3, "threshold": 20.0, "max": 9.0, "median": 7.0, "above": 0}
+    assert m["step"] == {"n": 3, "threshold": pytest.approx(20 + math.log(4)), "max": 9.0,
+                         "median": 7.0, "above": 0}
     assert m["jump"]["above"] == 1 and m["jump"]["max"] == 33.0    # 31 < 32.77 < 33
     text = format_nominal_maxima(m)
     assert "| jump | 3 | 31.0 | 33.0 | 32.8 | 1 |" in text
