@@ -185,10 +185,10 @@ def _detect_doc(a, onsets) -> dict:
             "excited_at": {k: ex.get(k) for k in ("ba_z", "bg_x", "bg_y", "bg_z", "phi_u")}}
 
 
-def section_detectable(out: pathlib.Path) -> str:
+def section_detectable(out: pathlib.Path) -> str | None:
     doc = _load(out, "detectable")
     if doc is None:
-        return "_Not run._"
+        return None
     return _detect_table(doc, f"One nominal 1200-s `cruise_turns` flight (seed {doc['seed']}, "
                               "navigation grade)")
 
@@ -307,25 +307,25 @@ def _long_records(out: pathlib.Path, name: str) -> tuple[dict | None, list[dict]
     return None, recs, note, dur
 
 
-def section_nominal_long(out: pathlib.Path) -> str:
+def section_nominal_long(out: pathlib.Path) -> str | None:
     from flight_fdi.core.ins3d.glr3d import thresholds_for
     from flight_fdi.eval.long3d import format_nominal_maxima, nominal_maxima
 
     doc, recs, note, dur = _long_records(out, "nominal_long")
     if not recs:
-        return "_Not run._"
+        return None
     head = note + (_settings(doc) if doc else "")
     return "\n".join([head, "", _nominal_table(recs), "", format_nominal_maxima(
         nominal_maxima(recs, thresholds_for("navigation", dur)))])
 
 
-def section_faults_long(out: pathlib.Path) -> str:
+def section_faults_long(out: pathlib.Path) -> str | None:
     from flight_fdi.eval.long3d import format_by_onset
     from flight_fdi.eval.metrics3d import format_metrics, summarize
 
     doc, recs, note, dur = _long_records(out, "faults_long")
     if not recs:
-        return "_Not run._"
+        return None
     head = note
     if doc:
         c = next(iter(doc["config"].values()))
@@ -340,10 +340,24 @@ def section_faults_long(out: pathlib.Path) -> str:
     return head + "\n\n" + text + "\n\n" + format_by_onset(recs, dur, ONSET_BINS)
 
 
-def section_detectable_long(out: pathlib.Path) -> str:
+def section_calibration_long(out: pathlib.Path) -> str | None:
+    """The threshold calibration of the length rule, from tools/ins3d_calibrate.py's JSON:
+    ``calibrate_30min.json`` and ``calibrate_long*.json`` in ``out``."""
+    from flight_fdi.core.ins3d.glr3d import LENGTH_GROWTH, thresholds_for
+    from flight_fdi.eval.long3d import calibration_table
+
+    short = _load(out, "calibrate_30min")
+    long = [r for p in sorted(out.glob("calibrate_long*.json")) for r in json.loads(p.read_text())]
+    if short is None or not long:
+        return None
+    return calibration_table(short, long, thresholds_for("navigation"),
+                             thresholds_for("navigation", long[0]["duration_s"]), LENGTH_GROWTH)
+
+
+def section_detectable_long(out: pathlib.Path) -> str | None:
     doc = _load(out, "detectable_long")
     if doc is None:
-        return "_Not run._"
+        return None
     return _detect_table(doc, f"One nominal {doc['duration_s']:g}-s flight per profile (seed "
                               f"{doc['seed']}, navigation grade; step threshold "
                               f"{doc['thresholds']['step']:g})")
@@ -359,12 +373,12 @@ def _partial(out: pathlib.Path, name: str) -> int:
     return sum(1 for _ in p.open()) if p.exists() else 0
 
 
-def section_nominal(out: pathlib.Path) -> str:
+def section_nominal(out: pathlib.Path) -> str | None:
     doc = _load(out, "nominal")
     if doc is None:
         n = _partial(out, "nominal")
         if not n:
-            return "_Not run._"
+            return None
         recs = [json.loads(s) for s in (out / "nominal.jsonl").open()]
         head = (f"**Partial: {n} of the planned flights had finished when this was rendered "
                 f"(the run did not complete).**\n\n")
@@ -389,40 +403,43 @@ def _nominal_table(recs: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def section_faults(out: pathlib.Path) -> str:
+def section_faults(out: pathlib.Path) -> str | None:
     from flight_fdi.eval.metrics3d import format_metrics, summarize
 
     doc = _load(out, "faults")
     if doc is None:
-        return "_Not run._"
+        return None
     text = format_metrics(summarize(doc["flights"]))
     # the nominal table of the fault study is empty (no nominal flights): drop it
     text = re.sub(r"nominal flights:\n\n(\|.*\n)+\n", "", text)
     return _settings(doc) + "\n\n" + text
 
 
-def section_ladder(out: pathlib.Path) -> str:
+def section_ladder(out: pathlib.Path, names: tuple = ("ladder",)) -> str | None:
     from flight_fdi.eval.ladder3d import format_ladder
 
     parts = []
-    for name in ("ladder", "ladder_grades"):
+    for name in names:
         doc = _load(out, name)
         if doc is None:
-            parts.append(f"_{name}: not run._")
             continue
         lad = doc["ladder"]
         parts.append(f"Seed {lad['seed']}, code {doc.get('commit', '?')}, "
                      f"{lad['elapsed_s'] / 60:.1f} min on the shared machine.\n\n"
                      + format_ladder(lad))
-    return "\n\n".join(parts)
+    return "\n\n".join(parts) or None
 
 
-def section_latency(out: pathlib.Path) -> str:
+def section_ladder_grades(out: pathlib.Path) -> str | None:
+    return section_ladder(out, ("ladder_grades",))
+
+
+def section_latency(out: pathlib.Path) -> str | None:
     from flight_fdi.eval.metrics3d import format_metrics, summarize
 
     doc = _load(out, "latency")
     if doc is None:
-        return "_Not run._"
+        return None
     c = doc["config"]
     return (f"GNSS latency {doc['latency_ms']:g} ms (the model estimates it as a state): "
             f"{c['nominal']['nominal']} nominal flights of {c['nominal']['duration_s']:g} s "
@@ -448,16 +465,21 @@ def _pct(x) -> str:
 def render(out: pathlib.Path, doc: pathlib.Path = DOC) -> None:
     text = doc.read_text()
     for name, fn in (("nominal", section_nominal), ("faults", section_faults),
-                     ("ladder", section_ladder), ("latency", section_latency),
+                     ("ladder", section_ladder), ("ladder_grades", section_ladder_grades),
+                     ("latency", section_latency),
                      ("detectable", section_detectable), ("nominal_long", section_nominal_long),
                      ("faults_long", section_faults_long),
+                     ("calibration_long", section_calibration_long),
                      ("detectable_long", section_detectable_long)):
         begin, end = f"<!-- BEGIN GENERATED {name} -->", f"<!-- END GENERATED {name} -->"
         if begin not in text:
             continue
+        body = fn(out)
+        if body is None:          # no results in ``out``: the section keeps what it has
+            continue
         a, rest = text.split(begin, 1)
         _, b = rest.split(end, 1)
-        text = f"{a}{begin}\n{fn(out)}\n{end}{b}"
+        text = f"{a}{begin}\n{body}\n{end}{b}"
     doc.write_text(text)
 
 

@@ -141,5 +141,40 @@ def format_by_onset(records: Sequence[dict], duration_s: float, fractions: Seque
     return "\n".join(lines)
 
 
-__all__ = ["KINDS", "by_onset", "detectable_steps", "format_by_onset", "format_nominal_maxima",
+def calibration_table(short: Sequence[dict], long: Sequence[dict], base: dict[str, float],
+                      rule: dict[str, float], growth: dict[str, float]) -> str:
+    """The threshold calibration on nominal flights of two lengths (``tools/ins3d_calibrate.py``
+    rows: per flight the largest GLR per kind): quantiles of the flights' maxima, the growth of
+    the median, and how many long flights exceed the fixed thresholds ``base`` and the length
+    rule's ``rule`` (growth coefficient per kind: ``growth``)."""
+    def q(rows, k, qs):
+        m = np.array([r["max"][k] for r in rows])
+        return [float(np.quantile(m, x)) for x in qs], m
+
+    ts, tl = short[0]["duration_s"], long[0]["duration_s"]
+    lines = [f"| kind | {ts / 60:g} min, {len(short)} flights: median / 90 % / largest | "
+             f"{tl / 60:g} min, {len(long)} flights: median / 90 % / 99 % / largest | growth "
+             f"of the median (/ ln {tl / ts:g}) | fixed threshold: flights above | rule: c, "
+             "threshold, flights above |", "|---|---|---|---|---|---|"]
+    for k in KINDS:
+        (s50, s90, s100), _ = q(short, k, (0.5, 0.9, 1.0))
+        (l50, l90, l99, l100), m = q(long, k, (0.5, 0.9, 0.99, 1.0))
+        g = l50 - s50
+        lines.append(f"| {k} | {s50:.1f} / {s90:.1f} / {s100:.1f} | {l50:.1f} / {l90:.1f} / "
+                     f"{l99:.1f} / {l100:.1f} | {g:+.1f} ({g / np.log(tl / ts):.2f}) | "
+                     f"{int(np.sum(m > base[k]))} | {growth[k]:g}, {rule[k]:.1f}, "
+                     f"{int(np.sum(m > rule[k]))} |")
+    n_fixed = sum(any(r["max"][k] > base[k] for k in KINDS) for r in long)
+    n_rule = sum(any(r["max"][k] > rule[k] for k in KINDS) for r in long)
+    verdicts: dict[str, int] = {}
+    for r in long:
+        verdicts[r["verdict"]] = verdicts.get(r["verdict"], 0) + 1
+    lines += ["", f"{tl / 60:g}-min flights with any kind above its threshold: fixed "
+              f"{n_fixed} ({100 * n_fixed / len(long):.1f} %), rule {n_rule} "
+              f"({100 * n_rule / len(long):.1f} %); verdicts: "
+              + ", ".join(f"{k} {v}" for k, v in sorted(verdicts.items())) + "."]
+    return "\n".join(lines)
+
+
+__all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset", "format_nominal_maxima",
            "merge_records", "nominal_maxima", "run_recorded"]

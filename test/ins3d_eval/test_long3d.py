@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, thresholds_for
-from flight_fdi.eval.long3d import (by_onset, detectable_steps, format_by_onset,
-                                    format_nominal_maxima, merge_records, nominal_maxima,
-                                    run_recorded)
+from flight_fdi.eval.long3d import (by_onset, calibration_table, detectable_steps,
+                                    format_by_onset, format_nominal_maxima, merge_records,
+                                    nominal_maxima, run_recorded)
 from flight_fdi.eval.montecarlo3d import SCENARIOS, Study3DConfig, decision, glr_max_by_kind
 
 REPO = Path(__file__).resolve().parents[2]
@@ -143,3 +143,23 @@ def test_tool_renders_the_long_sections_from_partial_records(tmp_path):
     assert "| jump | 3 | 20.0 | 20.0 | 32.8 | 0 |" in text
     assert "| gyro_step | x | all | 1/1 | - | - | - | - |" in text
     assert "| gyro_step | y | all | - | - | - | 1/1 | - |" in text   # 4000 s: 3960-5040
+
+
+def test_calibration_table_counts_the_long_flights_above_each_rule():
+    def row(dur, step, jump, verdict="no_fault"):
+        return {"duration_s": dur, "verdict": verdict,
+                "max": {"step": step, "ramp": 1.0, "jump": jump, "outliers": 10.0}}
+
+    short = [row(1800.0, s, j) for s, j in ((5.0, 15.0), (7.0, 17.0), (9.0, 19.0))]
+    long = [row(7200.0, s, j) for s, j in ((6.0, 18.0), (8.0, 20.0), (21.0, 31.0))]
+    long.append(row(7200.0, 10.0, 33.0, "failure"))
+    base = {"step": 20.0, "ramp": 20.0, "jump": 30.0, "outliers": 32.0}
+    rule = {"step": 21.5, "ramp": 20.0, "jump": 32.8, "outliers": 34.8}
+    text = calibration_table(short, long, base, rule,
+                             {"step": 1.0, "ramp": 0.0, "jump": 2.0, "outliers": 2.0})
+    # medians 7 -> 9 (+2 = 1.44 ln 4); one step above 20, none above 21.5
+    assert "| step | 7.0 / 8.6 / 9.0 | 9.0 / " in text
+    assert "| +2.0 (1.44) | 1 | 1, 21.5, 0 |" in text
+    # jumps 31 and 33 above 30, only 33 above 32.8
+    assert "| jump |" in text and "| 2 | 2, 32.8, 1 |" in text
+    assert "fixed 2 (50.0 %), rule 1 (25.0 %); verdicts: failure 1, no_fault 3." in text
