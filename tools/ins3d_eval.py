@@ -186,29 +186,13 @@ def _detect_doc(a, onsets) -> dict:
 
 
 def section_detectable(out: pathlib.Path) -> str | None:
+    from flight_fdi.eval.long3d import format_detectable
+
     doc = _load(out, "detectable")
     if doc is None:
         return None
-    return _detect_table(doc, f"One nominal 1200-s `cruise_turns` flight (seed {doc['seed']}, "
-                              "navigation grade)")
-
-
-def _detect_table(doc: dict, intro: str) -> str:
-    on = doc["onsets_s"]
-    lines = [f"{intro}, code {doc.get('commit', '?')}: the step whose expected GLR equals the "
-             "step threshold, per onset (detected about half the time; ~1.5x that for 95 %).",
-             "", "| flight / model | step | " + " | ".join(f"{t:g} s" for t in on) + " |",
-             "|---" * (2 + len(on)) + "|"]
-    for label, m in doc["models"].items():
-        for name, r in m["rows"].items():
-            lines.append(f"| {label} | {name} ({r['unit']}) | "
-                         + " | ".join(f"{v:.3g}" for v in r["values"]) + " |")
-    for label, m in doc["models"].items():
-        turns = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in m["turns"])
-        ex = ", ".join(f"{k} {'never' if v is None else f'{v:.0f} s'}"
-                       for k, v in m["excited_at"].items())
-        lines.append(f"\n{label}: turns {turns}; observability report (first excited): {ex}.")
-    return "\n".join(lines)
+    return format_detectable(doc, f"One nominal 1200-s `cruise_turns` flight (seed "
+                                  f"{doc['seed']}, navigation grade)")
 
 
 # --------------------------------------------------------------------------- long flights
@@ -286,44 +270,27 @@ def run_detectable_long(args, out: pathlib.Path) -> None:
     _save(out, "detectable_long", doc, args.code)
 
 
-def _long_records(out: pathlib.Path, name: str) -> tuple[dict | None, list[dict], str, float]:
-    """(the finished study's JSON or None, its records -- from the .jsonl files of an
-    unfinished one --, a note saying it is partial, the flights' duration)."""
-    from flight_fdi.eval.long3d import merge_records
 
-    doc = _load(out, name)
-    if doc is not None:
-        c = doc["config"]
-        return doc, doc["flights"], "", c.get("duration_s") or next(iter(c.values()))[
-            "duration_s"]
-    parts, dur = [], 0.0
-    for p in sorted(out.glob(f"{name}*.jsonl")):
-        lines = p.read_text().splitlines()
-        dur = json.loads(lines[0])["study"]["duration_s"]
-        parts.append([json.loads(x) for x in lines[1:] if x.strip()])
-    recs = merge_records(parts)
-    note = (f"**Partial: {len(recs)} flights had finished when this was rendered (the run did "
-            "not complete).**\n\n") if recs else ""
-    return None, recs, note, dur
 
 
 def section_nominal_long(out: pathlib.Path) -> str | None:
     from flight_fdi.core.ins3d.glr3d import thresholds_for
-    from flight_fdi.eval.long3d import format_nominal_maxima, nominal_maxima
+    from flight_fdi.eval.long3d import (format_nominal, format_nominal_maxima, nominal_maxima,
+                                        read_study)
 
-    doc, recs, note, dur = _long_records(out, "nominal_long")
+    doc, recs, note, dur = read_study(out, "nominal_long")
     if not recs:
         return None
     head = note + (_settings(doc) if doc else "")
-    return "\n".join([head, "", _nominal_table(recs), "", format_nominal_maxima(
+    return "\n".join([head, "", format_nominal(recs), "", format_nominal_maxima(
         nominal_maxima(recs, thresholds_for("navigation", dur)))])
 
 
 def section_faults_long(out: pathlib.Path) -> str | None:
-    from flight_fdi.eval.long3d import format_by_onset
+    from flight_fdi.eval.long3d import format_by_onset, read_study
     from flight_fdi.eval.metrics3d import format_metrics, summarize
 
-    doc, recs, note, dur = _long_records(out, "faults_long")
+    doc, recs, note, dur = read_study(out, "faults_long")
     if not recs:
         return None
     head = note
@@ -355,12 +322,14 @@ def section_calibration_long(out: pathlib.Path) -> str | None:
 
 
 def section_detectable_long(out: pathlib.Path) -> str | None:
+    from flight_fdi.eval.long3d import format_detectable
+
     doc = _load(out, "detectable_long")
     if doc is None:
         return None
-    return _detect_table(doc, f"One nominal {doc['duration_s']:g}-s flight per profile (seed "
-                              f"{doc['seed']}, navigation grade; step threshold "
-                              f"{doc['thresholds']['step']:g})")
+    return format_detectable(doc, f"One nominal {doc['duration_s']:g}-s flight per profile "
+                                  f"(seed {doc['seed']}, navigation grade; step threshold "
+                                  f"{doc['thresholds']['step']:.3g})")
 
 
 def _load(out: pathlib.Path, name: str) -> dict | None:
@@ -374,6 +343,8 @@ def _partial(out: pathlib.Path, name: str) -> int:
 
 
 def section_nominal(out: pathlib.Path) -> str | None:
+    from flight_fdi.eval.long3d import format_nominal
+
     doc = _load(out, "nominal")
     if doc is None:
         n = _partial(out, "nominal")
@@ -384,23 +355,10 @@ def section_nominal(out: pathlib.Path) -> str | None:
                 f"(the run did not complete).**\n\n")
     else:
         recs, head = doc["flights"], _settings(doc) + "\n\n"
-    return head + _nominal_table(recs)
+    return head + format_nominal(recs)
 
 
-def _nominal_table(recs: list[dict]) -> str:
-    from flight_fdi.eval.metrics3d import summarize
 
-    m = summarize(recs)
-    lines = ["| model | nominal flights | false isolation (confident sensor) | "
-             "ambiguous / unexplained | declared, no sensor (seed method) | any fault declared "
-             "| named as |", "|---|---|---|---|---|---|---|"]
-    for model in m["models"]:
-        x = m[model]["nominal"]
-        lines.append(f"| {model} | {x['n']} | {_pct(x['false_isolation_rate'])} "
-                     f"({x['false_isolations']}) | {x['ambiguous']} | {x['unnamed']} | "
-                     f"{_pct(x['false_declaration_rate'])} | "
-                     f"{', '.join(f'{k} {v}' for k, v in x['isolated_as'].items()) or '-'} |")
-    return "\n".join(lines)
 
 
 def section_faults(out: pathlib.Path) -> str | None:
@@ -456,10 +414,6 @@ def _settings(doc: dict) -> str:
             f"{c['seed']}, GNSS latency {1000 * c['gnss_latency_s']:g} ms + Markov noise, "
             f"onsets in {c['onset_window'][0]:g}-{c['onset_window'][1]:g} of the flight; "
             f"{doc['elapsed_s'] / 60:.1f} min on {doc['engine']}; code {doc.get('commit', '?')}.")
-
-
-def _pct(x) -> str:
-    return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
 def render(out: pathlib.Path, doc: pathlib.Path = DOC) -> None:

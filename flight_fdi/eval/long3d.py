@@ -17,12 +17,13 @@ what the longer flights add:
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from .metrics3d import ISOLATION_LEVEL, outcome
+from .metrics3d import ISOLATION_LEVEL, outcome, summarize
 from .montecarlo3d import SCENARIOS, Study3DConfig, Study3DResult, run_study, study_settings
 from .records import RecordsFile
 
@@ -176,5 +177,66 @@ def calibration_table(short: Sequence[dict], long: Sequence[dict], base: dict[st
     return "\n".join(lines)
 
 
-__all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset", "format_nominal_maxima",
-           "merge_records", "nominal_maxima", "run_recorded"]
+def format_detectable(doc: dict, intro: str) -> str:
+    """The detectable-step table of ``tools/ins3d_eval.py``'s ``detectable*.json``: per flight /
+    model and step the sizes per onset, then the turns and first-excited times."""
+    on = doc["onsets_s"]
+    lines = [f"{intro}, code {doc.get('commit', '?')}: the step whose expected GLR equals the "
+             "step threshold, per onset (detected about half the time; ~1.5x that for 95 %).",
+             "", "| flight / model | step | " + " | ".join(f"{t:g} s" for t in on) + " |",
+             "|---" * (2 + len(on)) + "|"]
+    for label, m in doc["models"].items():
+        for name, r in m["rows"].items():
+            lines.append(f"| {label} | {name} ({r['unit']}) | "
+                         + " | ".join(f"{v:.3g}" for v in r["values"]) + " |")
+    for label, m in doc["models"].items():
+        turns = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in m["turns"])
+        ex = ", ".join(f"{k} {'never' if v is None else f'{v:.0f} s'}"
+                       for k, v in m["excited_at"].items())
+        lines.append(f"\n{label}: turns {turns}; observability report (first excited): {ex}.")
+    return "\n".join(lines)
+
+
+def read_study(out: Path, name: str) -> tuple[dict | None, list[dict], str, float]:
+    """A study of ``tools/ins3d_eval.py`` in ``out``: (the finished study's JSON or None, its
+    records -- from the .jsonl files of an unfinished one --, a note saying it is partial, the
+    flights' duration)."""
+    p = out / f"{name}.json"
+    doc = json.loads(p.read_text()) if p.exists() else None
+    if doc is not None:
+        c = doc["config"]
+        return doc, doc["flights"], "", c.get("duration_s") or next(iter(c.values()))[
+            "duration_s"]
+    parts, dur = [], 0.0
+    for p in sorted(out.glob(f"{name}*.jsonl")):
+        lines = p.read_text().splitlines()
+        dur = json.loads(lines[0])["study"]["duration_s"]
+        parts.append([json.loads(x) for x in lines[1:] if x.strip()])
+    recs = merge_records(parts)
+    note = (f"**Partial: {len(recs)} flights had finished when this was rendered (the run did "
+            "not complete).**\n\n") if recs else ""
+    return None, recs, note, dur
+
+
+def format_nominal(recs: Sequence[dict]) -> str:
+    """The nominal-flight table of both models (false isolation, declarations)."""
+    m = summarize(recs)
+    lines = ["| model | nominal flights | false isolation (confident sensor) | "
+             "ambiguous / unexplained | declared, no sensor (seed method) | any fault declared "
+             "| named as |", "|---|---|---|---|---|---|---|"]
+    for model in m["models"]:
+        x = m[model]["nominal"]
+        lines.append(f"| {model} | {x['n']} | {_pct(x['false_isolation_rate'])} "
+                     f"({x['false_isolations']}) | {x['ambiguous']} | {x['unnamed']} | "
+                     f"{_pct(x['false_declaration_rate'])} | "
+                     f"{', '.join(f'{k} {v}' for k, v in x['isolated_as'].items()) or '-'} |")
+    return "\n".join(lines)
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f} %"
+
+
+__all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",
+           "format_detectable", "format_nominal", "format_nominal_maxima", "merge_records",
+           "nominal_maxima", "read_study", "run_recorded"]
