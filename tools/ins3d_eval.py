@@ -39,7 +39,7 @@ to ``<out>/<study>*.jsonl`` and a stopped study resumes from them):
 * ``detectable_long``: the detectable-step table of one long flight per profile of
   ``--long-detect-profiles`` (default random,cruise_turns).
 
-Progress goes to stderr (one tqdm bar per study) and to ``<out>/progress.log``.
+Progress: stderr (a tqdm bar per study) and ``<out>/progress.log``.
 """
 from __future__ import annotations
 
@@ -59,6 +59,8 @@ STUDIES = ("nominal", "faults", "ladder", "ladder_grades", "latency", "detectabl
 #: steps of the detectable-step tables: (GLR hypothesis, scenario of its unit)
 DETECT_STEPS = (("accelerometer_z_step", "accel_step"), ("gyro_x_step", "gyro_step"),
                 ("gyro_y_step", "gyro_step"), ("gyro_z_step", "gyro_step"))
+#: drops of the onset-calibration tables
+ONSET_DROPS = (3.84, 6.0, 10.0, 25.0)
 #: onset bins of the long fault study's by-onset table, as fractions of the flight
 ONSET_BINS = (0.1, 0.25, 0.4, 0.55, 0.7, 0.8)
 #: onsets (s) of the detectable-step table (the fault flights' 1200-s cruise_turns)
@@ -321,6 +323,18 @@ def section_calibration_long(out: pathlib.Path) -> str | None:
                              thresholds_for("navigation", long[0]["duration_s"]), LENGTH_GROWTH)
 
 
+def section_onset_calibration(out: pathlib.Path) -> str | None:
+    """The onset-interval calibration tables from ``onset_*.json`` (tools/ins3d_onset_calibrate.py
+    --out) in ``out``: one table per file."""
+    from flight_fdi.eval.long3d import format_onset_coverage
+
+    parts = []
+    for p in sorted(out.glob("onset_*.json")):
+        rows = json.loads(p.read_text())
+        parts.append(f"`{p.name}`:\n\n" + format_onset_coverage(rows, ONSET_DROPS))
+    return "\n\n".join(parts) or None
+
+
 def section_detectable_long(out: pathlib.Path) -> str | None:
     from flight_fdi.eval.long3d import format_detectable
 
@@ -424,6 +438,7 @@ def render(out: pathlib.Path, doc: pathlib.Path = DOC) -> None:
                      ("detectable", section_detectable), ("nominal_long", section_nominal_long),
                      ("faults_long", section_faults_long),
                      ("calibration_long", section_calibration_long),
+                     ("onset_calibration", section_onset_calibration),
                      ("detectable_long", section_detectable_long)):
         begin, end = f"<!-- BEGIN GENERATED {name} -->", f"<!-- END GENERATED {name} -->"
         if begin not in text:

@@ -55,27 +55,8 @@ def _one(item) -> dict:
     return one(*item)
 
 
-def coverage(rows: list[dict], drops=DROPS) -> list[str]:
-    """Per scenario and reported kind: right isolations, and per drop the true onsets covered
-    and the median interval width."""
-    out = []
-    for s in dict.fromkeys(r["scenario"] for r in rows):
-        mine = [r for r in rows if r["scenario"] == s]
-        right = [r for r in mine if r["right"]]
-        out.append(f"{s}: {len(right)}/{len(mine)} right sensor and axis")
-        for kind in sorted({r["reported_kind"] for r in right}):
-            rk = [r for r in right if r["reported_kind"] == kind]
-            out.append(f"  reported as {kind}: {len(rk)}")
-            for d in drops:
-                iv = [r["intervals"][str(d)] for r in rk]
-                cov = sum(lo - 1e-6 <= r["onset_s"] <= hi + 1e-6 for (lo, hi), r in zip(iv, rk))
-                width = np.median([hi - lo for lo, hi in iv]) if iv else float("nan")
-                out.append(f"    drop {d:5.2f}: true onset covered {cov}/{len(rk)}, "
-                           f"median width {width:.1f} s")
-    return out
-
-
 def main() -> None:
+    from flight_fdi.eval.long3d import format_onset_coverage
     from flight_fdi.eval.montecarlo3d import Study3DConfig, plan_study
     from flight_fdi.eval.parallel import parallel_map
 
@@ -100,7 +81,7 @@ def main() -> None:
     rows = sorted(parallel_map(_one, [(c, cfg) for c in plan_study(cfg)], a.jobs,
                                desc="onset calibration", on_result=arrived),
                   key=lambda r: r["index"])
-    print("\n".join(coverage(rows)))
+    print(format_onset_coverage(rows, DROPS))
     if a.out:
         pathlib.Path(a.out).write_text(json.dumps(rows, indent=1) + "\n")
 

@@ -233,10 +233,34 @@ def format_nominal(recs: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
+def format_onset_coverage(rows: Sequence[dict], drops: Sequence[float]) -> str:
+    """The onset-interval calibration (``tools/ins3d_onset_calibrate.py`` rows): per scenario
+    and reported kind, over the right isolations, the true onsets inside the interval of each
+    drop and the median width."""
+    lines = ["| scenario | right sensor+axis | reported as | " + " | ".join(
+        f"drop {d:g}: covered (median width s)" for d in drops) + " |",
+        "|---" * (3 + len(drops)) + "|"]
+    for s in dict.fromkeys(r["scenario"] for r in rows):
+        mine = [r for r in rows if r["scenario"] == s]
+        right = [r for r in mine if r["right"]]
+        for kind in sorted({r["reported_kind"] for r in right}):
+            rk = [r for r in right if r["reported_kind"] == kind]
+            cells = []
+            for d in drops:
+                iv = [r["intervals"][str(d)] for r in rk]
+                cov = sum(lo - 1e-6 <= r["onset_s"] <= hi + 1e-6
+                          for (lo, hi), r in zip(iv, rk))
+                cells.append(f"{cov}/{len(rk)} ({np.median([hi - lo for lo, hi in iv]):.0f})")
+            lines.append(f"| {s} | {len(right)}/{len(mine)} | {kind} | " + " | ".join(cells)
+                         + " |")
+    return "\n".join(lines)
+
+
 def _pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
 __all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",
-           "format_detectable", "format_nominal", "format_nominal_maxima", "merge_records",
+           "format_detectable", "format_nominal", "format_nominal_maxima",
+           "format_onset_coverage", "merge_records",
            "nominal_maxima", "read_study", "run_recorded"]
