@@ -289,7 +289,7 @@ def section_nominal_long(out: pathlib.Path) -> str | None:
 
 
 def section_faults_long(out: pathlib.Path) -> str | None:
-    from flight_fdi.eval.long3d import format_by_onset, read_study
+    from flight_fdi.eval.long3d import format_by_onset, format_by_turn_after, read_study
     from flight_fdi.eval.metrics3d import format_metrics, summarize
 
     doc, recs, note, dur = read_study(out, "faults_long")
@@ -306,7 +306,8 @@ def section_faults_long(out: pathlib.Path) -> str | None:
                 f"{doc['elapsed_s'] / 60:.1f} min on {doc.get('engine', '?')}; code "
                 f"{doc.get('commit', '?')}.")
     text = re.sub(r"nominal flights:\n\n(\|.*\n)+\n", "", format_metrics(summarize(recs)))
-    return head + "\n\n" + text + "\n\n" + format_by_onset(recs, dur, ONSET_BINS)
+    return (head + "\n\n" + text + "\n\n" + format_by_onset(recs, dur, ONSET_BINS) + "\n\n"
+            + format_by_turn_after([r for r in recs if r["scenario"].startswith("gyro")]))
 
 
 def section_calibration_long(out: pathlib.Path) -> str | None:

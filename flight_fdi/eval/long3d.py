@@ -89,6 +89,28 @@ def by_onset(records: Sequence[dict], bins_s: Sequence[float], model: str = "ins
                 list(SCENARIOS).index(kv[0][0]), kv[0][1], kv[0][2]))]
 
 
+def format_by_turn_after(records: Sequence[dict], model: str = "ins3d") -> str:
+    """Right sensor+axis per scenario, axis and level, split by whether the aircraft turned
+    after the onset (``next_turn_s``: the first turn entry after it, from the truth)."""
+    cells: dict[tuple, list[int]] = {}
+    for r in records:
+        if r["scenario"] == "nominal":
+            continue
+        c = cells.setdefault((r["scenario"], r["axis"], r["level"]), [0, 0, 0, 0])
+        j = 0 if r.get("next_turn_s") is not None else 2
+        c[j] += 1
+        c[j + 1] += outcome(r, model) == "right"
+    lines = [f"right sensor+axis ({model}) by a turn after the onset (right/n):", "",
+             "| scenario | axis | level | a turn after the onset | no turn after it |",
+             "|---|---|---|---|---|"]
+    order = list(SCENARIOS)
+    for (s, a, lev), (n1, k1, n0, k0) in sorted(cells.items(), key=lambda kv: (
+            order.index(kv[0][0]), kv[0][1], kv[0][2])):
+        lines.append(f"| {s} | {a} | {lev:g} | {f'{k1}/{n1}' if n1 else '-'} | "
+                     f"{f'{k0}/{n0}' if n0 else '-'} |")
+    return "\n".join(lines)
+
+
 def detectable_steps(analysis, onsets_s: Sequence[float], names: Sequence[tuple[str, str]]
                      ) -> dict[str, dict]:
     """For each (hypothesis name, scenario) of ``names``: the step whose expected GLR equals the
@@ -261,6 +283,7 @@ def _pct(x: float | None) -> str:
 
 
 __all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",
-           "format_detectable", "format_nominal", "format_nominal_maxima",
+           "format_by_turn_after", "format_detectable", "format_nominal",
+           "format_nominal_maxima",
            "format_onset_coverage", "merge_records",
            "nominal_maxima", "read_study", "run_recorded"]

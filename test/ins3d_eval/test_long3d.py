@@ -15,8 +15,10 @@ import pytest
 
 from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, thresholds_for
 from flight_fdi.eval.long3d import (by_onset, calibration_table, detectable_steps,
-                                    format_by_onset, format_nominal_maxima, merge_records,
-                                    nominal_maxima, run_recorded)
+                                    format_by_onset, format_by_turn_after,
+                                    format_nominal_maxima,
+                                    format_onset_coverage, merge_records, nominal_maxima,
+                                    run_recorded)
 from flight_fdi.eval.montecarlo3d import SCENARIOS, Study3DConfig, decision, glr_max_by_kind
 
 REPO = Path(__file__).resolve().parents[2]
@@ -163,3 +165,25 @@ def test_calibration_table_counts_the_long_flights_above_each_rule():
     # jumps 31 and 33 above 30, only 33 above 32.8
     assert "| jump |" in text and "| 2 | 2, 32.8, 1 |" in text
     assert "fixed 2 (50.0 %), rule 1 (25.0 %); verdicts: failure 1, no_fault 3." in text
+
+
+def test_onset_coverage_table_per_scenario_and_reported_kind():
+    def row(scen, kind, onset, iv3, iv6, right=True):
+        return {"scenario": scen, "right": right, "reported_kind": kind if right else None,
+                "onset_s": onset, "intervals": {"3.84": iv3, "6.0": iv6} if right else None}
+
+    rows = [row("gyro_ramp", "step", 100.0, (110.0, 200.0), (90.0, 210.0)),
+            row("gyro_ramp", "step", 300.0, (250.0, 350.0), (240.0, 360.0)),
+            row("gyro_ramp", "ramp", 500.0, (480.0, 520.0), (470.0, 530.0)),
+            row("gyro_ramp", None, 700.0, None, None, right=False)]
+    text = format_onset_coverage(rows, (3.84, 6.0))
+    assert "| gyro_ramp | 3/4 | step | 1/2 (95) | 2/2 (120) |" in text
+    assert "| gyro_ramp | 3/4 | ramp | 1/1 (40) | 1/1 (60) |" in text
+
+
+def test_right_rate_split_by_a_turn_after_the_onset():
+    recs = [_rec(0), _rec(1, right=False), _rec(2, level=0.1)]
+    recs[0]["next_turn_s"], recs[1]["next_turn_s"], recs[2]["next_turn_s"] = 1500.0, None, 2e3
+    text = format_by_turn_after(recs + [_rec(3, "nominal", right=False)])
+    assert "| gyro_step | x | 0.05 | 1/1 | 0/1 |" in text
+    assert "| gyro_step | x | 0.1 | 1/1 | - |" in text
