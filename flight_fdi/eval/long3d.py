@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .metrics3d import ISOLATION_LEVEL, outcome, summarize
+from .metrics3d import ISOLATION_LEVEL, outcome, pct, summarize
 from .montecarlo3d import SCENARIOS, Study3DConfig, Study3DResult, run_study, study_settings
 from .records import RecordsFile
 
@@ -248,9 +248,9 @@ def format_nominal(recs: Sequence[dict]) -> str:
              "| named as |", "|---|---|---|---|---|---|---|"]
     for model in m["models"]:
         x = m[model]["nominal"]
-        lines.append(f"| {model} | {x['n']} | {_pct(x['false_isolation_rate'])} "
+        lines.append(f"| {model} | {x['n']} | {pct(x['false_isolation_rate'])} "
                      f"({x['false_isolations']}) | {x['ambiguous']} | {x['unnamed']} | "
-                     f"{_pct(x['false_declaration_rate'])} | "
+                     f"{pct(x['false_declaration_rate'])} | "
                      f"{', '.join(f'{k} {v}' for k, v in x['isolated_as'].items()) or '-'} |")
     return "\n".join(lines)
 
@@ -276,10 +276,6 @@ def format_onset_coverage(rows: Sequence[dict], drops: Sequence[float]) -> str:
             lines.append(f"| {s} | {len(right)}/{len(mine)} | {kind} | " + " | ".join(cells)
                          + " |")
     return "\n".join(lines)
-
-
-def _pct(x: float | None) -> str:
-    return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
 __all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",

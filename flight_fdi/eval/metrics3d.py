@@ -195,7 +195,7 @@ def summarize(records: Sequence[dict]) -> dict:
 
 # --------------------------------------------------------------------------- text
 
-def _pct(x: float | None) -> str:
+def pct(x: float | None) -> str:
     return "n/a" if x is None else f"{100 * x:.1f} %"
 
 
@@ -207,7 +207,7 @@ def _coverage(a: dict) -> str:
     n = a.get("onset_interval_n", 0)
     if not n:
         return "-"
-    return (f"{_pct(a['onset_coverage'])} ({a['onset_covered']}/{n}; "
+    return (f"{pct(a['onset_coverage'])} ({a['onset_covered']}/{n}; "
             f"{_num(a['onset_interval_width_s']['median'], '.1f')})")
 
 
@@ -220,9 +220,9 @@ def format_metrics(metrics: dict) -> str:
               "(seed method) | any fault declared |", "|---|---|---|---|---|---|"]
     for m in models:
         nr = metrics[m]["nominal"]
-        lines.append(f"| {m} | {nr['n']} | {_pct(nr['false_isolation_rate'])} "
+        lines.append(f"| {m} | {nr['n']} | {pct(nr['false_isolation_rate'])} "
                      f"({nr['false_isolations']}) | {nr['ambiguous']} | {nr['unnamed']} | "
-                     f"{_pct(nr['false_declaration_rate'])} |")
+                     f"{pct(nr['false_declaration_rate'])} |")
     lines += ["", "faulty flights (right = isolated, right sensor and axis; single-axis: sensor "
               "only for IMU faults):", "",
               "| scenario | model | n | right sensor+axis | right sensor | ambiguous | "
@@ -238,14 +238,14 @@ def format_metrics(metrics: dict) -> str:
             a = x["all"]
             key = "right_rate" if a["right_rate"] is not None else "right_sensor_rate"
             lines.append(
-                f"| {s} | {m} | {a['n']} | {_pct(a['right_rate'])} | "
-                f"{_pct(a['right_sensor_rate'])} | {_pct(a['ambiguous_rate'])} | "
-                f"{_pct(a['named_rate'])} | {_pct(a['wrong_rate'])} | {_pct(a['unnamed_rate'])} | "
-                f"{_pct(a['missed_rate'])} | {_pct(a['right_kind_rate'])} | "
+                f"| {s} | {m} | {a['n']} | {pct(a['right_rate'])} | "
+                f"{pct(a['right_sensor_rate'])} | {pct(a['ambiguous_rate'])} | "
+                f"{pct(a['named_rate'])} | {pct(a['wrong_rate'])} | {pct(a['unnamed_rate'])} | "
+                f"{pct(a['missed_rate'])} | {pct(a['right_kind_rate'])} | "
                 f"{_num(a['onset_error_s']['median_abs'])} | {_coverage(a)} | "
-                f"{_pct(a['magnitude_error']['median'])} | "
-                f"{_pct(x['in_turn'][key])} ({x['in_turn']['n']}) | "
-                f"{_pct(x['straight'][key])} ({x['straight']['n']}) |")
+                f"{pct(a['magnitude_error']['median'])} | "
+                f"{pct(x['in_turn'][key])} ({x['in_turn']['n']}) | "
+                f"{pct(x['straight'][key])} ({x['straight']['n']}) |")
     lines += ["", "by axis and level (rate of right sensor+axis; single-axis: right sensor):",
               "", "| scenario | axis | level | " + " | ".join(f"{m} n / right" for m in models)
               + " |", "|---" * (3 + len(models)) + "|"]
@@ -259,7 +259,7 @@ def format_metrics(metrics: dict) -> str:
             for m in models:
                 rr = rows[m][i]
                 v = rr["right_rate"] if rr["right_rate"] is not None else rr["right_sensor_rate"]
-                cells.append(f"{rr['n']} / {_pct(v)}")
+                cells.append(f"{rr['n']} / {pct(v)}")
             lines.append(f"| {s} | {row['axis']} | {row['level']:g} {unit} | "
                          + " | ".join(cells) + " |")
     lines += ["", f"smallest fault isolated in >= {100 * ISOLATION_LEVEL:.0f} % (at that level "
@@ -274,4 +274,4 @@ def format_metrics(metrics: dict) -> str:
 
 
 __all__ = ["ISOLATION_LEVEL", "OUTCOMES", "axis_scored", "by_level", "format_metrics", "named",
-           "nominal_rates", "outcome", "rates", "smallest_isolated", "summarize"]
+           "nominal_rates", "outcome", "pct", "rates", "smallest_isolated", "summarize"]
