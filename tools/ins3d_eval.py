@@ -245,7 +245,9 @@ def run_faults_long(args, out: pathlib.Path) -> None:
         parts.append(res.records)
         doc["config"][scen] = cfg.describe()
         doc["elapsed_s"] += res.elapsed_s
-        doc["engine"] = res.engine
+        doc["resumed"] = doc.get("resumed", 0) + res.resumed
+        if res.engine:                 # a scenario wholly resumed from its records ran nowhere
+            doc["engine"] = res.engine
     doc["flights"] = merge_records(parts)
     _save(out, "faults_long", doc, args.code)
 
@@ -303,8 +305,9 @@ def section_faults_long(out: pathlib.Path) -> str | None:
                 f"`{c['profile']}`, grade {c['grade']}, seeds {seeds}, GNSS latency "
                 f"{1000 * c['gnss_latency_s']:g} ms + Markov noise, onsets in "
                 f"{c['onset_window'][0]:g}-{c['onset_window'][1]:g} of the flight; "
-                f"{doc['elapsed_s'] / 60:.1f} min on {doc.get('engine', '?')}; code "
-                f"{doc.get('commit', '?')}.")
+                f"{doc['elapsed_s'] / 60:.1f} min on {doc.get('engine', '?')}"
+                + (f" ({doc['resumed']} flights resumed from earlier runs' records)"
+                   if doc.get("resumed") else "") + f"; code {doc.get('commit', '?')}.")
     text = re.sub(r"nominal flights:\n\n(\|.*\n)+\n", "", format_metrics(summarize(recs)))
     return (head + "\n\n" + text + "\n\n" + format_by_onset(recs, dur, ONSET_BINS) + "\n\n"
             + format_by_turn_after([r for r in recs if r["scenario"].startswith("gyro")]))
