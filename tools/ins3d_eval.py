@@ -60,7 +60,7 @@ STUDIES = ("nominal", "faults", "ladder", "ladder_grades", "latency", "detectabl
 DETECT_STEPS = (("accelerometer_z_step", "accel_step"), ("gyro_x_step", "gyro_step"),
                 ("gyro_y_step", "gyro_step"), ("gyro_z_step", "gyro_step"))
 #: drops of the onset-calibration tables
-ONSET_DROPS = (3.84, 6.0, 10.0, 25.0)
+ONSET_DROPS = (3.84, 6.0, 10.0, 15.0, 25.0)
 #: onset bins of the long fault study's by-onset table, as fractions of the flight
 ONSET_BINS = (0.1, 0.25, 0.4, 0.55, 0.7, 0.8)
 #: onsets (s) of the detectable-step table (the fault flights' 1200-s cruise_turns)

@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-DROPS = (3.84, 6.0, 10.0, 15.0, 25.0, 40.0)
+DROPS = (3.84, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 25.0, 40.0)
 
 
 def one(case, config) -> dict:
