@@ -305,11 +305,11 @@ def isolate(model: LinearModel, fwd: Any, config: GlrConfig = GlrConfig()) -> Gl
         over = np.flatnonzero(l > threshold)
         per[name].update(count=int(over.size), onset_interval=None,
                          times=[float(flt.t[k]) for k in over[:MAX_OUTLIER_TIMES]])
-    return _verdict(config, systems, flt, raw, per, curves, threshold)
+    return _verdict(config, systems, flt, raw, per, curves, threshold, threads)
 
 
 def _verdict(config: GlrConfig, systems: dict, flt, raw: dict, per: dict, curves: dict,
-             threshold: float) -> GlrResult:
+             threshold: float, threads: int) -> GlrResult:
     """The isolated hypothesis and how confidently (module doc, "Is the fault explained?")."""
     ranked = rank_hypotheses(per)
     best = ranked[0]
@@ -326,8 +326,7 @@ def _verdict(config: GlrConfig, systems: dict, flt, raw: dict, per: dict, curves
         isolation = "ambiguous"
         extra = {"runner_up": rival, "runner_up_statistic": per[rival]["statistic"]}
     if config.residual_test and isolation == "single":  # (an ambiguous result stays so)
-        residual = residual_pass(systems, flt, raw, best, b["onset_index"],
-                                 config.threads or usable_threads())
+        residual = residual_pass(systems, flt, raw, best, b["onset_index"], threads)
         more_outliers = kind_of(best) == "outliers" and residual["hypothesis"] == best
         if residual["statistic"] > threshold and not more_outliers:
             isolation = "unexplained"
