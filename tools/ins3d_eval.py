@@ -90,22 +90,12 @@ def log(out: pathlib.Path, text: str) -> None:
 
 
 def run_nominal(args, out: pathlib.Path) -> None:
-    from flight_fdi.eval.montecarlo3d import Study3DConfig, run_study
+    from flight_fdi.eval.long3d import run_recorded
+    from flight_fdi.eval.montecarlo3d import Study3DConfig
 
     cfg = Study3DConfig(nominal=args.nominal, per_scenario=0,
                         duration_s=args.nominal_duration, profile="random", seed=args.seed)
-    stream = (out / "nominal.jsonl").open("w", encoding="utf-8")
-    done = [0]
-
-    def on_record(rec: dict) -> None:
-        stream.write(json.dumps(rec) + "\n")
-        stream.flush()
-        done[0] += 1
-        if done[0] % 10 == 0:
-            log(out, f"nominal: {done[0]}/{args.nominal} flights")
-
-    with stream:
-        res = run_study(cfg, jobs=args.jobs, progress=True, on_record=on_record)
+    res = run_recorded(cfg, out / "nominal.jsonl", args.jobs, progress=True)
     _save(out, "nominal", res.to_dict(), args.code)
 
 
@@ -355,22 +345,18 @@ def _load(out: pathlib.Path, name: str) -> dict | None:
     return json.loads(p.read_text()) if p.exists() else None
 
 
-def _partial(out: pathlib.Path, name: str) -> int:
-    p = out / f"{name}.jsonl"
-    return sum(1 for _ in p.open()) if p.exists() else 0
-
-
 def section_nominal(out: pathlib.Path) -> str | None:
     from flight_fdi.eval.long3d import format_nominal
+    from flight_fdi.eval.records import read_records
 
     doc = _load(out, "nominal")
     if doc is None:
-        n = _partial(out, "nominal")
-        if not n:
+        p = out / "nominal.jsonl"
+        recs = read_records(p)[1] if p.exists() else []
+        if not recs:
             return None
-        recs = [json.loads(s) for s in (out / "nominal.jsonl").open()]
-        head = (f"**Partial: {n} of the planned flights had finished when this was rendered "
-                f"(the run did not complete).**\n\n")
+        head = (f"**Partial: {len(recs)} of the planned flights had finished when this was "
+                f"rendered (the run did not complete).**\n\n")
     else:
         recs, head = doc["flights"], _settings(doc) + "\n\n"
     return head + format_nominal(recs)

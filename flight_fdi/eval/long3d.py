@@ -25,7 +25,7 @@ import numpy as np
 
 from .metrics3d import ISOLATION_LEVEL, outcome, pct, summarize
 from .montecarlo3d import SCENARIOS, Study3DConfig, Study3DResult, run_study, study_settings
-from .records import RecordsFile
+from .records import RecordsFile, read_records
 
 KINDS = ("step", "ramp", "jump", "outliers")
 
@@ -231,9 +231,9 @@ def read_study(out: Path, name: str) -> tuple[dict | None, list[dict], str, floa
             "duration_s"]
     parts, dur = [], 0.0
     for p in sorted(out.glob(f"{name}*.jsonl")):
-        lines = p.read_text().splitlines()
-        dur = json.loads(lines[0])["study"]["duration_s"]
-        parts.append([json.loads(x) for x in lines[1:] if x.strip()])
+        study, recs = read_records(p)
+        dur = study["duration_s"]
+        parts.append(recs)
     recs = merge_records(parts)
     note = (f"**Partial: {len(recs)} flights had finished when this was rendered (the run did "
             "not complete).**\n\n") if recs else ""

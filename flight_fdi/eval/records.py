@@ -59,6 +59,42 @@ def recorded_flights(done: Mapping[Any, dict], plan: Mapping[int, dict]) -> dict
     return kept
 
 
+def read_records(path: str | Path, key: str = "index") -> tuple[dict, list[dict]]:
+    """The study settings of a records file and its complete records, in file order (a last
+    line cut while it was written is left out); a file that is not one is an EvalError."""
+    study, records, _ = _read_file(Path(path), key)
+    return study, records
+
+
+def _read_file(path: Path, key: str) -> tuple[dict, list[dict], int]:
+    """(the header's study, the complete records, the byte offset after the last of them)."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise EvalError(f"cannot read {path}: {exc.strerror}") from None
+    lines = data.split(b"\n")
+    complete, tail = lines[:-1], lines[-1]  # tail: b"" or a line cut in the middle
+    head = _parse(path, complete[0] if complete else tail, 1)
+    if not isinstance(head, dict) or head.get("records") != FORMAT:
+        raise EvalError(f"{path} is not a study records file of this version (no "
+                        f"'{FORMAT}' header line); use another file or restart it")
+    records = []
+    for n, line in enumerate(complete[1:], start=2):
+        rec = _parse(path, line, n)
+        if not isinstance(rec, dict) or key not in rec:
+            raise EvalError(f"line {n} of {path} is not a record (no '{key}')")
+        records.append(rec)
+    return head.get("study"), records, len(data) - len(tail) if complete else 0
+
+
+def _parse(path: Path, line: bytes, n: int) -> Any:
+    try:
+        return json.loads(line)
+    except ValueError:
+        raise EvalError(f"line {n} of {path} is not JSON; the file is damaged "
+                        "(use another file or restart it)") from None
+
+
 class RecordsFile:
     """The JSON-lines records of one study (``study``: its settings as plain data; ``key``:
     the record field that identifies a flight). Use as a context manager::
@@ -107,37 +143,14 @@ class RecordsFile:
 
     def _read(self) -> int:
         """Fill :attr:`done` from the file; the byte offset after its last complete record."""
-        try:
-            data = self.path.read_bytes()
-        except OSError as exc:
-            raise EvalError(f"cannot read {self.path}: {exc.strerror}") from None
-        lines = data.split(b"\n")
-        complete, tail = lines[:-1], lines[-1]  # tail: b"" or a line cut in the middle
-        head = self._parse(complete[0] if complete else tail, 1)
-        if not isinstance(head, dict) or head.get("records") != FORMAT:
-            raise EvalError(f"{self.path} is not a study records file of this version (no "
-                            f"'{FORMAT}' header line); use another file or restart it")
-        if head.get("study") != self.study:
+        study, records, good_end = _read_file(self.path, self.key)
+        if study != self.study:
             raise EvalError(f"{self.path} holds the records of another study (differs in "
-                            f"{_differences(self.study, head.get('study'))}); use another file "
+                            f"{_differences(self.study, study)}); use another file "
                             "or restart it")
-        if not complete:
-            return 0
-        offset = len(complete[0]) + 1
-        for n, line in enumerate(complete[1:], start=2):
-            rec = self._parse(line, n)
-            if not isinstance(rec, dict) or self.key not in rec:
-                raise EvalError(f"line {n} of {self.path} is not a record (no '{self.key}')")
+        for rec in records:
             self.done.setdefault(rec[self.key], rec)
-            offset += len(line) + 1
-        return offset
-
-    def _parse(self, line: bytes, n: int) -> Any:
-        try:
-            return json.loads(line)
-        except ValueError:
-            raise EvalError(f"line {n} of {self.path} is not JSON; the file is damaged "
-                            "(use another file or restart it)") from None
+        return good_end
 
     def write(self, record: dict) -> None:
         """Append one record and flush it to the operating system."""
