@@ -116,7 +116,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="processes to use: with 2 the bag is read in a forked child while "
                         "this process loads the estimation core and its compiled kernels, same "
                         "results (default 2 on a machine with 2 or more cores)")
-    p.set_defaults(func=run)
+    # on the command line: no cyclic GC, and the process ends once the result is printed
+    # (cli.main.main, exit_now)
+    p.set_defaults(func=run, short_lived=True)
 
 
 def default_jobs() -> int:
@@ -163,7 +165,9 @@ def import_numba() -> None:
     """Import numba without its ``coverage`` hook: numba imports coverage (installed with
     pytest-cov) only to report compiled lines to a running coverage measurement, ~0.1 s of a
     fresh ``analyze``. Left alone when numba or coverage is already imported, or when a
-    measurement of subprocesses is configured (COVERAGE_PROCESS_START)."""
+    measurement of subprocesses is configured (COVERAGE_PROCESS_START). Also loads SciPy's
+    BLAS module alone for numba's start-up (:func:`_load_cython_blas`)."""
+    _load_cython_blas()
     if "numba" in sys.modules or "coverage" in sys.modules \
             or os.environ.get("COVERAGE_PROCESS_START"):
         return
@@ -172,6 +176,43 @@ def import_numba() -> None:
         import numba  # noqa: F401
     finally:
         del sys.modules["coverage"]
+
+
+def _load_cython_blas() -> None:
+    """Load ``scipy.linalg.cython_blas`` (the BLAS entry points numba's compiled ``np.dot``
+    calls) by itself, without the ``scipy.linalg`` package around it. numba's target start-up
+    (``numba.np.arraymath``, at the first kernel call) checks that BLAS is there by importing
+    that module, and ``import scipy.linalg.cython_blas`` runs the whole package first: ~0.15 s
+    CPU of a fresh ``analyze`` (SciPy's array-API layer, mostly), none of whose functions the
+    analysis calls. The module found already loaded, the check is free; numba's BLAS wrappers
+    and SciPy's own Cython modules import it by that name too and get this same module. (A
+    ``scipy.linalg`` imported later works as usual, except that the attribute
+    ``scipy.linalg.cython_blas`` is missing: ``from scipy.linalg import cython_blas`` works.)
+    Nothing is done when ``scipy.linalg`` is already imported or the module is not found where
+    the package keeps it (numba's start-up then imports the package, as before)."""
+    name = "scipy.linalg.cython_blas"
+    if "scipy.linalg" in sys.modules or name in sys.modules:
+        return
+    import importlib.machinery
+    import importlib.util
+
+    try:
+        import scipy
+    except ImportError:
+        return
+    finder = importlib.machinery.FileFinder(
+        os.path.join(scipy.__path__[0], "linalg"),
+        (importlib.machinery.ExtensionFileLoader, importlib.machinery.EXTENSION_SUFFIXES))
+    spec = finder.find_spec(name)
+    if spec is None or spec.loader is None:
+        return
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
 
 
 def complete_summary(summary: dict, flight, aligned) -> dict:

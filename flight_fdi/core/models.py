@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from scipy.linalg import expm
 
 from .errors import CoreError
 
@@ -229,6 +228,8 @@ def _van_loan(A: np.ndarray, Qc: np.ndarray, B: np.ndarray | None, dt: float):
     if dt == 0.0:
         Bd = None if B is None else np.zeros_like(B)
         return np.eye(n), np.zeros((n, n)), Bd
+    from scipy.linalg import expm  # (lazy: ~0.15 s of a fresh analyze, which never calls it)
+
     # Van Loan (1978): expm([[-A, Qc], [0, A^T]] dt) = [[., Phi^-1 Qd], [0, Phi^T]]
     M = np.zeros((2 * n, 2 * n))
     M[:n, :n] = -A

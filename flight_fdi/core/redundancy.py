@@ -45,7 +45,6 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.linalg import LinAlgError, solve_discrete_are
 
 from .errors import CoreError
 from .models import LinearModel
@@ -242,13 +241,15 @@ def steady_state(Phi: Any, Qd: Any, H: Any, R: Any, scale: Any = None) -> Steady
         Ps = _dare_doubling(Phis.T, np.zeros((n, n)), Qs)
         method = "no-measurement"
     else:
+        from scipy.linalg import solve_discrete_are  # (lazy: a flight analysis never needs it)
+
         Rinv_Hs = np.linalg.solve(R, Hs)
         try:
             Ps = solve_discrete_are(Phis.T, Hs.T, Qs, R)
             method = "scipy"
             if not _dare_ok(Ps, Phis, Qs, Hs, R):
-                raise LinAlgError("inaccurate solution")
-        except (LinAlgError, ValueError):
+                raise np.linalg.LinAlgError("inaccurate solution")
+        except (np.linalg.LinAlgError, ValueError):
             Ps = _dare_doubling(Phis.T, Hs.T @ Rinv_Hs, Qs)
             method = "doubling"
         if not _dare_ok(Ps, Phis, Qs, Hs, R):
