@@ -78,31 +78,6 @@ def fresh(cmd: list[str]) -> tuple[float, float]:
     return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
-#: a fresh ``analyze --jobs 2`` with CPU marks: the parent's CPU until it needs the bag (imports,
-#: numba's start-up, the kernels' machine code), the forked child's (reading the bag), the rest
-CRITICAL_PATH = """
-import json, resource, sys, time
-T = time.process_time
-import flight_fdi.core.forked as forked
-from flight_fdi.cli.main import build_parser
-marks, result = {}, forked.ForkedCall.result
-def timed_result(self):
-    marks["parent_before"] = T()
-    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    out = result(self)
-    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    marks["child"] = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    marks["t"] = T()
-    return out
-forked.ForkedCall.result = timed_result
-from flight_fdi.cli.analyze import analyze_bag
-args = build_parser("analyze").parse_args(["analyze", sys.argv[1], "--jobs", "2"])
-analyze_bag(sys.argv[1], args)
-marks["parent_after"] = T() - marks.pop("t")
-print(json.dumps(marks))
-"""
-
-
 #: a fresh ``flight-fdi analyze`` (the command line's own exit path) writing wall-clock marks
 #: (time.perf_counter: CLOCK_MONOTONIC, one clock for every process) and each process's CPU
 #: time to the file argv[3]; the wrapped functions are looked up where the CLI looks them up
@@ -161,8 +136,8 @@ def marked_import():
     wrap(warmup, "preload", after="kernels loaded (preload)")
     wrap(analysis, "run_analysis", "analysis start", "analysis done")
 analyze.import_numba = marked_import
-wrap(forked.ForkedCall, "result", "result wanted", "result unpickled")
-wrap(forked.ForkedCall, "_close", "pipe drained", "child reaped")
+wrap(forked, "_receive", "result wanted", "result received")
+wrap(forked.ForkedCall, "__exit__", None, "child reaped")
 wrap(analyze, "run", after="output written")
 sys.argv = ["flight-fdi", "analyze", sys.argv[1], "--json", "--jobs", sys.argv[2]]
 sys.exit(cli.main())
@@ -201,16 +176,21 @@ def print_timeline(bag: pathlib.Path, jobs: int, repeat: int) -> None:
 
 
 def critical_path(bag: pathlib.Path, repeat: int) -> dict:
-    """Best CPU seconds of each side of ``--jobs 2`` over ``repeat`` fresh processes: on an idle
-    two-core machine the wall time is about max(parent_before, child) + parent_after, against
-    parent_before + child + parent_after in one process."""
-    import json
-
+    """Best CPU seconds of each side of ``--jobs 2`` over ``repeat`` fresh processes (from the
+    timeline's marks): the parent until it needs the bag (``parent_before``), the forked read
+    up to its result sent (``child``), the parent's wait for and reading of the result
+    (``handover``, CPU), the analysis and output after it (``parent_after``). On an idle
+    two-core machine the wall time is about max(parent_before, child) + parent_after (+ the
+    hand-over's wall time), against their sum in one process."""
     best: dict[str, float] = {}
     for _ in range(repeat):
-        out = subprocess.run([str(PY), "-c", CRITICAL_PATH, str(bag)], check=True,
-                             capture_output=True, text=True).stdout
-        for k, v in json.loads(out.strip().splitlines()[-1]).items():
+        m = {(who, label): cpu for who, label, _, cpu in timeline(bag, 2, 1)}
+        cpu = {"prefork": m[("parent", "fork")],
+               "parent_before": m[("parent", "result wanted")],
+               "child": m[("child", "result sent")],
+               "handover": m[("parent", "result received")] - m[("parent", "result wanted")],
+               "parent_after": m[("parent", "output written")] - m[("parent", "result received")]}
+        for k, v in cpu.items():
             best[k] = min(best.get(k, np.inf), v)
     return best
 
@@ -233,11 +213,26 @@ def stages(bag: pathlib.Path) -> None:
     print(f"    verdict: {s['verdict']} {s['element']} onset {s['onset_s']}")
 
 
+def print_critical_path(bag: pathlib.Path, repeat: int, read_cpu: float, read_wall: float) -> None:
+    cp = critical_path(bag, repeat)
+    pre = cp["prefork"]
+    one = cp["parent_before"] + cp["child"] + cp["parent_after"]
+    two = max(cp["parent_before"], pre + cp["child"]) + cp["handover"] + cp["parent_after"]
+    print(f"  --jobs 2 critical path on {bag.name} (CPU s, best of {repeat}): parent before the "
+          f"bag {cp['parent_before']:.3f} (of which before the fork {pre:.3f}), forked read "
+          f"{cp['child']:.3f}, hand-over {cp['handover']:.3f}, parent after {cp['parent_after']:.3f}"
+          f": on an idle 2-core machine ~{two:.2f} s = {two / read_cpu:.2f}x the read's CPU, "
+          f"{two / read_wall:.2f}x its wall (~{one:.2f} s in one process)")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--bag", default="/tmp/flight_fdi_bench_3h")
     ap.add_argument("--duration", type=float, default=10800.0)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--timeline", action="store_true",
+                    help="only the wall-clock timelines of fresh analyze processes (--jobs 2 and "
+                         "1, both bags) and the --jobs 2 critical paths, against the read")
     args = ap.parse_args()
     bag = pathlib.Path(args.bag)
     jbag = bag.with_name(bag.name + "_jitter1ms")
@@ -248,46 +243,44 @@ def main() -> int:
     if not jbag.exists():
         print(f"writing {jbag} (1 ms Gaussian stamp jitter) ...")
         jittered_copy(bag, jbag, 1e-3)
-    has_jobs = "--jobs" in subprocess.run([str(CLI), "analyze", "--help"], capture_output=True,
-                                          text=True).stdout
     read_cmd = [str(PY), "-c", "import sys; from flight_fdi.bagio import read_flight; "
                 "read_flight(sys.argv[1], 'x', with_truth=False)"]
-    best: dict[tuple, tuple[float, float]] = {}
-    for b in (bag, jbag):
-        print(f"stages on {b.name}:")
-        stages(b)
+    if not args.timeline:
+        for b in (bag, jbag):
+            print(f"stages on {b.name}:")
+            stages(b)
     print(f"fresh processes, best of {args.repeat} (load average {os.getloadavg()[0]:.1f}):")
+    best: dict[tuple, tuple[float, float]] = {}
     for _ in range(args.repeat):  # interleaved: the machine's load changes between runs
         for b in (bag, jbag):
-            runs = {"read": read_cmd + [str(b)],
-                    "analyze": [str(CLI), "analyze", str(b), "--json"]}
-            if has_jobs:
-                runs["analyze --jobs 2"] = runs["analyze"] + ["--jobs", "2"]
-                runs["analyze"] = runs["analyze"] + ["--jobs", "1"]
+            runs = {"read": read_cmd + [str(b)]}
+            if not args.timeline:
+                analyze = [str(CLI), "analyze", str(b), "--json"]
+                runs |= {"--jobs 1": analyze + ["--jobs", "1"], "--jobs 2": analyze + ["--jobs", "2"]}
             for what, cmd in runs.items():
-                key = (b.name, what)
                 wall, cpu = fresh(cmd)
-                old = best.get(key, (np.inf, np.inf))
-                best[key] = (min(old[0], wall), min(old[1], cpu))
-    # ratios on CPU time (the machine is shared: wall time measures the other processes too);
-    # --jobs 2 is judged on wall time, which is what a second process could save
+                old = best.get((b.name, what), (np.inf, np.inf))
+                best[(b.name, what)] = (min(old[0], wall), min(old[1], cpu))
     for b in (bag, jbag):
-        (rw, rc), (aw, ac) = best[(b.name, "read")], best[(b.name, "analyze")]
-        print(f"  {b.name}: read {rc:.2f} s CPU ({rw:.2f} s wall), analyze {ac:.2f} s CPU "
-              f"({aw:.2f} s wall): {ac / rc:.2f}x the read (target <= 1.5: "
-              f"{'met' if ac / rc <= 1.5 else 'NOT met'})"
-              + (f"; --jobs 2 {best[(b.name, 'analyze --jobs 2')][0]:.2f} s wall, "
-                 f"{best[(b.name, 'analyze --jobs 2')][1]:.2f} s CPU" if has_jobs else ""))
-    if has_jobs:
-        cp = critical_path(bag, args.repeat)
-        one, two = sum(cp.values()), max(cp["parent_before"], cp["child"]) + cp["parent_after"]
-        print(f"  --jobs 2 critical path on {bag.name} (CPU s, best of {args.repeat}): parent "
-              f"before the bag {cp['parent_before']:.2f}, forked read {cp['child']:.2f}, parent "
-              f"after {cp['parent_after']:.2f}: on an idle 2-core machine ~{two:.2f} s against "
-              f"~{one:.2f} s in one process")
-    ratio = best[(jbag.name, "analyze")][1] / best[(bag.name, "analyze")][1]
-    print(f"  jittered / regular analyze (CPU): {ratio:.2f} (target <= 1.1: "
-          f"{'met' if ratio <= 1.1 else 'NOT met'}); load average {os.getloadavg()[0]:.1f}")
+        rw, rc = best[(b.name, "read")]
+        print(f"  {b.name}: read {rc:.2f} s CPU, {rw:.2f} s wall")
+        if args.timeline:
+            continue
+        for jobs in ("--jobs 1", "--jobs 2"):
+            aw, ac = best[(b.name, jobs)]
+            print(f"    analyze {jobs}: {ac:.2f} s CPU ({ac / rc:.2f}x the read's), {aw:.2f} s "
+                  f"wall ({aw / rw:.2f}x the read's; target <= 1.5: "
+                  f"{'met' if aw / rw <= 1.5 else 'NOT met'})")
+    for b in (bag, jbag):
+        print_critical_path(b, args.repeat, best[(b.name, "read")][1], best[(b.name, "read")][0])
+    for b in (bag, jbag) if args.timeline else (bag,):
+        for jobs in (2, 1) if args.timeline else (2,):
+            print_timeline(b, jobs, args.repeat)
+    if not args.timeline:
+        ratio = best[(jbag.name, "--jobs 1")][1] / best[(bag.name, "--jobs 1")][1]
+        print(f"  jittered / regular analyze --jobs 1 (CPU): {ratio:.2f} (target <= 1.1: "
+              f"{'met' if ratio <= 1.1 else 'NOT met'})")
+    print(f"  load average {os.getloadavg()[0]:.1f}")
     return 0
 
 

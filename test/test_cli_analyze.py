@@ -137,33 +137,61 @@ import contextlib, io, json, sys
 from flight_fdi.cli.main import main
 out = io.StringIO()  # (the JSON result, and numba's cache messages with NUMBA_DEBUG_CACHE)
 with contextlib.redirect_stdout(out):
-    rc = main(["analyze", sys.argv[1], "--json", "--jobs", "1"])
+    rc = main(["analyze", sys.argv[1], "--json", "--jobs", sys.argv[2] if len(sys.argv) > 2 else "1"])
 print(*[ln for ln in out.getvalue().splitlines() if ln.startswith("[cache]")], sep="\\n")
 print(json.dumps({"rc": rc, "modules": sorted(sys.modules)}))
 """
 
 
-def test_fresh_analyze_imports_only_what_it_uses(repo_root):
+@pytest.mark.parametrize("jobs", ["1", "2"])  # with 2 the arrays come from the forked read
+def test_fresh_analyze_imports_only_what_it_uses(repo_root, jobs):
     """A fresh ``analyze`` imports neither the campaign engine (dask), the JSON Schema checker,
     matplotlib, SciPy's statistics, special functions or root finders (``core/special``
-    replaces them) nor ``coverage`` (which numba would import for its coverage hook), and
-    compiles nothing (every kernel comes from the cache ``make setup`` warms)."""
+    replaces them), ``scipy.linalg`` (numba's BLAS check finds the one module it needs,
+    ``cli.analyze._load_cython_blas``) nor ``coverage`` (which numba would import for its
+    coverage hook), and compiles nothing (every kernel comes from the cache ``make setup``
+    warms)."""
     env = {**os.environ, "NUMBA_DEBUG_CACHE": "1"}
     env.pop("COVERAGE_PROCESS_START", None)
     proc = subprocess.run([sys.executable, "-c", _FRESH_ANALYZE,
-                           str(repo_root / "bags" / "nominal")], capture_output=True, text=True,
-                          timeout=120, env=env)
+                           str(repo_root / "bags" / "nominal"), jobs], capture_output=True,
+                          text=True, timeout=120, env=env)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
     out = json.loads(lines[-1])
     assert out["rc"] == 0
     top = {m.split(".")[0] for m in out["modules"]}
     assert not top & {"dask", "distributed", "jsonschema", "matplotlib", "coverage"}, top
-    assert not {"scipy.stats", "scipy.special", "scipy.optimize"} & set(out["modules"])
-    assert "numba" in top
+    assert not {"scipy.stats", "scipy.special", "scipy.optimize", "scipy.linalg"} \
+        & set(out["modules"])
+    assert "numba" in top and "scipy.linalg.cython_blas" in out["modules"]
     cache = [ln for ln in lines if ln.startswith("[cache]")]
     assert any("data loaded" in ln for ln in cache)
     assert not [ln for ln in cache if "saved" in ln], cache
+
+
+def test_blas_module_loaded_alone_serves_numba_and_a_later_scipy_linalg():
+    """After ``import_numba`` (SciPy's BLAS module loaded without its package) numba's compiled
+    ``np.dot`` works, and so does a later ``import scipy.linalg``, with the same module."""
+    code = ("import sys\n"
+            "import numpy as np\n"
+            "from flight_fdi.cli.analyze import import_numba\n"
+            "import_numba()\n"
+            "import numba\n"
+            "a = np.arange(6.0).reshape(2, 3)\n"
+            "dot = numba.njit(lambda x, y: np.dot(x, y))(a, a.T)\n"
+            "assert 'scipy.linalg' not in sys.modules\n"
+            "assert np.array_equal(dot, a @ a.T), dot\n"
+            "blas = sys.modules['scipy.linalg.cython_blas']\n"
+            "import scipy.linalg\n"
+            "from scipy.linalg import cython_blas\n"
+            "assert cython_blas is blas\n"
+            "assert np.allclose(scipy.linalg.expm(np.zeros((2, 2))), np.eye(2))\n"
+            "print('ok')\n")
+    env = {k: v for k, v in os.environ.items() if k != "COVERAGE_PROCESS_START"}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300, env=env)
+    assert proc.returncode == 0 and proc.stdout.split() == ["ok"], proc.stderr
 
 
 def test_preload_loads_every_kernel_the_analysis_uses(repo_root):

@@ -139,8 +139,8 @@ def analyse_flight_bag(bag: str, args: argparse.Namespace, with_truth: bool = Fa
 
     spec = input_spec(args)
     # with two jobs the bag is read in a forked child while this process imports the estimation
-    # core and loads its kernels (~0.9 s CPU, docs/performance.md); errors of either side come
-    # out here, the child never outlives this
+    # core and loads its kernels (~0.5 s CPU, docs/performance.md); errors of either side come
+    # out here, the child never outlives this (it is reaped at the end, once it has exited)
     with ForkedCall(read_flight, (bag,), {"spec": spec, "with_truth": with_truth},
                     fork=getattr(args, "jobs", 1) == 2) as job:
         import_numba()
@@ -154,9 +154,9 @@ def analyse_flight_bag(bag: str, args: argparse.Namespace, with_truth: bool = Fa
 
             preload(model, config)
         flight = job.result()
-    # times relative to the first INS/reference message, exact from integer nanoseconds
-    res = run_analysis(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
-                       flight.r_ref, config, bag=str(bag), channel=spec.component, t0=0.0)
+        # times relative to the first INS/reference message, exact from integer nanoseconds
+        res = run_analysis(model, flight.ins_rel_s, flight.v_ins, flight.ref_rel_s, flight.v_ref,
+                           flight.r_ref, config, bag=str(bag), channel=spec.component, t0=0.0)
     complete_summary(res.summary, flight, res.aligned)
     return res, flight
 

@@ -86,16 +86,19 @@ class ForkedCall:
         self._done = True
 
     def result(self) -> Any:
-        """The function's return value (waits for the child); its exception is raised here."""
+        """The function's return value (waits for the child's result); its exception is raised
+        here. The child, exiting once its result is sent, is reaped here if it is already gone,
+        else when the context ends (:meth:`cancel`): its exit does not delay the caller."""
         if not self._done:
             try:
                 received = _receive(self._fd)
             except BaseException:  # e.g. KeyboardInterrupt: do not wait for the child
                 self.cancel()
                 raise
-            self._close()
             if received is None:
+                self._close()
                 raise CoreError("the forked worker ended without a result (killed?)")
+            self._close(wait=False)
             ok, value = received
             if ok:
                 self._value = value
@@ -115,12 +118,11 @@ class ForkedCall:
                 pass
         self._close()
 
-    def _close(self) -> None:
+    def _close(self, wait: bool = True) -> None:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
-        if self._pid is not None:
-            os.waitpid(self._pid, 0)
+        if self._pid is not None and os.waitpid(self._pid, 0 if wait else os.WNOHANG)[0]:
             self._pid = None
 
     def __enter__(self) -> "ForkedCall":

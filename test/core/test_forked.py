@@ -25,6 +25,15 @@ def _fail(msg):
     raise CoreError(msg)
 
 
+def _arrays(n):
+    """Arrays of several dtypes and odd sizes (their out-of-band buffers' offsets must still
+    leave each aligned), a non-contiguous one (pickled in band) and a plain object."""
+    rng = np.random.default_rng(7)
+    return {"odd": np.arange(3, dtype=np.int8), "x": rng.normal(size=n),
+            "ns": np.arange(n, dtype=np.int64) * 20_000_000 + 3, "every_other": np.arange(9.0)[::2],
+            "matrix": rng.normal(size=(n // 7, 3)), "empty": np.empty(0), "name": "flight"}
+
+
 def _die():
     os._exit(3)
 
@@ -103,6 +112,31 @@ def test_forked_result_error_death_and_cancel():
         "except ProcessLookupError:\n"
         "    print('reaped')\n")
     assert out.split() == ["reaped"]
+
+
+@needs_fork
+def test_forked_arrays_arrive_equal_aligned_and_writable():
+    """The hand-over of a result larger than the pipe (arrays out of band, read into one block):
+    every value equal, each array C-contiguous, aligned and writable like the child's (numba
+    compiles another signature for an unaligned or read-only array)."""
+    out = _in_clean_process(
+        f"import sys; sys.path.insert(0, {os.path.dirname(__file__)!r})\n"
+        "import numpy as np\n"
+        "from flight_fdi.core.forked import fork_call\n"
+        "import test_forked as T\n"
+        "with fork_call(T._arrays, 1_000_003) as job:\n"
+        "    got = job.result()\n"
+        "want = T._arrays(1_000_003)\n"
+        "assert got.keys() == want.keys() and got['name'] == 'flight'\n"
+        "for k, v in want.items():\n"
+        "    if isinstance(v, np.ndarray):\n"
+        "        g = got[k]\n"
+        "        assert g.dtype == v.dtype and g.shape == v.shape and np.array_equal(g, v), k\n"
+        "        assert g.flags.c_contiguous and g.flags.aligned and g.flags.writeable, k\n"
+        "        assert g.ctypes.data % 64 == 0 or g.size == 0 or k == 'every_other', k\n"
+        "got['x'][0] = 1.0\n"
+        "print(sum(v.nbytes for v in want.values() if isinstance(v, np.ndarray)) > 2 ** 24)\n")
+    assert out.split() == ["True"]
 
 
 def test_jobs_is_validated():
