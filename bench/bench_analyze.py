@@ -80,7 +80,8 @@ def fresh(cmd: list[str]) -> tuple[float, float]:
 
 #: a fresh ``flight-fdi analyze`` (the command line's own exit path) writing wall-clock marks
 #: (time.perf_counter: CLOCK_MONOTONIC, one clock for every process) and each process's CPU
-#: time to the file argv[3]; the wrapped functions are looked up where the CLI looks them up
+#: time to the file argv[3]; the wrapped functions are looked up where the CLI looks them up.
+#: argv[4] undoes start-up and exit measures of session 8 one by one (``ABLATIONS``)
 TIMELINE = r"""
 import os, sys, time
 P, T, FD, PARENT = time.perf_counter, time.process_time, None, os.getpid()
@@ -119,7 +120,10 @@ def marked_read(*a, **k):
 bagio.read_flight = marked_read
 wrap(forked.ForkedCall, "__init__", "fork")
 imp = analyze.import_numba
+UNDO = set(sys.argv[4].split(",")) - {""}
 def marked_import():
+    if "blas alone" in UNDO:
+        import scipy.linalg
     imp()
     mark("numba imported")
     import numba.core.registry
@@ -139,27 +143,47 @@ analyze.import_numba = marked_import
 wrap(forked, "_receive", "result wanted", "result received")
 wrap(forked.ForkedCall, "__exit__", None, "child reaped")
 wrap(analyze, "run", after="output written")
+if "gc off" in UNDO:
+    run = analyze.run
+    def run_with_gc(args):
+        import gc
+        gc.enable()
+        return run(args)
+    analyze.run = run_with_gc
+if "exit now" in UNDO:
+    cli.exit_now = lambda code: None
 sys.argv = ["flight-fdi", "analyze", sys.argv[1], "--json", "--jobs", sys.argv[2]]
 sys.exit(cli.main())
 """
 
 
-def timeline(bag: pathlib.Path, jobs: int, repeat: int) -> list[tuple[str, str, float, float]]:
+#: the start-up and exit measures of session 8 that ``--ablation`` undoes one at a time:
+#: ``exit now`` (the interpreter's teardown runs), ``gc off`` (the cyclic GC runs),
+#: ``blas alone`` (scipy.linalg imported, as numba's start-up did)
+ABLATIONS = ("exit now", "gc off", "blas alone")
+
+
+def timeline(bag: pathlib.Path, jobs: int, repeat: int,
+             undo: tuple[str, ...] = ()) -> list[tuple[str, str, float, float]]:
     """The marks of the fastest of ``repeat`` fresh ``analyze --jobs N`` (by the end of the
     process as its launcher sees it): (process, label, wall s since the launch, CPU s of that
-    process at the mark), the last one the launcher's "process ended"."""
+    process at the mark), the last one the launcher's "process ended" with the CPU time of the
+    process and its child; ``undo``: measures of ``ABLATIONS`` to leave out."""
     import tempfile
 
     best: list = []
     for _ in range(repeat):
         with tempfile.NamedTemporaryFile("r", suffix=".marks") as f:
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
-            subprocess.run([str(PY), "-c", TIMELINE, str(bag), str(jobs), f.name], check=True,
-                           stdout=subprocess.DEVNULL)
+            subprocess.run([str(PY), "-c", TIMELINE, str(bag), str(jobs), f.name,
+                            ",".join(undo)], check=True, stdout=subprocess.DEVNULL)
             end = time.perf_counter() - t0
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             marks = [(who, label, float(w) - t0, float(c)) for who, label, w, c in
                      (ln.rstrip("\n").split("\t") for ln in f)]
-        marks.append(("launcher", "process ended", end, math.nan))
+        cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+        marks.append(("launcher", "process ended", end, cpu))
         if not best or end < best[-1][2]:
             best = marks
     return best
@@ -171,7 +195,8 @@ def print_timeline(bag: pathlib.Path, jobs: int, repeat: int) -> None:
           f"the launch, CPU s of that process; load average {os.getloadavg()[0]:.1f}):")
     prev = 0.0
     for who, label, wall, cpu in marks:
-        print(f"    {who:<9}{label:<28}{wall:7.3f} (+{wall - prev:.3f}){'' if math.isnan(cpu) else f'{cpu:9.3f} CPU'}")
+        print(f"    {who:<9}{label:<28}{wall:7.3f} (+{wall - prev:.3f}){cpu:9.3f} CPU"
+              + (" (whole run)" if who == "launcher" else ""))
         prev = wall
 
 
@@ -213,6 +238,29 @@ def stages(bag: pathlib.Path) -> None:
     print(f"    verdict: {s['verdict']} {s['element']} onset {s['onset_s']}")
 
 
+def print_ablation(bag: pathlib.Path, repeat: int) -> None:
+    """``analyze --jobs 2`` and ``--jobs 1`` as they are and with each measure of ``ABLATIONS``
+    undone, interleaved fresh processes, best of ``repeat``: wall, CPU (process and child), and
+    the parent's CPU until it needs the bag (--jobs 2)."""
+    variants = [()] + [(a,) for a in ABLATIONS] + [ABLATIONS]
+    best: dict = {}
+    for _ in range(repeat):
+        for jobs in (2, 1):
+            for undo in variants:
+                m = {(who, label): (w, c) for who, label, w, c in timeline(bag, jobs, 1, undo)}
+                got = (m[("launcher", "process ended")][0], m[("launcher", "process ended")][1],
+                       m.get(("parent", "result wanted"), (0.0, math.nan))[1])
+                old = best.get((jobs, undo), (np.inf,) * 3)
+                best[(jobs, undo)] = tuple(min(a, b) for a, b in zip(old, got))
+    print(f"  ablation on {bag.name} (best of {repeat}; load average {os.getloadavg()[0]:.1f}):")
+    for (jobs, undo), (wall, cpu, start) in best.items():
+        what = "as is" if not undo else "all undone" if len(undo) > 1 else f"without {undo[0]}"
+        base = best[(jobs, ())]
+        print(f"    --jobs {jobs} {what:<22} {wall:6.3f} s wall ({wall - base[0]:+.3f}), "
+              f"{cpu:6.3f} s CPU ({cpu - base[1]:+.3f})"
+              + (f"; parent before the bag {start:.3f} s CPU" if jobs == 2 else ""))
+
+
 def print_critical_path(bag: pathlib.Path, repeat: int, read_cpu: float, read_wall: float) -> None:
     cp = critical_path(bag, repeat)
     pre = cp["prefork"]
@@ -230,6 +278,8 @@ def main() -> int:
     ap.add_argument("--bag", default="/tmp/flight_fdi_bench_3h")
     ap.add_argument("--duration", type=float, default=10800.0)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--ablation", action="store_true",
+                    help="only fresh analyze processes with each start-up/exit measure undone")
     ap.add_argument("--timeline", action="store_true",
                     help="only the wall-clock timelines of fresh analyze processes (--jobs 2 and "
                          "1, both bags) and the --jobs 2 critical paths, against the read")
@@ -245,6 +295,9 @@ def main() -> int:
         jittered_copy(bag, jbag, 1e-3)
     read_cmd = [str(PY), "-c", "import sys; from flight_fdi.bagio import read_flight; "
                 "read_flight(sys.argv[1], 'x', with_truth=False)"]
+    if args.ablation:
+        print_ablation(bag, args.repeat)
+        return 0
     if not args.timeline:
         for b in (bag, jbag):
             print(f"stages on {b.name}:")
