@@ -52,6 +52,16 @@ from .redundancy_spec import (  # noqa: F401 (the model file's section, re-expor
     MAX_SENSORS, RedundancySpec, Sensor, load_redundant_model, redundancy_from_dict,
     redundant_model_from_dict)
 
+
+def solve_discrete_are(*args, **kwargs):
+    """:func:`scipy.linalg.solve_discrete_are`, imported at the first call: a flight analysis
+    imports this module (through the multi-row update) but never solves a DARE, and
+    ``scipy.linalg`` costs a fresh ``flight-fdi analyze`` ~0.15 s CPU (docs/performance.md)."""
+    from scipy.linalg import solve_discrete_are as solve
+
+    return solve(*args, **kwargs)
+
+
 MODES = ("kf2", "af")
 
 
@@ -241,8 +251,6 @@ def steady_state(Phi: Any, Qd: Any, H: Any, R: Any, scale: Any = None) -> Steady
         Ps = _dare_doubling(Phis.T, np.zeros((n, n)), Qs)
         method = "no-measurement"
     else:
-        from scipy.linalg import solve_discrete_are  # (lazy: a flight analysis never needs it)
-
         Rinv_Hs = np.linalg.solve(R, Hs)
         try:
             Ps = solve_discrete_are(Phis.T, Hs.T, Qs, R)
