@@ -1,0 +1,373 @@
+"""The 3-D post-flight isolator (``ins3d``) on the real Xsens DOT recordings (docs/ins3d_real.md).
+
+A recording of ../shared/data/mimu_quadrotor (``<group>/path_N``: ``IMU_k.csv.gz`` at 120 Hz,
+``GT.csv.gz`` RTK at 10 Hz) becomes the 3-D input contract in memory (``build_input``):
+
+* **INS**: one unit's samples, its turn-on biases removed with a per-unit calibration learnt on
+  the *other* recordings of the same flight day (``calibrate``, leave-one-out), mechanized by
+  ``sim.strapdown.mechanize`` (second order, free vertical channel) from the RTK ground truth at
+  the first sample: position, velocity (central difference) and attitude (compass heading,
+  pitch, roll).
+* **Frames**: the Xsens DOT sensor frame is x forward, y left, z up (+g on z at rest) -- the
+  model's body frame; checked on the data: Acc_x ~ -g sin(nose-down pitch), Acc_y ~ -g sin(roll
+  left-wing-down), and the units' own Euler_X/Y equal GT roll and minus GT pitch within ~2 deg.
+  The GT angles are aerospace (heading clockwise from north, pitch nose up, roll right wing down):
+  yaw_ENU = 90 deg - heading, pitch_REP103 = -pitch, roll = roll. The units are co-mounted with
+  the airframe's nose along body x (the straight flights' track equals the GT heading to 1 deg).
+* **Reference**: RTK North/East/Down differentiated by central differences (2 x 0.1 s), i.e. no
+  latency, white position noise becomes an MA(2) velocity noise; Down is quantised to 0.1 m in the
+  files, so the up row is far noisier than the horizontal ones (its variance is set accordingly).
+
+Faults (``Fault``) are added to the unit's samples before the mechanization, so the real noise,
+vibration and mounting errors stay.
+"""
+from __future__ import annotations
+
+import gzip
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..bagio.ins3d_input import Ins3dInput, build_input
+from ..core.earth import radii
+from ..core.ins3d.grades import DEG_H, DEG_RTH, ImuGrade
+from ..core.rotation import dcm_array
+from .errors import EvalError
+
+RATE_HZ = 120.0
+GT_DT = 0.1
+LAT0_DEG = 32.77            # Haifa (the dataset's site; absolute position is not in the files)
+GT_COLUMNS = ("time", "distance", "speed", "heading", "pitch", "roll", "height", "north", "east",
+              "down")
+#: the flight days, told apart by the units' time offsets (docs/voter_real.md)
+DAYS = {"straight": [f"straight/path_{i}" for i in range(1, 5)],
+        "vertical_a": [f"vertical/path_{i}" for i in range(1, 8)],
+        "vertical_b": [f"vertical/path_{i}" for i in range(8, 15)]}
+AXES = ("x", "y", "z")
+
+
+def default_data_dir() -> Path:
+    return Path(__file__).resolve().parents[3] / "shared" / "data" / "mimu_quadrotor"
+
+
+def day_of(name: str) -> str:
+    for day, names in DAYS.items():
+        if name in names:
+            return day
+    raise EvalError(f"{name}: not a recording of the mimu_quadrotor set")
+
+
+@dataclass
+class Recording:
+    """One unit of one recording: IMU on a uniform 120-Hz grid (rad/s, m/s^2) and the GT."""
+
+    name: str
+    unit: int
+    t: np.ndarray          # (N,) s
+    gyro: np.ndarray       # (N, 3) rad/s body
+    accel: np.ndarray      # (N, 3) m/s^2 body
+    gt: dict[str, np.ndarray]
+    dropped: int = 0       # IMU rows whose time did not increase (dropped, then resampled)
+
+
+def read_gt(path: Path) -> dict[str, np.ndarray]:
+    """The GT CSV as arrays (time s, speed m/s, heading/pitch/roll deg, north/east/down m)."""
+    with gzip.open(path, "rt") as fh:
+        header = fh.readline()
+    if len(header.split(",")) != len(GT_COLUMNS):
+        raise EvalError(f"{path}: expected {len(GT_COLUMNS)} GT columns, header {header!r}")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return {c: data[:, i] for i, c in enumerate(GT_COLUMNS)}
+
+
+def read_recording(data_dir: Path, name: str, unit: int) -> Recording:
+    """IMU_``unit`` and GT of ``data_dir/name``; rows whose time does not increase are dropped
+    and the samples interpolated onto the 1/120-s grid (the files' time is that grid)."""
+    from ..cli.imu_csv import read_csv
+    d = Path(data_dir) / name
+    t, vals = read_csv(d / f"IMU_{unit}.csv.gz")
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    keep &= np.maximum.accumulate(t) == t
+    t, vals = t[keep], vals[keep]
+    grid = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * RATE_HZ + 1e-6)) + 1) / RATE_HZ
+    res = np.stack([np.interp(grid, t, vals[:, i]) for i in range(6)], axis=1)
+    return Recording(name, unit, grid, res[:, :3], res[:, 3:], read_gt(d / "GT.csv.gz"),
+                     int(np.sum(~keep)))
+
+
+def gt_quaternions(gt: dict[str, np.ndarray]) -> np.ndarray:
+    """(M, 4) q_b^n (ENU, body x forward / y left / z up) of the GT attitude."""
+    from ..core.rotation import quat_from_euler_array
+    heading = np.unwrap(np.radians(gt["heading"]))
+    return quat_from_euler_array(np.pi / 2 - heading, -np.radians(gt["pitch"]),
+                                 np.radians(gt["roll"]))
+
+
+def gt_enu(gt: dict[str, np.ndarray]) -> np.ndarray:
+    return np.stack([gt["east"], gt["north"], -gt["down"]], axis=1)
+
+
+def gt_velocity(gt: dict[str, np.ndarray], half: int = 1, every: int = 1
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(t, v ENU) by central differences of the RTK positions over +-``half`` samples (the mean
+    velocity over that span, stamped at its centre: no latency), at every ``every``-th sample."""
+    p, t = gt_enu(gt), gt["time"]
+    m = half
+    v = (p[2 * m:] - p[:-2 * m]) / (t[2 * m:] - t[:-2 * m])[:, None]
+    return t[m:-m][::every], v[::every]
+
+
+def _qconj(q):
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _body_rates(q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(M-1, 3) mean body rates over each GT interval from consecutive attitudes."""
+    from ..core.rotation import qmul_array
+    d = qmul_array(_qconj(q[:-1]), q[1:])
+    d = np.where(d[:, :1] < 0, -d, d)
+    n = np.linalg.norm(d[:, 1:], axis=1)
+    k = np.where(n < 1e-12, 2.0, 2.0 * np.arctan2(n, d[:, 0]) / np.where(n < 1e-12, 1.0, n))
+    return k[:, None] * d[:, 1:] / np.diff(t)[:, None]
+
+
+def recording_biases(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """(gyro bias rad/s, accel bias m/s^2) of this unit on this recording against the GT: the
+    mean measured rate minus the mean GT body rate, the mean specific force minus the GT's
+    C_n^b (a - g) (a from the RTK positions), over the GT span. Used only to calibrate *other*
+    recordings (``calibrate``) and to describe the units."""
+    gt = rec.gt
+    q = gt_quaternions(gt)
+    tg = gt["time"]
+    w_true = _body_rates(q, tg).mean(axis=0)
+    span = (rec.t >= tg[0]) & (rec.t <= tg[-1])
+    b_g = rec.gyro[span].mean(axis=0) - w_true
+    tv, v = gt_velocity(gt)
+    a = (v[2:] - v[:-2]) / (tv[2:] - tv[:-2])[:, None]
+    from ..core.earth import gravity
+    g = gravity(math.radians(LAT0_DEG), 0.0)
+    C = dcm_array(q[2:-2])                          # C_b^n at the acceleration stamps
+    f_true = np.einsum("kji,kj->ki", C, a + np.array([0.0, 0.0, g]))
+    f_meas = np.stack([np.interp(tv[1:-1], rec.t, rec.accel[:, i]) for i in range(3)], axis=1)
+    return b_g, (f_meas - f_true).mean(axis=0)
+
+
+@dataclass
+class Calibration:
+    """Per unit and day: the turn-on biases removed before mechanization (leave-one-out)."""
+
+    biases: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    def for_recording(self, name: str, unit: int) -> tuple[np.ndarray, np.ndarray]:
+        """Median over the other recordings of ``name``'s day (never ``name`` itself)."""
+        others = [r for r in DAYS[day_of(name)] if r != name and (r, unit) in self.biases]
+        if not others:
+            return np.zeros(3), np.zeros(3)
+        bg = np.median([self.biases[(r, unit)][0] for r in others], axis=0)
+        ba = np.median([self.biases[(r, unit)][1] for r in others], axis=0)
+        return bg, ba
+
+    def residuals(self) -> tuple[np.ndarray, np.ndarray]:
+        """(gyro, accel) per (recording, unit) minus its leave-one-out calibration, (n, 3)."""
+        rg, ra = [], []
+        for (name, unit), (bg, ba) in sorted(self.biases.items()):
+            cg, ca = self.for_recording(name, unit)
+            rg.append(bg - cg)
+            ra.append(ba - ca)
+        return np.array(rg), np.array(ra)
+
+
+def calibrate(data_dir: Path, names: list[str], units: list[int]) -> Calibration:
+    cal = Calibration()
+    for name in names:
+        for u in units:
+            cal.biases[(name, u)] = recording_biases(read_recording(data_dir, name, u))
+    return cal
+
+
+def xsens_grade(gyro_bias: float = 300 * DEG_H, accel_bias: float = 0.15,
+                arw: float = 3.0 * DEG_RTH, vrw: float = 0.02) -> ImuGrade:
+    """A grade for the calibrated Xsens DOT units: residual turn-on biases (1 sigma, the spread of
+    the leave-one-out residuals, docs/ins3d_real.md), the vibration as white noise (ARW, VRW
+    from the 120-Hz sample spread between co-mounted units), 1-deg compass heading."""
+    return ImuGrade("xsens_dot", gyro_bias=gyro_bias, gyro_instability=30 * DEG_H,
+                    gyro_tau_s=300.0, arw=arw, gyro_scale=5e-3,
+                    gyro_misalign=1e-2, accel_bias=accel_bias, accel_instability=0.02,
+                    accel_tau_s=300.0, vrw=vrw, accel_scale=5e-3, accel_misalign=1e-2,
+                    heading_sigma=math.radians(2.0))
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A bias step added to the unit's samples from ``onset_s`` (s from the recording's start):
+    sensor ``accelerometer`` (m/s^2) or ``gyro`` (rad/s), body ``axis`` x/y/z."""
+
+    sensor: str
+    axis: str
+    magnitude: float
+    onset_s: float
+
+    def apply(self, rec: Recording) -> Recording:
+        i = AXES.index(self.axis)
+        on = rec.t - rec.t[0] >= self.onset_s
+        gyro, accel = rec.gyro.copy(), rec.accel.copy()
+        (accel if self.sensor == "accelerometer" else gyro)[on, i] += self.magnitude
+        return Recording(rec.name, rec.unit, rec.t, gyro, accel, rec.gt, rec.dropped)
+
+
+@dataclass(frozen=True)
+class Contract:
+    """Settings of the contract built from a recording."""
+
+    imu_rate_hz: float = 40.0
+    ref_half: int = 5              # GT samples each side of the central difference (0.5 s)
+    ref_every: int = 10            # one reference per 10 GT samples (1 Hz, disjoint spans)
+    ref_sigma_h: float = 0.06      # m/s, horizontal RTK-differenced velocity noise (1 sigma)
+    ref_sigma_u: float = 0.10      # m/s, up: Down quantised to 0.1 m in the files
+
+
+def initial_state(gt: dict[str, np.ndarray]):
+    """(lat, lon, h, v ENU, q) at the first GT sample: position from NED about the site,
+    velocity from a quadratic fit of the first five positions, attitude from the GT angles."""
+    p, t = gt_enu(gt)[:5], gt["time"][:5] - gt["time"][0]
+    v0 = np.polyfit(t, p, 2)[1]
+    lat0 = math.radians(LAT0_DEG)
+    r_n, r_m = radii(lat0)
+    lat = lat0 + p[0, 1] / r_m
+    lon = p[0, 0] / (r_n * math.cos(lat0))
+    return lat, lon, float(p[0, 2]), v0, gt_quaternions(gt)[0]
+
+
+def mechanize_recording(rec: Recording, bg: np.ndarray, ba: np.ndarray):
+    """The free-inertial solution of the unit (biases bg, ba removed) from the GT's first sample
+    (the IMU grid is cut to start there): (t, NavSolution, f, w) with f, w the compensated means
+    per 1/120-s interval."""
+    from ..sim.strapdown import mechanize
+    t0 = rec.gt["time"][0]
+    i0 = int(np.searchsorted(rec.t, t0 - 1e-9))
+    t = rec.t[i0:]
+    w = rec.gyro[i0 + 1:] - bg          # sample k+1 = the mean over (t_k, t_k+1]
+    f = rec.accel[i0 + 1:] - ba
+    dt = 1.0 / RATE_HZ
+    nav = mechanize(w * dt, f * dt, dt, initial_state(rec.gt))
+    return t, nav, f, w
+
+
+def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
+                   cfg: Contract = Contract()) -> Ins3dInput:
+    """The four contract topics of ``rec`` in memory (``bagio.ins3d_input.build_input``)."""
+    t, nav, f, w = mechanize_recording(rec, bg, ba)
+    every = int(round(RATE_HZ / cfg.imu_rate_hz))
+    m = (t.size - 1) // every
+    idx = every * np.arange(0, m + 1)
+    fm = np.vstack([f[:1], f[:m * every].reshape(m, every, 3).mean(axis=1)])
+    wm = np.vstack([w[:1], w[:m * every].reshape(m, every, 3).mean(axis=1)])
+    tr, vr = gt_velocity(rec.gt, cfg.ref_half, cfg.ref_every)
+    inside = (tr > t[idx[0]]) & (tr <= t[idx[-1]])
+    r = np.array([cfg.ref_sigma_h**2, cfg.ref_sigma_h**2, cfg.ref_sigma_u**2])
+    return build_input(t[idx], nav.q[idx], fm, wm, t[idx], nav.v[idx], t[idx], nav.lat[idx],
+                       nav.h[idx], tr[inside], vr[inside], np.broadcast_to(r, vr[inside].shape))
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The analysis of a real recording: the contract, the grade's residual turn-on biases (1
+    sigma) and ``analyze_ins3d``'s options (free vertical channel: the flights last <= 37 s)."""
+
+    contract: Contract = Contract()
+    gyro_bias_deg_h: float = 400.0
+    accel_bias: float = 0.3
+    arw_deg_rt_h: float = 3.0
+    vrw: float = 0.02              # m/s/sqrt(s)
+    rows: int = 2                  # east, north: the files' Down is the DJI height, not RTK
+    vertical: str = "free"
+    latency: bool = True
+    fisher_window: int = 5         # the seed method on ~10-37 reference updates
+    min_valid_steps: int = 5
+
+    def grade(self) -> ImuGrade:
+        return xsens_grade(self.gyro_bias_deg_h * DEG_H, self.accel_bias,
+                           self.arw_deg_rt_h * DEG_RTH, self.vrw)
+
+
+def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings = Settings()):
+    """``analyze_ins3d`` of the contract built from ``rec`` (biases bg, ba removed)."""
+    from ..core.diagnosis import DiagnosisConfig
+    from ..core.ins3d.analysis import analyze_ins3d
+    inp = build_contract(rec, bg, ba, settings.contract)
+    return analyze_ins3d(inp.steps, inp.refs, grade=settings.grade(), rows=settings.rows,
+                         vertical=settings.vertical, latency=settings.latency, ref_markov=None,
+                         diagnosis=DiagnosisConfig(fisher_window=settings.fisher_window,
+                                                   min_valid_steps=settings.min_valid_steps))
+
+
+def record(analysis, t0: float = 0.0) -> dict:
+    """The measured outcome of one analysis: verdict, named fault (sensor, axis, kind, onset,
+    magnitude), the largest GLR statistic per kind, the thresholds, beta^2 per row, latency."""
+    pf = analysis.post_flight_dict(t0=t0)
+    summ = analysis.summary()
+    stats = pf["glr"]["statistics"]
+    f = pf.get("fault")
+    out = {"verdict": pf["verdict"], "isolation": pf.get("isolation"),
+           "sensor": f and f["sensor"], "axis": f and f["axis"], "kind": f and f["kind"],
+           "onset_s": f and f["onset_s"], "magnitude": f and f["magnitude"],
+           "statistic": f and f["statistic"],
+           "candidates": [f"{c['sensor']} {c['axis']} {c['kind']}" for c in pf["candidates"]],
+           "thresholds": dict(pf["glr"]["thresholds"]),
+           "beta2": summ["beta2_mean"], "beta2_rows": summ["beta2_row_mean"],
+           "latency_s": summ["final_state"].get("latency")}
+    for kind in ("step", "ramp", "jump", "outliers"):
+        vals = {k: v for k, v in stats.items() if k.endswith("_" + kind)}
+        top = max(vals, key=vals.get)
+        out[f"max_{kind}"] = float(vals[top])
+        out[f"max_{kind}_hyp"] = top
+    return out
+
+
+def judge(rec_out: dict, fault: Fault | None) -> str:
+    """``right`` (the fault's sensor and axis, verdict failure), ``wrong`` (a confident
+    isolation of anything else: another IMU axis, the reference, a glitch), ``ambiguous``
+    (candidates named, no fault), ``none`` (no isolation). Without a fault: ``false`` for an
+    IMU sensor named, ``reference`` for the reference named, else as above."""
+    v, sensor, axis = rec_out["verdict"], rec_out["sensor"], rec_out["axis"]
+    if v == "ambiguous":
+        return "ambiguous"
+    if sensor is None:
+        return "none"
+    if fault is None:
+        return "reference" if sensor == "reference" else "false"
+    if v == "failure" and sensor == fault.sensor and axis == fault.axis:
+        return "right"
+    return "wrong"
+
+
+def fault_runs(data_dir: Path, cal: Calibration, names: list[str], units: list[int],
+               sensor: str, axis: str, magnitude: float, seed: int,
+               settings: Settings = Settings(), margin_s: tuple[float, float] = (3.0, 5.0)):
+    """One run per recording x unit with a step of |``magnitude``| (random sign) on ``sensor``
+    ``axis`` at a random onset in [margin0, T - margin1] s (seeded per run); yields
+    (name, unit, Fault, record, outcome)."""
+    for i, name in enumerate(names):
+        for unit in units:
+            rng = np.random.default_rng([seed, i, unit, AXES.index(axis),
+                                         0 if sensor == "accelerometer" else 1])
+            rec = read_recording(data_dir, name, unit)
+            dur = rec.gt["time"][-1] - rec.gt["time"][0]
+            onset = float(rng.uniform(margin_s[0], dur - margin_s[1]))
+            mag = float(magnitude * rng.choice([-1.0, 1.0]))
+            fault = Fault(sensor, axis, mag, onset)
+            bg, ba = cal.for_recording(name, unit)
+            out = record(analyze(fault.apply(rec), bg, ba, settings))
+            yield name, unit, fault, out, judge(out, fault)
+
+
+def names_in(data_dir: Path) -> list[str]:
+    return [n for day in DAYS.values() for n in day if (Path(data_dir) / n / "GT.csv.gz").exists()]
+
+
+__all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "build_contract",
+           "Settings", "analyze", "calibrate", "day_of", "fault_runs", "judge", "record", "default_data_dir", "gt_quaternions", "gt_velocity",
+           "initial_state", "mechanize_recording", "names_in", "read_gt", "read_recording",
+           "recording_biases", "xsens_grade"]
