@@ -279,8 +279,8 @@ class Settings:
     contract: Contract = Contract()
     gyro_bias_deg_h: float = 400.0
     accel_bias: float = 0.3
-    arw_deg_rt_h: float = 3.0
-    vrw: float = 0.02              # m/s/sqrt(s)
+    arw_deg_rt_h: float = 10.0     # the middle of tools/ins3d_real_eval.py's three settings
+    vrw: float = 0.03              # m/s/sqrt(s)
     rows: int = 2                  # east, north: the files' Down is the DJI height, not RTK
     vertical: str = "free"
     latency: bool = True
