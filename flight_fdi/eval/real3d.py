@@ -91,7 +91,8 @@ def read_recording(data_dir: Path, name: str, unit: int) -> Recording:
     keep = np.concatenate([[True], np.diff(t) > 0])
     keep &= np.maximum.accumulate(t) == t
     t, vals = t[keep], vals[keep]
-    grid = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * RATE_HZ + 1e-6)) + 1) / RATE_HZ
+    # the files' step is 0.008333 s (1/120 rounded): the grid keeps their sample count
+    grid = t[0] + np.arange(int(round((t[-1] - t[0]) * RATE_HZ)) + 1) / RATE_HZ
     res = np.stack([np.interp(grid, t, vals[:, i]) for i in range(6)], axis=1)
     return Recording(name, unit, grid, res[:, :3], res[:, 3:], read_gt(d / "GT.csv.gz"),
                      int(np.sum(~keep)))

@@ -1,0 +1,101 @@
+"""ins3d on a real recording (Xsens DOT unit 1 of straight/path_2, CC BY 4.0, data/mimu_straight_2;
+docs/ins3d_real.md): the contract built from it, a nominal analysis and an injected step."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flight_fdi.core.rotation import dcm_array
+from flight_fdi.eval import real3d as R
+
+DATA = Path(__file__).parent / "data"
+NAME = "mimu_straight_2"
+
+
+@pytest.fixture(scope="module")
+def rec():
+    return R.read_recording(DATA, NAME, 1)
+
+
+@pytest.fixture(scope="module")
+def cal():
+    doc = json.loads((DATA / NAME / "calibration.json").read_text())
+    return np.array(doc["gyro_bias_rad_s"]), np.array(doc["accel_bias_m_s2"])
+
+
+def test_recording_grid_and_frames(rec):
+    assert rec.dropped == 0 and rec.t.size == 1800
+    assert np.allclose(np.diff(rec.t), 1.0 / 120.0)
+    # body x forward / y left / z up: the measured specific force equals the GT's
+    # C_n^b (a + g) to the unit's bias and mounting (< 0.5 m/s^2 per axis on the mean; a swapped
+    # or flipped axis would be off by ~2-10 m/s^2: the flight is pitched 15 deg nose down)
+    q = R.gt_quaternions(rec.gt)
+    tv, v = R.gt_velocity(rec.gt)
+    a = (v[2:] - v[:-2]) / (tv[2:] - tv[:-2])[:, None]
+    f_true = np.einsum("kji,kj->ki", dcm_array(q[2:-2]), a + [0.0, 0.0, 9.79])
+    f_meas = np.stack([np.interp(tv[1:-1], rec.t, rec.accel[:, i]) for i in range(3)], 1)
+    assert np.all(np.abs((f_meas - f_true).mean(axis=0)) < 0.5)
+    assert f_true[:, 0].mean() < -1.0          # nose down, accelerating: f_x negative
+
+
+def test_contract_shapes_and_velocity_bound(rec, cal):
+    bg, ba = cal
+    inp = R.build_contract(rec, bg, ba)
+    steps, refs = inp.steps, inp.refs
+    assert np.allclose(np.diff(steps.t), 1.0 / 40.0)             # /ins/imu at 40 Hz
+    assert refs.z.shape[1] == 3 and np.allclose(np.diff(refs.t), 1.0)  # 1-Hz reference
+    assert 12 <= refs.t.size <= 15
+    # the free-inertial INS of the calibrated unit against the RTK velocity: the residual
+    # biases (LOO: ~0.2-0.3 m/s^2, a few hundred deg/h) allow ~0.3 m/s per second at most
+    t, nav, _, _ = R.mechanize_recording(rec, bg, ba)
+    tr, vr = R.gt_velocity(rec.gt)
+    vi = np.stack([np.interp(tr, t, nav.v[:, i]) for i in range(3)], 1)
+    err = np.linalg.norm(vi - vr, axis=1)
+    assert np.all(err[tr <= 3.0] < 1.0)
+    # without the calibration (thousands of deg/h) the same INS is far off within 10 s
+    t0, nav0, _, _ = R.mechanize_recording(rec, np.zeros(3), np.zeros(3))
+    vi0 = np.stack([np.interp(tr, t0, nav0.v[:, i]) for i in range(3)], 1)
+    k = np.searchsorted(tr, 10.0)
+    assert np.linalg.norm(vi0[k] - vr[k]) > 3 * np.linalg.norm(vi[k] - vr[k])
+
+
+def test_nominal_as_measured(rec, cal):
+    out = R.record(R.analyze(rec, *cal))
+    # measured (docs/ins3d_real.md): no fault, beta^2 ~0.9 for 2 rows, IMU steps <= 5.3
+    assert out["verdict"] == "no_fault" and R.judge(out, None) == "none"
+    assert 0.3 < out["beta2"] < 3.0
+    assert out["max_step"] < out["thresholds"]["step"]
+
+
+def test_accelerometer_y_step_isolated(rec, cal):
+    fault = R.Fault("accelerometer", "y", 1.0, 6.0)
+    out = R.record(R.analyze(fault.apply(rec), *cal))
+    assert R.judge(out, fault) == "right", out
+    assert abs(out["onset_s"] - 6.0) <= 1.0          # the reference is at 1 Hz
+    assert abs(out["magnitude"] - 1.0) < 0.3
+
+
+def test_accelerometer_x_step_is_ambiguous_with_z_on_a_straight_leg(rec, cal):
+    # no vertical row (the files' Down is the DJI height): along the track the horizontal
+    # rows see cos(theta) b_x + sin(theta) b_z of a 15-deg nose-down airframe; without a
+    # manoeuvre the two are told apart only by the attitude's small changes
+    fault = R.Fault("accelerometer", "x", 1.0, 6.0)
+    out = R.record(R.analyze(fault.apply(rec), *cal))
+    assert out["verdict"] == "ambiguous"
+    assert set(out["candidates"]) == {"accelerometer x step", "accelerometer z step"}
+
+
+def test_calibration_is_leave_one_out():
+    data = R.default_data_dir()
+    if not (data / "straight" / "path_1" / "GT.csv.gz").exists():
+        pytest.skip(f"the full recordings are not at {data}")
+    cal = R.calibrate(data, R.DAYS["straight"], [1])
+    bg, ba = cal.for_recording("straight/path_2", 1)
+    doc = json.loads((DATA / NAME / "calibration.json").read_text())
+    assert np.allclose(bg, doc["gyro_bias_rad_s"]) and np.allclose(ba, doc["accel_bias_m_s2"])
+    # the recording itself does not enter its own calibration
+    cal.biases[("straight/path_2", 1)] = (np.full(3, 1.0), np.full(3, 9.0))
+    assert np.allclose(cal.for_recording("straight/path_2", 1)[0], bg)
