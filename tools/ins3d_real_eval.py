@@ -2,10 +2,9 @@
 """The 3-D post-flight isolator (ins3d) on the real Xsens DOT recordings: the tables of
 docs/ins3d_real.md (markdown on stdout or --out), seeded.
 
-    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--arw 3,10,60] [--out F]
+    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcd] [--out F]
 
-For each process-noise setting (gyro ARW in deg/sqrt(h); VRW follows, see SETTINGS): the units'
-turn-on biases and their leave-one-out residuals, the nominal analyses (every recording x unit),
+For each setting (SETTINGS: process noise, reference correction): the units' turn-on biases and their leave-one-out residuals, the nominal analyses (every recording x unit),
 then bias steps injected into the unit's samples (accelerometer 0.1/0.3/1.0 m/s^2, gyro
 300/1000/3000 deg/h, per body axis, random sign and onset in [3 s, T - 5 s], seeded per run).
 """
@@ -27,8 +26,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from flight_fdi.core.ins3d.grades import DEG_H  # noqa: E402
 from flight_fdi.eval import real3d as R  # noqa: E402
 
-#: gyro ARW (deg/sqrt(h)) -> VRW (m/s/sqrt(s)) of the three process-noise settings
-SETTINGS = {3.0: 0.02, 10.0: 0.03, 60.0: 0.05}
+#: (label, Settings options, with the fault tables): process noise (gyro ARW deg/sqrt(h),
+#: VRW m/s/sqrt(s)) and the reference's INS shape correction (Contract.ref_ins_shape)
+SETTINGS = {
+    "a": ("ARW 10 °/√h, VRW 0.03 m/s/√s, reference without the INS shape (the first version)",
+          {"arw_deg_rt_h": 10.0, "vrw": 0.03, "contract": R.Contract(ref_ins_shape=False)},
+          False),
+    "b": ("ARW 3 °/√h, VRW 0.02 m/s/√s", {"arw_deg_rt_h": 3.0, "vrw": 0.02}, True),
+    "c": ("ARW 10 °/√h, VRW 0.03 m/s/√s (**default**)", {}, True),
+    "d": ("ARW 60 °/√h, VRW 0.05 m/s/√s", {"arw_deg_rt_h": 60.0, "vrw": 0.05}, True),
+}
 SIZES = {"accelerometer": (0.1, 0.3, 1.0), "gyro": (300.0, 1000.0, 3000.0)}
 UNIT = {"accelerometer": "m/s^2", "gyro": "deg/h"}
 
@@ -57,13 +64,13 @@ def bias_table(cal: R.Calibration) -> list[str]:
 
 def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], dict]:
     per_day: dict[str, list[dict]] = {}
-    detail = []
+    detail, outcome = [], {}
     for name in names:
         outs = []
         for u in units:
             bg, ba = cal.for_recording(name, u)
             out = R.record(R.analyze(R.read_recording(data, name, u), bg, ba, st))
-            out["outcome"] = R.judge(out, None)
+            out["outcome"] = outcome[(name, u)] = R.judge(out, None)
             outs.append(out)
             per_day.setdefault(R.day_of(name), []).append(out)
         named = Counter(f"{o['verdict']}" + (f" {o['sensor']} {o['axis']}" if o["sensor"] else "")
@@ -91,30 +98,32 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
             "|---|---|---|---|---|---|"]
     thr = allo[0]["thresholds"]
     return rows + ["", f"Thresholds (the tactical preset's, the custom grade is not "
-                   f"calibrated): {thr}.", ""] + head + detail, Counter(
-                       o["outcome"] for o in allo)
+                   f"calibrated): {thr}.", ""] + head + detail, outcome
 
 
-def faults(data: Path, cal, names, units, st: R.Settings, seed: int) -> list[str]:
-    rows = ["| fault | size | runs | right sensor+axis | confident wrong | ambiguous | none | "
-            "median onset error (s) | median magnitude error |",
-            "|---|---|---|---|---|---|---|---|---|"]
+def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_outcome: dict
+           ) -> list[str]:
+    rows = ["| fault | size | runs | right sensor+axis | confident wrong | of which the nominal "
+            "run was clean | ambiguous | none | median onset error (s) | median magnitude error |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     smallest = {}
     for sensor, sizes in SIZES.items():
         for axis in R.AXES:
             for size in sizes:
                 c, oe, me = Counter(), [], []
-                for _, _, f, out, o in R.fault_runs(data, cal, names, units, sensor, axis,
-                                                    _si(sensor, size), seed, st):
+                for name, unit, f, out, o in R.fault_runs(data, cal, names, units, sensor, axis,
+                                                          _si(sensor, size), seed, st):
                     c[o] += 1
+                    c["wrong_clean"] += o == "wrong" and nominal_outcome[(name, unit)] == "none"
                     if o == "right":
                         oe.append(abs(out["onset_s"] - f.onset_s))
                         me.append(out["magnitude"] / f.magnitude - 1.0)
-                n = sum(c.values())
+                n = sum(c[k] for k in ("right", "wrong", "ambiguous", "none"))
                 if c["right"] > n / 2 and (sensor, axis) not in smallest:
                     smallest[(sensor, axis)] = size
                 rows.append(f"| {sensor} {axis} step | {size:g} {UNIT[sensor]} | {n} | "
                             f"{100 * c['right'] / n:.0f} % | {100 * c['wrong'] / n:.0f} % | "
+                            f"{100 * c['wrong_clean'] / n:.0f} % | "
                             f"{100 * c['ambiguous'] / n:.0f} % | {100 * c['none'] / n:.0f} % | "
                             + (f"{np.median(oe):.1f} | {100 * np.median(me):+.0f} % |"
                                if oe else "- | - |"))
@@ -131,8 +140,8 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=Path, default=R.default_data_dir())
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--units", default="1,2,3,4")
-    p.add_argument("--arw", default="3,10,60",
-                   help="gyro ARW settings, deg/sqrt(h), of " + str(sorted(SETTINGS)))
+    p.add_argument("--settings", default="abcd",
+                   help="which SETTINGS (letters a-d, default all)")
     p.add_argument("--no-faults", action="store_true")
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
@@ -151,17 +160,20 @@ def main(argv=None) -> int:
              f"{args.seed}, commit {commit}, {platform.node()}, load {' '.join(load)} at start.",
              "", "### Units (the calibration removed before mechanization)", ""]
     lines += bias_table(cal)
-    for arw in [float(a) for a in args.arw.split(",")]:
-        st = R.Settings(arw_deg_rt_h=arw, vrw=SETTINGS.get(arw, 0.03))
-        lines += ["", f"### Process noise: ARW {arw:g} deg/√h, VRW {st.vrw:g} m/s/√s "
-                  f"(grade: gyro bias {st.gyro_bias_deg_h:g} deg/h, accelerometer bias "
-                  f"{st.accel_bias:g} m/s²; {st.rows} rows, vertical {st.vertical})", "",
-                  "#### Nominal", ""]
-        rows, _ = nominal(args.data, cal, names, units, st)
+    for key in args.settings:
+        label, opts, with_faults = SETTINGS[key]
+        st = R.Settings(**opts)
+        lines += ["", f"### ({key}) {label}", "",
+                  f"Grade: residual gyro bias {st.gyro_bias_deg_h:g} deg/h, accelerometer bias "
+                  f"{st.accel_bias:g} m/s²; {st.rows} rows, vertical {st.vertical}; reference "
+                  f"±{st.contract.ref_half * R.GT_DT:g} s central differences every "
+                  f"{st.contract.ref_every * R.GT_DT:g} s, INS shape "
+                  f"{'on' if st.contract.ref_ins_shape else 'off'}.", "", "#### Nominal", ""]
+        rows, outcome = nominal(args.data, cal, names, units, st)
         lines += rows
-        if not args.no_faults:
+        if with_faults and not args.no_faults:
             lines += ["", "#### Injected bias steps", ""]
-            lines += faults(args.data, cal, names, units, st, args.seed)
+            lines += faults(args.data, cal, names, units, st, args.seed, outcome)
     lines += ["", f"Wall time {time.time() - t0:.0f} s."]
     text = "\n".join(lines) + "\n"
     if args.out:

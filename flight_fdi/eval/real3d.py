@@ -225,6 +225,9 @@ class Contract:
     imu_rate_hz: float = 40.0
     ref_half: int = 5              # GT samples each side of the central difference (0.5 s)
     ref_every: int = 10            # one reference per 10 GT samples (1 Hz, disjoint spans)
+    #: compare like with like: the reference (a mean over its span) gets the INS's own
+    #: v(t) - mean over the span added (the shape of the velocity within the span, from the INS)
+    ref_ins_shape: bool = True
     ref_sigma_h: float = 0.06      # m/s, horizontal RTK-differenced velocity noise (1 sigma)
     ref_sigma_u: float = 0.10      # m/s, up: Down quantised to 0.1 m in the files
 
@@ -256,6 +259,17 @@ def mechanize_recording(rec: Recording, bg: np.ndarray, ba: np.ndarray):
     return t, nav, f, w
 
 
+def _span_shape(t: np.ndarray, v: np.ndarray, tc: np.ndarray, half: float) -> np.ndarray:
+    """(M, 3) v(tc) - the mean of v over [tc - half, tc + half] (trapezoid, v sampled at t)."""
+    cum = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t)[:, None],
+                                                 axis=0)])
+    lo, hi = np.clip(tc - half, t[0], t[-1]), np.clip(tc + half, t[0], t[-1])
+    integ = np.stack([np.interp(hi, t, cum[:, i]) - np.interp(lo, t, cum[:, i])
+                      for i in range(3)], axis=1)
+    now = np.stack([np.interp(tc, t, v[:, i]) for i in range(3)], axis=1)
+    return now - integ / np.maximum(hi - lo, 1e-9)[:, None]
+
+
 def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
                    cfg: Contract = Contract()) -> Ins3dInput:
     """The four contract topics of ``rec`` in memory (``bagio.ins3d_input.build_input``)."""
@@ -267,6 +281,8 @@ def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
     wm = np.vstack([w[:1], w[:m * every].reshape(m, every, 3).mean(axis=1)])
     tr, vr = gt_velocity(rec.gt, cfg.ref_half, cfg.ref_every)
     inside = (tr > t[idx[0]]) & (tr <= t[idx[-1]])
+    if cfg.ref_ins_shape:
+        vr = vr + _span_shape(t, nav.v, tr, cfg.ref_half * GT_DT)
     r = np.array([cfg.ref_sigma_h**2, cfg.ref_sigma_h**2, cfg.ref_sigma_u**2])
     return build_input(t[idx], nav.q[idx], fm, wm, t[idx], nav.v[idx], t[idx], nav.lat[idx],
                        nav.h[idx], tr[inside], vr[inside], np.broadcast_to(r, vr[inside].shape))
