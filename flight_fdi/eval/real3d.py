@@ -270,9 +270,9 @@ def _span_shape(t: np.ndarray, v: np.ndarray, tc: np.ndarray, half: float) -> np
     return now - integ / np.maximum(hi - lo, 1e-9)[:, None]
 
 
-def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
-                   cfg: Contract = Contract()) -> Ins3dInput:
-    """The four contract topics of ``rec`` in memory (``bagio.ins3d_input.build_input``)."""
+def contract_arrays(rec: Recording, bg: np.ndarray, ba: np.ndarray,
+                    cfg: Contract = Contract()) -> dict[str, np.ndarray]:
+    """The four contract topics of ``rec`` as arrays (``build_input``'s arguments + lon)."""
     t, nav, f, w = mechanize_recording(rec, bg, ba)
     every = int(round(RATE_HZ / cfg.imu_rate_hz))
     m = (t.size - 1) // every
@@ -284,8 +284,63 @@ def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
     if cfg.ref_ins_shape:
         vr = vr + _span_shape(t, nav.v, tr, cfg.ref_half * GT_DT)
     r = np.array([cfg.ref_sigma_h**2, cfg.ref_sigma_h**2, cfg.ref_sigma_u**2])
-    return build_input(t[idx], nav.q[idx], fm, wm, t[idx], nav.v[idx], t[idx], nav.lat[idx],
-                       nav.h[idx], tr[inside], vr[inside], np.broadcast_to(r, vr[inside].shape))
+    return {"t_imu": t[idx], "q": nav.q[idx], "f_b": fm, "w_b": wm, "t_vel": t[idx],
+            "v": nav.v[idx], "t_fix": t[idx], "lat": nav.lat[idx], "h": nav.h[idx],
+            "t_ref": tr[inside], "v_ref": vr[inside],
+            "r_ref": np.broadcast_to(r, vr[inside].shape), "lon": nav.lon[idx]}
+
+
+def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
+                   cfg: Contract = Contract()) -> Ins3dInput:
+    """The four contract topics of ``rec`` in memory (``bagio.ins3d_input.build_input``)."""
+    a = contract_arrays(rec, bg, ba, cfg)
+    a.pop("lon")
+    return build_input(**a)
+
+
+def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str | Path,
+                       cfg: Contract = Contract(), epoch_s: int = 1_700_000_000,
+                       overwrite: bool = False) -> dict[str, int]:
+    """The same contract as a bag (the topics and frames of ``sim.bag3d``; metadata
+    ``flight_fdi.sim3d`` says ``vertical: free``, so ``flight-fdi analyze --model ins3d``
+    models the vertical channel as ``damped``): the user-facing path. Returns message counts."""
+    import json
+
+    from ..bagio import cdr
+    from ..bagio.writer import open_writer
+    from ..sim.bag3d import BODY_FRAME, ENU_FRAME, UNMEASURED_VARIANCE
+    a = contract_arrays(rec, bg, ba, cfg)
+
+    def ns(t):
+        return epoch_s * 1_000_000_000 + np.round(np.asarray(t) * 1e9).astype(np.int64)
+    s_imu, s_ref = ns(a["t_imu"]), ns(a["t_ref"])
+    vals = np.zeros((s_imu.size, 37))
+    vals[:, 0:3], vals[:, 3] = a["q"][:, 1:4], a["q"][:, 0]
+    vals[:, 13:16], vals[:, 25:28] = a["w_b"], a["f_b"]
+    twist = np.zeros((s_imu.size, 6))
+    twist[:, :3] = a["v"]
+    rtw = np.zeros((s_ref.size, 6))
+    rtw[:, :3] = a["v_ref"]
+    cov = np.zeros(36)
+    cov[[0, 7, 14]] = a["r_ref"][0]
+    cov[[21, 28, 35]] = UNMEASURED_VARIANCE
+    llh = np.stack([np.degrees(a["lat"]), np.degrees(a["lon"]), a["h"]], axis=1)
+    series = [
+        ("/ins/imu", cdr.IMU, s_imu, cdr.encode_doubles(cdr.IMU, s_imu, BODY_FRAME, vals)),
+        ("/ins/velocity", cdr.TWIST_STAMPED, s_imu,
+         cdr.encode(cdr.TWIST_STAMPED, s_imu, ENU_FRAME, twist)),
+        ("/ins/fix", cdr.NAVSATFIX, s_imu,
+         cdr.encode_navsatfix(s_imu, BODY_FRAME, 0, 0, llh, np.zeros(9), 0)),
+        ("/reference/velocity", cdr.TWIST_COV_STAMPED, s_ref,
+         cdr.encode(cdr.TWIST_COV_STAMPED, s_ref, ENU_FRAME, rtw, cov))]
+    doc = json.dumps({"vertical": "free", "source": f"mimu_quadrotor {rec.name} IMU_{rec.unit}",
+                      "contract": {"imu_rate_hz": cfg.imu_rate_hz, "ref_half": cfg.ref_half,
+                                   "ref_every": cfg.ref_every,
+                                   "ref_ins_shape": cfg.ref_ins_shape}}, sort_keys=True)
+    with open_writer(Path(path), storage="mcap", overwrite=overwrite) as bag:
+        bag.set_metadata("flight_fdi.sim3d", doc)
+        bag.write_series(series)
+        return dict(bag.counts)
 
 
 @dataclass(frozen=True)
@@ -385,6 +440,6 @@ def names_in(data_dir: Path) -> list[str]:
 
 
 __all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "build_contract",
-           "Settings", "analyze", "calibrate", "day_of", "fault_runs", "judge", "record", "default_data_dir", "gt_quaternions", "gt_velocity",
+           "Settings", "analyze", "calibrate", "contract_arrays", "day_of", "fault_runs", "judge", "record", "default_data_dir", "gt_quaternions", "gt_velocity",
            "initial_state", "mechanize_recording", "names_in", "read_gt", "read_recording",
-           "recording_biases", "xsens_grade"]
+           "recording_biases", "write_contract_bag", "xsens_grade"]

@@ -99,3 +99,27 @@ def test_calibration_is_leave_one_out():
     # the recording itself does not enter its own calibration
     cal.biases[("straight/path_2", 1)] = (np.full(3, 1.0), np.full(3, 9.0))
     assert np.allclose(cal.for_recording("straight/path_2", 1)[0], bg)
+
+
+def test_span_shape_known_answer():
+    # v(t) = (t, t^2, 1): the mean over [c - h, c + h] is (c, c^2 + h^2 / 3, 1), so the shape
+    # v(c) - mean is (0, -h^2 / 3, 0)
+    t = np.linspace(0.0, 10.0, 1201)
+    v = np.stack([t, t**2, np.ones_like(t)], axis=1)
+    tc = np.array([2.0, 5.0, 7.5])
+    shape = R._span_shape(t, v, tc, 0.5)
+    # the trapezoid rule on the 1/120-s grid is off by dt^2 v''/12 = 1.2e-5
+    assert np.allclose(shape, [[0.0, -0.25 / 3, 0.0]] * 3, atol=2e-5, rtol=0)
+
+
+def test_contract_bag_equals_memory(rec, cal, tmp_path):
+    from flight_fdi.bagio.ins3d_input import read_ins3d
+    counts = R.write_contract_bag(rec, *cal, tmp_path / "bag")
+    assert counts["/reference/velocity"] == 14 and counts["/ins/imu"] == 600
+    a, b = R.build_contract(rec, *cal), read_ins3d(tmp_path / "bag")
+    assert np.allclose(a.steps.t, b.steps.t, atol=1e-9, rtol=0)
+    for k in ("f_n", "v", "h", "C"):
+        assert np.array_equal(getattr(a.steps, k), getattr(b.steps, k)), k
+    assert np.allclose(a.steps.lat, b.steps.lat, rtol=1e-14, atol=0)   # via degrees
+    assert np.array_equal(a.refs.z, b.refs.z) and np.array_equal(a.refs.r, b.refs.r)
+    assert b.vertical() == {"vertical": "damped"}     # the description says: no baro loop
