@@ -104,17 +104,22 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
 def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_outcome: dict
            ) -> list[str]:
     rows = ["| fault | size | runs | right sensor+axis | confident wrong | of which the nominal "
-            "run was clean | ambiguous | none | median onset error (s) | median magnitude error |",
-            "|---|---|---|---|---|---|---|---|---|---|"]
+            "run was clean | ambiguous | none | median onset error (s) | median magnitude error | "
+            "most frequent wrong or ambiguous answer |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
     smallest = {}
     for sensor, sizes in SIZES.items():
         for axis in R.AXES:
             for size in sizes:
-                c, oe, me = Counter(), [], []
+                c, oe, me, other = Counter(), [], [], Counter()
                 for name, unit, f, out, o in R.fault_runs(data, cal, names, units, sensor, axis,
                                                           _si(sensor, size), seed, st):
                     c[o] += 1
                     c["wrong_clean"] += o == "wrong" and nominal_outcome[(name, unit)] == "none"
+                    if o == "ambiguous":
+                        other["ambiguous: " + " / ".join(sorted(out["candidates"]))] += 1
+                    elif o == "wrong":
+                        other[f"{out['sensor']} {out['axis']} {out['kind']}"] += 1
                     if o == "right":
                         oe.append(abs(out["onset_s"] - f.onset_s))
                         me.append(out["magnitude"] / f.magnitude - 1.0)
@@ -125,8 +130,10 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                             f"{100 * c['right'] / n:.0f} % | {100 * c['wrong'] / n:.0f} % | "
                             f"{100 * c['wrong_clean'] / n:.0f} % | "
                             f"{100 * c['ambiguous'] / n:.0f} % | {100 * c['none'] / n:.0f} % | "
-                            + (f"{np.median(oe):.1f} | {100 * np.median(me):+.0f} % |"
-                               if oe else "- | - |"))
+                            + (f"{np.median(oe):.1f} | {100 * np.median(me):+.0f} % | "
+                               if oe else "- | - | ")
+                            + (f"{other.most_common(1)[0][0]} ×{other.most_common(1)[0][1]} |"
+                               if other else "- |"))
     rows += ["", "Smallest size isolated to the right sensor and axis on most (> 50 %) runs: "
              + "; ".join(f"{s} {a}: " + (f"{smallest[(s, a)]:g} {UNIT[s]}"
                                          if (s, a) in smallest else "none of the sizes")
