@@ -120,18 +120,12 @@ def gt_velocity(gt: dict[str, np.ndarray], half: int = 1, every: int = 1
     return t[m:-m][::every], v[::every]
 
 
-def _qconj(q):
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
 def _body_rates(q: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(M-1, 3) mean body rates over each GT interval from consecutive attitudes."""
-    from ..core.rotation import qmul_array
-    d = qmul_array(_qconj(q[:-1]), q[1:])
-    d = np.where(d[:, :1] < 0, -d, d)
-    n = np.linalg.norm(d[:, 1:], axis=1)
-    k = np.where(n < 1e-12, 2.0, 2.0 * np.arctan2(n, d[:, 0]) / np.where(n < 1e-12, 1.0, n))
-    return k[:, None] * d[:, 1:] / np.diff(t)[:, None]
+    """(M-1, 3) mean body rates over each GT interval from consecutive attitudes:
+    log(q_k^-1 q_k+1) / dt (``rotation.attitude_error_array`` gives -log(a b^-1))."""
+    from ..core.rotation import attitude_error_array
+    conj = np.array([1.0, -1.0, -1.0, -1.0])
+    return -attitude_error_array(q[:-1] * conj, q[1:] * conj) / np.diff(t)[:, None]
 
 
 def recording_biases(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
