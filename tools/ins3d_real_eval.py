@@ -2,7 +2,7 @@
 """The 3-D post-flight isolator (ins3d) on the real Xsens DOT recordings: the tables of
 docs/ins3d_real.md (markdown on stdout or --out), seeded.
 
-    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcd] [--out F]
+    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcde] [--out F]
 
 For each setting (SETTINGS: process noise, reference correction): the units' turn-on biases and their leave-one-out residuals, the nominal analyses (every recording x unit),
 then bias steps injected into the unit's samples (accelerometer 0.1/0.3/1.0 m/s^2, gyro
@@ -29,12 +29,17 @@ from flight_fdi.eval import real3d as R  # noqa: E402
 #: (label, Settings options, with the fault tables): process noise (gyro ARW deg/sqrt(h),
 #: VRW m/s/sqrt(s)) and the reference's INS shape correction (Contract.ref_ins_shape)
 SETTINGS = {
-    "a": ("ARW 10 °/√h, VRW 0.03 m/s/√s, reference without the INS shape (the first version)",
-          {"arw_deg_rt_h": 10.0, "vrw": 0.03, "contract": R.Contract(ref_ins_shape=False)},
-          False),
-    "b": ("ARW 3 °/√h, VRW 0.02 m/s/√s", {"arw_deg_rt_h": 3.0, "vrw": 0.02}, True),
-    "c": ("ARW 10 °/√h, VRW 0.03 m/s/√s (**default**)", {}, True),
-    "d": ("ARW 60 °/√h, VRW 0.05 m/s/√s", {"arw_deg_rt_h": 60.0, "vrw": 0.05}, True),
+    "a": ("ARW 10 °/√h, VRW 0.03 m/s/√s, accelerometer bias 0.3 m/s², reference without the "
+          "INS shape (the first version)",
+          {"arw_deg_rt_h": 10.0, "vrw": 0.03, "accel_bias": 0.3,
+           "contract": R.Contract(ref_ins_shape=False)}, False),
+    "b": ("ARW 10 °/√h, VRW 0.03 m/s/√s, accelerometer bias 0.3 m/s²",
+          {"arw_deg_rt_h": 10.0, "vrw": 0.03, "accel_bias": 0.3}, True),
+    "c": ("ARW 3 °/√h, VRW 0.02 m/s/√s, accelerometer bias 0.3 m/s²",
+          {"arw_deg_rt_h": 3.0, "vrw": 0.02, "accel_bias": 0.3}, True),
+    "d": ("ARW 3 °/√h, VRW 0.02 m/s/√s, accelerometer bias 0.5 m/s² (**default**)", {}, True),
+    "e": ("ARW 60 °/√h, VRW 0.05 m/s/√s, accelerometer bias 0.5 m/s²",
+          {"arw_deg_rt_h": 60.0, "vrw": 0.05}, True),
 }
 SIZES = {"accelerometer": (0.1, 0.3, 1.0), "gyro": (300.0, 1000.0, 3000.0)}
 UNIT = {"accelerometer": "m/s^2", "gyro": "deg/h"}
@@ -147,8 +152,8 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=Path, default=R.default_data_dir())
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--units", default="1,2,3,4")
-    p.add_argument("--settings", default="abcd",
-                   help="which SETTINGS (letters a-d, default all)")
+    p.add_argument("--settings", default="abcde",
+                   help="which SETTINGS (letters a-e, default all)")
     p.add_argument("--no-faults", action="store_true")
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
