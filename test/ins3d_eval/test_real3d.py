@@ -64,7 +64,7 @@ def test_contract_shapes_and_velocity_bound(rec, cal):
 
 def test_nominal_as_measured(rec, cal):
     out = R.record(R.analyze(rec, *cal))
-    # measured (docs/ins3d_real.md): no fault, beta^2 0.87 for 2 rows, largest IMU step GLR 5.0
+    # measured (docs/ins3d_real.md): no fault, beta^2 1.07 for 2 rows, largest IMU step GLR 7.2
     assert out["verdict"] == "no_fault" and R.judge(out, None) == "none"
     assert 0.3 < out["beta2"] < 3.0
     assert out["max_step"] < out["thresholds"]["step"]
