@@ -109,9 +109,9 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
 def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_outcome: dict
            ) -> list[str]:
     rows = ["| fault | size | runs | right sensor+axis | confident wrong | of which the nominal "
-            "run was clean | ambiguous | none | median onset error (s) | median magnitude error | "
+            "run was clean | ambiguous | of which the right one is a candidate | none | median onset error (s) | median magnitude error | "
             "most frequent wrong or ambiguous answer |",
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     smallest = {}
     for sensor, sizes in SIZES.items():
         for axis in R.AXES:
@@ -121,6 +121,8 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                                                           _si(sensor, size), seed, st):
                     c[o] += 1
                     c["wrong_clean"] += o == "wrong" and nominal_outcome[(name, unit)] == "none"
+                    c["amb_right"] += o == "ambiguous" and any(
+                        x.startswith(f"{sensor} {axis} ") for x in out["candidates"])
                     if o == "ambiguous":
                         other["ambiguous: " + " / ".join(sorted(out["candidates"]))] += 1
                     elif o == "wrong":
@@ -134,7 +136,8 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                 rows.append(f"| {sensor} {axis} step | {size:g} {UNIT[sensor]} | {n} | "
                             f"{100 * c['right'] / n:.0f} % | {100 * c['wrong'] / n:.0f} % | "
                             f"{100 * c['wrong_clean'] / n:.0f} % | "
-                            f"{100 * c['ambiguous'] / n:.0f} % | {100 * c['none'] / n:.0f} % | "
+                            f"{100 * c['ambiguous'] / n:.0f} % | "
+                            f"{100 * c['amb_right'] / n:.0f} % | {100 * c['none'] / n:.0f} % | "
                             + (f"{np.median(oe):.1f} | {100 * np.median(me):+.0f} % | "
                                if oe else "- | - | ")
                             + (f"{other.most_common(1)[0][0]} ×{other.most_common(1)[0][1]} |"
