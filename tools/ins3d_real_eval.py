@@ -2,7 +2,8 @@
 """The 3-D post-flight isolator (ins3d) on the real Xsens DOT recordings: the tables of
 docs/ins3d_real.md (markdown on stdout or --out), seeded.
 
-    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcde] [--out F]
+    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcde]
+                                              [--out F]
 
 For each setting (SETTINGS: process noise, reference correction): the units' turn-on biases and their leave-one-out residuals, the nominal analyses (every recording x unit),
 then bias steps injected into the unit's samples (accelerometer 0.1/0.3/1.0 m/s^2, gyro
@@ -109,7 +110,8 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
 def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_outcome: dict
            ) -> list[str]:
     rows = ["| fault | size | runs | right sensor+axis | confident wrong | of which the nominal "
-            "run was clean | ambiguous | of which the right one is a candidate | none | median onset error (s) | median magnitude error | "
+            "run was clean | ambiguous | of which the right one is a candidate | none | "
+            "median onset error (s) | median magnitude error | "
             "most frequent wrong or ambiguous answer |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     smallest = {}

@@ -182,7 +182,7 @@ def calibrate(data_dir: Path, names: list[str], units: list[int]) -> Calibration
     return cal
 
 
-def xsens_grade(gyro_bias: float = 300 * DEG_H, accel_bias: float = 0.15,
+def xsens_grade(gyro_bias: float = 400 * DEG_H, accel_bias: float = 0.5,
                 arw: float = 3.0 * DEG_RTH, vrw: float = 0.02) -> ImuGrade:
     """A grade for the calibrated Xsens DOT units: residual turn-on biases (1 sigma, the spread of
     the leave-one-out residuals, docs/ins3d_real.md), the vibration as white noise (ARW, VRW
@@ -436,7 +436,8 @@ def names_in(data_dir: Path) -> list[str]:
     return [n for day in DAYS.values() for n in day if (Path(data_dir) / n / "GT.csv.gz").exists()]
 
 
-__all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "build_contract",
-           "Settings", "analyze", "calibrate", "contract_arrays", "day_of", "fault_runs", "judge", "record", "default_data_dir", "gt_quaternions", "gt_velocity",
-           "initial_state", "mechanize_recording", "names_in", "read_gt", "read_recording",
+__all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "Settings", "analyze",
+           "build_contract", "calibrate", "contract_arrays", "day_of", "default_data_dir",
+           "fault_runs", "gt_quaternions", "gt_velocity", "initial_state", "judge",
+           "mechanize_recording", "names_in", "read_gt", "read_recording", "record",
            "recording_biases", "write_contract_bag", "xsens_grade"]
