@@ -5,7 +5,8 @@ docs/ins3d_real.md (markdown on stdout or --out), seeded.
     .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcde]
                                               [--out F]
 
-For each setting (SETTINGS: process noise, reference correction): the units' turn-on biases and their leave-one-out residuals, the nominal analyses (every recording x unit),
+For each setting (SETTINGS: process noise, accelerometer prior, reference correction): the units'
+turn-on biases and their leave-one-out residuals, the nominal analyses (every recording x unit),
 then bias steps injected into the unit's samples (accelerometer 0.1/0.3/1.0 m/s^2, gyro
 300/1000/3000 deg/h, per body axis, random sign and onset in [3 s, T - 5 s], seeded per run).
 """
