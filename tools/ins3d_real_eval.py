@@ -25,6 +25,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from flight_fdi.cli.errors import CliError  # noqa: E402
+from flight_fdi.core.errors import CoreError  # noqa: E402
 from flight_fdi.core.ins3d.grades import DEG_H  # noqa: E402
 from flight_fdi.eval import real3d as R  # noqa: E402
 
@@ -166,10 +168,25 @@ def main(argv=None) -> int:
     if not args.data.is_dir():
         print(f"ins3d_real_eval: no data directory {args.data}", file=sys.stderr)
         return 2
-    units = [int(u) for u in args.units.split(",")]
+    bad = [k for k in args.settings if k not in SETTINGS]
+    try:
+        units = [int(u) for u in args.units.split(",")]
+    except ValueError:
+        bad.append(args.units)
+    if bad or not args.settings:
+        print(f"ins3d_real_eval: unknown --settings / --units {bad} (settings: "
+              f"{''.join(SETTINGS)}, units e.g. 1,2,3,4)", file=sys.stderr)
+        return 2
     names = R.names_in(args.data)
+    if not names:
+        print(f"ins3d_real_eval: no recording of the set under {args.data}", file=sys.stderr)
+        return 2
     t0 = time.time()
-    cal = R.calibrate(args.data, names, units)
+    try:
+        cal = R.calibrate(args.data, names, units)
+    except (CoreError, CliError) as exc:       # EvalError; the CSV reader's CliError
+        print(f"ins3d_real_eval: {exc}", file=sys.stderr)
+        return 2
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, cwd=Path(__file__).parent).stdout.strip()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() \

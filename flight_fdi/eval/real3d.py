@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import gzip
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -74,11 +75,18 @@ class Recording:
 
 def read_gt(path: Path) -> dict[str, np.ndarray]:
     """The GT CSV as arrays (time s, speed m/s, heading/pitch/roll deg, north/east/down m)."""
-    with gzip.open(path, "rt") as fh:
-        header = fh.readline()
-    if len(header.split(",")) != len(GT_COLUMNS):
-        raise EvalError(f"{path}: expected {len(GT_COLUMNS)} GT columns, header {header!r}")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    try:
+        with gzip.open(path, "rt") as fh:
+            header = fh.readline()
+        with warnings.catch_warnings():     # an empty file: the check below says so
+            warnings.simplefilter("ignore", UserWarning)
+            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, EOFError, ValueError) as exc:
+        raise EvalError(f"{path}: cannot read the ground truth ({exc})") from None
+    if len(header.split(",")) != len(GT_COLUMNS) or data.shape[1] != len(GT_COLUMNS) \
+            or data.shape[0] < 5:
+        raise EvalError(f"{path}: expected >= 5 rows of {len(GT_COLUMNS)} GT columns, header "
+                        f"{header.strip()!r}")
     return {c: data[:, i] for i, c in enumerate(GT_COLUMNS)}
 
 

@@ -123,3 +123,15 @@ def test_contract_bag_equals_memory(rec, cal, tmp_path):
     assert np.allclose(a.steps.lat, b.steps.lat, rtol=1e-14, atol=0)   # via degrees
     assert np.array_equal(a.refs.z, b.refs.z) and np.array_equal(a.refs.r, b.refs.r)
     assert b.vertical() == {"vertical": "damped"}     # the description says: no baro loop
+
+
+def test_bad_ground_truth_is_one_clear_error(tmp_path):
+    import gzip
+    from flight_fdi.eval.errors import EvalError
+    bad = tmp_path / "GT.csv.gz"
+    bad.write_bytes(gzip.compress(b"time,speed\n0.0,1.0\n"))
+    with pytest.raises(EvalError, match="GT columns"):
+        R.read_gt(bad)
+    bad.write_bytes(b"not gzip")
+    with pytest.raises(EvalError, match="cannot read the ground truth"):
+        R.read_gt(bad)
