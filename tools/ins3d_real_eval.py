@@ -89,9 +89,10 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
                       + f"{max(o['max_jump'] for o in outs):.1f} | "
                       + f"{max(o['max_outliers'] for o in outs):.1f} | "
                       + ", ".join(f"{k} ×{v}" for k, v in sorted(named.items())) + " |")
-    rows = ["| day | runs | false IMU isolation | reference named | ambiguous | none | "
+    rows = ["| day | runs | verdict not no_fault | seed method (χ² J) failure / glitch | "
+            "false IMU isolation | reference named | ambiguous | none | "
             "β² mean (2 rows) median [max] | largest step GLR median [max] | ramp | jump | "
-            "outliers |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+            "outliers |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     allo = [o for v in per_day.values() for o in v]
     for day, outs in list(per_day.items()) + [("all", allo)]:
         c = Counter(o["outcome"] for o in outs)
@@ -99,7 +100,10 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
         def med_max(key):
             v = np.array([o[key] for o in outs])
             return f"{np.median(v):.1f} [{v.max():.1f}]"
-        rows.append(f"| {day} | {len(outs)} | {c['false']} | {c['reference']} | "
+        seed = Counter(o["seed_verdict"] for o in outs)
+        declared = sum(o["verdict"] not in ("no_fault", "insufficient_data") for o in outs)
+        rows.append(f"| {day} | {len(outs)} | {declared} | {seed['failure']} / "
+                    f"{seed['glitch']} | {c['false']} | {c['reference']} | "
                     f"{c['ambiguous']} | {c['none']} | {med_max('beta2')} | "
                     f"{med_max('max_step')} | {med_max('max_ramp')} | {med_max('max_jump')} | "
                     f"{med_max('max_outliers')} |")

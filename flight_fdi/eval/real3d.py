@@ -393,6 +393,8 @@ def record(analysis, t0: float = 0.0) -> dict:
            "statistic": f and f["statistic"],
            "candidates": [f"{c['sensor']} {c['axis']} {c['kind']}" for c in pf["candidates"]],
            "thresholds": dict(pf["glr"]["thresholds"]),
+           "seed_verdict": pf["seed_method"]["verdict"],
+           "seed_element": pf["seed_method"]["element"],
            "beta2": summ["beta2_mean"], "beta2_rows": summ["beta2_row_mean"],
            "latency_s": summ["final_state"].get("latency")}
     for kind in ("step", "ramp", "jump", "outliers"):
