@@ -30,7 +30,9 @@ Studies (``--only`` picks some):
 
 Long flights (docs/ins3d_eval.md, "Long flights"; ``--long-duration`` s, default 7200, profile
 ``--long-profile``, default ``random``: a seeded trajectory per flight; per-flight records stream
-to ``<out>/<study>*.jsonl`` and a stopped study resumes from them):
+to ``<out>/<study>*.jsonl`` and a stopped study resumes from them). On another profile the
+studies' files and doc sections are named ``<study>_<profile>`` (``nominal_long_cruise_turns``:
+"Long flights on the cruise_turns profile"), so the ``random`` studies' results stay as they are:
 
 * ``nominal_long``: ``--long-nominal`` nominal flights (default 200), both models, with the
   largest GLR per hypothesis kind against its threshold;
@@ -44,7 +46,9 @@ Progress: stderr (a tqdm bar per study) and ``<out>/progress.log``.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import os
 import pathlib
 import re
 import sys
@@ -77,9 +81,45 @@ def commit() -> str:
     return rev + ("+changes" if dirty else "")
 
 
-def _save(out: pathlib.Path, name: str, doc: dict, code: str | None = None) -> None:
-    doc["commit"] = code or commit()
+class LoadSampler:
+    """The machine's 1-min load average sampled every ``every_s`` seconds on a daemon thread
+    while a study runs (the machine is shared: the settings lines state the load)."""
+
+    def __init__(self, every_s: float = 30.0) -> None:
+        import threading
+
+        self.samples: list[float] = []
+        self._stop = threading.Event()
+        self._every = every_s
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self.samples.append(os.getloadavg()[0])
+            if self._stop.wait(self._every):
+                return
+
+    def stop(self) -> list[float]:
+        """Stop sampling; the [lowest, highest] load average seen (a last sample included)."""
+        self._stop.set()
+        self._thread.join()
+        self.samples.append(os.getloadavg()[0])
+        return [min(self.samples), max(self.samples)]
+
+
+def _save(out: pathlib.Path, name: str, doc: dict, args=None) -> None:
+    """Write a study's JSON with the code's commit and (a run of main) the load it ran under."""
+    doc["commit"] = getattr(args, "code", None) or commit()
+    load = getattr(args, "load", None)
+    if load is not None:
+        doc["load_average"] = load.stop()
     (out / f"{name}.json").write_text(json.dumps(doc, indent=1) + "\n")
+
+
+def _load_note(doc: dict) -> str:
+    lo_hi = doc.get("load_average")
+    return "" if not lo_hi else f", load average {lo_hi[0]:.1f}-{lo_hi[1]:.1f}"
 
 
 def log(out: pathlib.Path, text: str) -> None:
@@ -96,7 +136,7 @@ def run_nominal(args, out: pathlib.Path) -> None:
     cfg = Study3DConfig(nominal=args.nominal, per_scenario=0,
                         duration_s=args.nominal_duration, profile="random", seed=args.seed)
     res = run_recorded(cfg, out / "nominal.jsonl", args.jobs, progress=True)
-    _save(out, "nominal", res.to_dict(), args.code)
+    _save(out, "nominal", res.to_dict(), args)
 
 
 def run_faults(args, out: pathlib.Path) -> None:
@@ -105,7 +145,7 @@ def run_faults(args, out: pathlib.Path) -> None:
     cfg = Study3DConfig(nominal=0, per_scenario=args.per_scenario, duration_s=args.duration,
                         profile="cruise_turns", seed=args.seed + 1)
     res = run_study(cfg, jobs=args.jobs, progress=True)
-    _save(out, "faults", res.to_dict(), args.code)
+    _save(out, "faults", res.to_dict(), args)
 
 
 def run_latency(args, out: pathlib.Path) -> None:
@@ -126,7 +166,7 @@ def run_latency(args, out: pathlib.Path) -> None:
     doc = {"config": {"nominal": nom.config.describe(), "faults": flt.config.describe()},
            "latency_ms": args.latency_ms, "elapsed_s": nom.elapsed_s + flt.elapsed_s,
            "metrics": summarize(recs), "flights": recs}
-    _save(out, "latency", doc, args.code)
+    _save(out, "latency", doc, args)
 
 
 def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs: int) -> None:
@@ -136,7 +176,7 @@ def _ladder(args, out: pathlib.Path, name: str, grades: tuple, runs: int, rungs:
     cfg = Study3DConfig(nominal=0, per_scenario=1, duration_s=args.duration,
                         profile="cruise_turns", seed=args.seed + 2)
     lad = run_ladder(cfg, grades, runs=runs, rungs=rungs, jobs=args.jobs, progress=True)
-    _save(out, name, {"config": cfg.describe(), "ladder": lad}, args.code)
+    _save(out, name, {"config": cfg.describe(), "ladder": lad}, args)
 
 
 def run_ladder_study(args, out: pathlib.Path) -> None:
@@ -165,7 +205,7 @@ def run_detectable(args, out: pathlib.Path) -> None:
         a = analyze_ins3d(inp.steps, inp.refs, **kw)
         doc["models"][label] = _detect_doc(a, DETECT_ONSETS)
     doc["elapsed_s"] = time.perf_counter() - t0
-    _save(out, "detectable", doc, args.code)
+    _save(out, "detectable", doc, args)
 
 
 def _detect_doc(a, onsets) -> dict:
@@ -195,6 +235,12 @@ def _long_cfg(args, **kw):
     return Study3DConfig(duration_s=args.long_duration, profile=args.long_profile, **kw)
 
 
+def long_name(study: str, profile: str) -> str:
+    """The file and section name of a long study on ``profile``: the study's own for the
+    ``random`` profile (the first long evaluation's names), ``<study>_<profile>`` otherwise."""
+    return study if profile == "random" else f"{study}_{profile}"
+
+
 def _long_per(args) -> dict[str, int]:
     from flight_fdi.eval.montecarlo3d import SCENARIOS
 
@@ -210,9 +256,10 @@ def _long_per(args) -> dict[str, int]:
 def run_nominal_long(args, out: pathlib.Path) -> None:
     from flight_fdi.eval.long3d import run_recorded
 
+    name = long_name("nominal_long", args.long_profile)
     cfg = _long_cfg(args, nominal=args.long_nominal, per_scenario=0, seed=args.seed + 6)
-    res = run_recorded(cfg, out / "nominal_long.jsonl", args.jobs, progress=True)
-    _save(out, "nominal_long", res.to_dict(), args.code)
+    res = run_recorded(cfg, out / f"{name}.jsonl", args.jobs, progress=True)
+    _save(out, name, res.to_dict(), args)
 
 
 def _fault_seed(args, scenario: str) -> int:
@@ -226,12 +273,13 @@ def _fault_seed(args, scenario: str) -> int:
 def run_faults_long(args, out: pathlib.Path) -> None:
     from flight_fdi.eval.long3d import merge_records, run_recorded
 
+    name = long_name("faults_long", args.long_profile)
     parts, doc = [], {"config": {}, "elapsed_s": 0.0}
     for scen, n in _long_per(args).items():
         cfg = _long_cfg(args, nominal=0, per_scenario=n, scenarios=(scen,),
                         seed=_fault_seed(args, scen))
-        log(out, f"faults_long: {n} {scen} flights (seed {cfg.seed})")
-        res = run_recorded(cfg, out / f"faults_long_{scen}.jsonl", args.jobs, progress=True)
+        log(out, f"{name}: {n} {scen} flights (seed {cfg.seed})")
+        res = run_recorded(cfg, out / f"{name}_{scen}.jsonl", args.jobs, progress=True)
         parts.append(res.records)
         doc["config"][scen] = cfg.describe()
         doc["elapsed_s"] += res.elapsed_s
@@ -239,7 +287,7 @@ def run_faults_long(args, out: pathlib.Path) -> None:
         if res.engine:                 # a scenario wholly resumed from its records ran nowhere
             doc["engine"] = res.engine
     doc["flights"] = merge_records(parts)
-    _save(out, "faults_long", doc, args.code)
+    _save(out, name, doc, args)
 
 
 def run_detectable_long(args, out: pathlib.Path) -> None:
@@ -261,18 +309,18 @@ def run_detectable_long(args, out: pathlib.Path) -> None:
         doc["models"][f"{prof}, loop, 3 rows"] = _detect_doc(a, onsets)
     doc["thresholds"] = dict(a.thresholds)
     doc["elapsed_s"] = time.perf_counter() - t0
-    _save(out, "detectable_long", doc, args.code)
+    _save(out, long_name("detectable_long", args.long_profile), doc, args)
 
 
 
 
 
-def section_nominal_long(out: pathlib.Path) -> str | None:
+def section_nominal_long(out: pathlib.Path, name: str = "nominal_long") -> str | None:
     from flight_fdi.core.ins3d.glr3d import thresholds_for
     from flight_fdi.eval.long3d import (format_nominal, format_nominal_maxima, nominal_maxima,
                                         read_study)
 
-    doc, recs, note, dur = read_study(out, "nominal_long")
+    doc, recs, note, dur = read_study(out, name)
     if not recs:
         return None
     head = note + (_settings(doc) if doc else "")
@@ -280,11 +328,12 @@ def section_nominal_long(out: pathlib.Path) -> str | None:
         nominal_maxima(recs, thresholds_for("navigation", dur)))])
 
 
-def section_faults_long(out: pathlib.Path) -> str | None:
-    from flight_fdi.eval.long3d import format_by_onset, format_by_turn_after, read_study
+def section_faults_long(out: pathlib.Path, name: str = "faults_long") -> str | None:
+    from flight_fdi.eval.long3d import (format_by_onset, format_by_turn_after,
+                                        format_onset_by_axis, read_study)
     from flight_fdi.eval.metrics3d import format_metrics, summarize
 
-    doc, recs, note, dur = read_study(out, "faults_long")
+    doc, recs, note, dur = read_study(out, name)
     if not recs:
         return None
     head = note
@@ -295,11 +344,12 @@ def section_faults_long(out: pathlib.Path) -> str | None:
                 f"`{c['profile']}`, grade {c['grade']}, seeds {seeds}, GNSS latency "
                 f"{1000 * c['gnss_latency_s']:g} ms + Markov noise, onsets in "
                 f"{c['onset_window'][0]:g}-{c['onset_window'][1]:g} of the flight; "
-                f"{doc['elapsed_s'] / 60:.1f} min on {doc.get('engine', '?')}"
+                f"{doc['elapsed_s'] / 60:.1f} min on {doc.get('engine', '?')}{_load_note(doc)}"
                 + (f" ({doc['resumed']} flights resumed from earlier runs' records)"
                    if doc.get("resumed") else "") + f"; code {doc.get('commit', '?')}.")
     text = re.sub(r"nominal flights:\n\n(\|.*\n)+\n", "", format_metrics(summarize(recs)))
-    return (head + "\n\n" + text + "\n\n" + format_by_onset(recs, dur, ONSET_BINS) + "\n\n"
+    return (head + "\n\n" + text + "\n\n" + format_onset_by_axis(recs) + "\n\n"
+            + format_by_onset(recs, dur, ONSET_BINS) + "\n\n"
             + format_by_turn_after([r for r in recs if r["scenario"].startswith("gyro")]))
 
 
@@ -329,10 +379,10 @@ def section_onset_calibration(out: pathlib.Path) -> str | None:
     return "\n\n".join(parts) or None
 
 
-def section_detectable_long(out: pathlib.Path) -> str | None:
+def section_detectable_long(out: pathlib.Path, name: str = "detectable_long") -> str | None:
     from flight_fdi.eval.long3d import format_detectable
 
-    doc = _load(out, "detectable_long")
+    doc = _load(out, name)
     if doc is None:
         return None
     return format_detectable(doc, f"One nominal {doc['duration_s']:g}-s flight per profile "
@@ -417,19 +467,35 @@ def _settings(doc: dict) -> str:
             f"{c['duration_s']:g} s, profile `{c['profile']}`, grade {c['grade']}, seed "
             f"{c['seed']}, GNSS latency {1000 * c['gnss_latency_s']:g} ms + Markov noise, "
             f"onsets in {c['onset_window'][0]:g}-{c['onset_window'][1]:g} of the flight; "
-            f"{doc['elapsed_s'] / 60:.1f} min on {doc['engine']}; code {doc.get('commit', '?')}.")
+            f"{doc['elapsed_s'] / 60:.1f} min on {doc['engine']}{_load_note(doc)}; code "
+            f"{doc.get('commit', '?')}.")
+
+
+def sections() -> list[tuple]:
+    """(section name, its renderer): the studies' sections, and the long studies' once more per
+    profile other than ``random`` (``nominal_long_cruise_turns``, ...)."""
+    from flight_fdi.eval.montecarlo3d import PROFILES
+
+    out = [("nominal", section_nominal), ("faults", section_faults),
+           ("ladder", section_ladder), ("ladder_grades", section_ladder_grades),
+           ("latency", section_latency), ("detectable", section_detectable),
+           ("nominal_long", section_nominal_long), ("faults_long", section_faults_long),
+           ("calibration_long", section_calibration_long),
+           ("onset_calibration", section_onset_calibration),
+           ("detectable_long", section_detectable_long)]
+    for prof in PROFILES:
+        for study, fn in (("nominal_long", section_nominal_long),
+                          ("faults_long", section_faults_long),
+                          ("detectable_long", section_detectable_long)):
+            if prof != "random":
+                name = long_name(study, prof)
+                out.append((name, functools.partial(fn, name=name)))
+    return out
 
 
 def render(out: pathlib.Path, doc: pathlib.Path = DOC) -> None:
     text = doc.read_text()
-    for name, fn in (("nominal", section_nominal), ("faults", section_faults),
-                     ("ladder", section_ladder), ("ladder_grades", section_ladder_grades),
-                     ("latency", section_latency),
-                     ("detectable", section_detectable), ("nominal_long", section_nominal_long),
-                     ("faults_long", section_faults_long),
-                     ("calibration_long", section_calibration_long),
-                     ("onset_calibration", section_onset_calibration),
-                     ("detectable_long", section_detectable_long)):
+    for name, fn in sections():
         begin, end = f"<!-- BEGIN GENERATED {name} -->", f"<!-- END GENERATED {name} -->"
         if begin not in text:
             continue
@@ -443,6 +509,8 @@ def render(out: pathlib.Path, doc: pathlib.Path = DOC) -> None:
 
 
 def main() -> int:
+    from flight_fdi.eval.montecarlo3d import PROFILES
+
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(REPO / "out" / "ins3d_eval"))
@@ -462,7 +530,8 @@ def main() -> int:
     ap.add_argument("--latency-nominal", type=int, default=50)
     ap.add_argument("--latency-per", type=int, default=12)
     ap.add_argument("--long-duration", type=float, default=7200.0)
-    ap.add_argument("--long-profile", default="random")
+    ap.add_argument("--long-profile", default="random", choices=PROFILES,
+                    help="trajectory of the long studies (default random)")
     ap.add_argument("--long-nominal", type=int, default=200)
     ap.add_argument("--long-per", default="gyro_step=90,accel_step=30,ref_jump=30,"
                                           "gyro_ramp=30,accel_ramp=30")
@@ -481,7 +550,7 @@ def main() -> int:
         for name in args.only.split(","):
             if name not in runners:
                 ap.error(f"unknown study {name!r}; choose from {', '.join(STUDIES)}")
-            args.code = commit()
+            args.code, args.load = commit(), LoadSampler()
             log(out, f"{name}: start (code {args.code})")
             t0 = time.perf_counter()
             runners[name](args, out)

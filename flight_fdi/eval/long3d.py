@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .metrics3d import ISOLATION_LEVEL, outcome, pct, summarize
+from .metrics3d import ISOLATION_LEVEL, outcome, pct, rates, summarize
 from .montecarlo3d import SCENARIOS, Study3DConfig, Study3DResult, run_study, study_settings
 from .records import RecordsFile, read_records
 
@@ -108,6 +108,31 @@ def format_by_turn_after(records: Sequence[dict], model: str = "ins3d") -> str:
             order.index(kv[0][0]), kv[0][1], kv[0][2])):
         lines.append(f"| {s} | {a} | {lev:g} | {f'{k1}/{n1}' if n1 else '-'} | "
                      f"{f'{k0}/{n0}' if n0 else '-'} |")
+    return "\n".join(lines)
+
+
+def format_onset_by_axis(records: Sequence[dict], model: str = "ins3d") -> str:
+    """Per scenario and axis over the faulty flights (all levels): right sensor+axis, the
+    median and 90th percentile of the absolute onset error over the right ones, and how many
+    of their 95 % onset intervals hold the true onset."""
+    lines = [f"onset error by axis ({model}, over the right isolations of all levels):", "",
+             "| scenario | axis | right / n | median abs onset err s | 90 % of abs errors "
+             "below s | true onset in 95 % interval (median width s) |",
+             "|---|---|---|---|---|---|"]
+    for scen in SCENARIOS:
+        for axis in SCENARIOS[scen][4]:
+            sel = [r for r in records if r["scenario"] == scen and r["axis"] == axis]
+            if not sel:
+                continue
+            x = rates(sel, model)
+            err = [abs(r[model]["onset_s"] - r["onset_s"]) for r in sel
+                   if outcome(r, model) == "right" and r[model]["onset_s"] is not None]
+            med = f"{np.median(err):.1f}" if err else "-"
+            p90 = f"{np.percentile(err, 90):.0f}" if err else "-"
+            cov = (f"{x['onset_covered']}/{x['onset_interval_n']} "
+                   f"({x['onset_interval_width_s']['median']:.0f})"
+                   if x["onset_interval_n"] else "-")
+            lines.append(f"| {scen} | {axis} | {x['right']}/{x['n']} | {med} | {p90} | {cov} |")
     return "\n".join(lines)
 
 
@@ -219,6 +244,14 @@ def format_detectable(doc: dict, intro: str) -> str:
     return "\n".join(lines)
 
 
+def study_files(out: Path, name: str) -> list[Path]:
+    """The records files of study ``name`` in ``out``: ``<name>.jsonl`` and one
+    ``<name>_<scenario>.jsonl`` per fault scenario -- not the files of another study whose name
+    merely begins with ``name`` (``nominal_long_cruise_turns`` is not part of ``nominal_long``)."""
+    names = [f"{name}.jsonl"] + [f"{name}_{s}.jsonl" for s in SCENARIOS]
+    return [out / n for n in sorted(names) if (out / n).exists()]
+
+
 def read_study(out: Path, name: str) -> tuple[dict | None, list[dict], str, float]:
     """A study of ``tools/ins3d_eval.py`` in ``out``: (the finished study's JSON or None, its
     records -- from the .jsonl files of an unfinished one --, a note saying it is partial, the
@@ -230,7 +263,7 @@ def read_study(out: Path, name: str) -> tuple[dict | None, list[dict], str, floa
         return doc, doc["flights"], "", c.get("duration_s") or next(iter(c.values()))[
             "duration_s"]
     parts, dur = [], 0.0
-    for p in sorted(out.glob(f"{name}*.jsonl")):
+    for p in study_files(out, name):
         study, recs = read_records(p)
         dur = study["duration_s"]
         parts.append(recs)
@@ -243,13 +276,15 @@ def read_study(out: Path, name: str) -> tuple[dict | None, list[dict], str, floa
 def format_nominal(recs: Sequence[dict]) -> str:
     """The nominal-flight table of both models (false isolation, declarations)."""
     m = summarize(recs)
-    lines = ["| model | nominal flights | false isolation (confident sensor) | "
-             "ambiguous / unexplained | declared, no sensor (seed method) | any fault declared "
-             "| named as |", "|---|---|---|---|---|---|---|"]
+    lines = ["| model | nominal flights | false isolation (confident sensor) | its exact 95 % "
+             "interval | ambiguous / unexplained | declared, no sensor (seed method) | any fault "
+             "declared | named as |", "|---|---|---|---|---|---|---|---|"]
     for model in m["models"]:
         x = m[model]["nominal"]
+        lo, hi = x["false_isolation_interval"] or (None, None)
+        iv = "-" if lo is None else f"{100 * lo:.1f}-{100 * hi:.1f} %"
         lines.append(f"| {model} | {x['n']} | {pct(x['false_isolation_rate'])} "
-                     f"({x['false_isolations']}) | {x['ambiguous']} | {x['unnamed']} | "
+                     f"({x['false_isolations']}) | {iv} | {x['ambiguous']} | {x['unnamed']} | "
                      f"{pct(x['false_declaration_rate'])} | "
                      f"{', '.join(f'{k} {v}' for k, v in x['isolated_as'].items()) or '-'} |")
     return "\n".join(lines)
@@ -280,6 +315,7 @@ def format_onset_coverage(rows: Sequence[dict], drops: Sequence[float]) -> str:
 
 __all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",
            "format_by_turn_after", "format_detectable", "format_nominal",
+           "format_onset_by_axis", "study_files",
            "format_nominal_maxima",
            "format_onset_coverage", "merge_records",
            "nominal_maxima", "read_study", "run_recorded"]

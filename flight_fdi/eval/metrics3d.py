@@ -119,14 +119,31 @@ def rates(records: Sequence[dict], model: str) -> dict:
     return out
 
 
+def binomial_interval(k: int, n: int, level: float = 0.95) -> tuple[float, float] | None:
+    """The exact (Clopper-Pearson) two-sided ``level`` interval of a rate of ``k`` in ``n``
+    (None when n = 0): the beta quantiles of k and k + 1; 0 / 1 at the ends."""
+    from scipy.stats import beta
+
+    if n == 0:
+        return None
+    if not 0 <= k <= n:
+        raise ValueError(f"binomial_interval: need 0 <= k <= n, got k={k}, n={n}")
+    a = (1.0 - level) / 2.0
+    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1.0 - a, k + 1, n - k))
+    return lo, hi
+
+
 def nominal_rates(records: Sequence[dict], model: str) -> dict:
-    """False isolation (a confident sensor on a nominal flight), false declaration (any fault
-    declared, ambiguous included) and ambiguous counts on the nominal flights."""
+    """False isolation (a confident sensor on a nominal flight; its rate with the exact 95 %
+    interval), false declaration (any fault declared, ambiguous included) and ambiguous counts
+    on the nominal flights."""
     nom = [r for r in records if r["scenario"] == "nominal"]
     oc = [outcome(r, model) for r in nom]
     n = len(nom)
     return {"n": n, "false_isolations": oc.count("wrong"),
             "false_isolation_rate": _rate(oc.count("wrong"), n),
+            "false_isolation_interval": binomial_interval(oc.count("wrong"), n),
             "ambiguous": oc.count("ambiguous"), "unnamed": oc.count("unnamed"),
             "false_declaration_rate": _rate(n - oc.count("none"), n),
             "isolated_as": _count(r[model]["sensor"] for r, o in zip(nom, oc) if o == "wrong")}
@@ -273,5 +290,6 @@ def format_metrics(metrics: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["ISOLATION_LEVEL", "OUTCOMES", "axis_scored", "by_level", "format_metrics", "named",
+__all__ = ["ISOLATION_LEVEL", "OUTCOMES", "axis_scored", "binomial_interval", "by_level",
+           "format_metrics", "named",
            "nominal_rates", "outcome", "pct", "rates", "smallest_isolated", "summarize"]

@@ -16,9 +16,10 @@ import pytest
 from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, thresholds_for
 from flight_fdi.eval.long3d import (by_onset, calibration_table, detectable_steps,
                                     format_by_onset, format_by_turn_after,
-                                    format_nominal_maxima,
+                                    format_nominal_maxima, format_onset_by_axis,
                                     format_onset_coverage, merge_records, nominal_maxima,
-                                    run_recorded)
+                                    read_study, run_recorded, study_files)
+from flight_fdi.eval.metrics3d import binomial_interval
 from flight_fdi.eval.montecarlo3d import SCENARIOS, Study3DConfig, decision, glr_max_by_kind
 
 REPO = Path(__file__).resolve().parents[2]
@@ -116,22 +117,27 @@ def test_a_stopped_study_resumes_from_its_records(tmp_path):
     assert json.dumps(again.records, sort_keys=True) == json.dumps(full.records, sort_keys=True)
 
 
+def _write_records(path, recs, study=None):
+    """A records file (eval/records.py's form) of hand-made records, both models' fields."""
+    with path.open("w") as f:
+        f.write(json.dumps({"records": "flight_fdi.study/1",
+                            "study": study or {"duration_s": 7200.0}}) + "\n")
+        for r in recs:
+            f.write(json.dumps({**r, "single_axis": {
+                                "verdict": "no_fault", "isolation": "none", "kind": None,
+                                "candidates": []},
+                                "kind": "step", "magnitude": 1e-7,
+                                "onset_in_turn": False, "next_turn_s": None}) + "\n")
+
+
 def test_tool_renders_the_long_sections_from_partial_records(tmp_path):
     """tools/ins3d_eval.py --render-only on records files of an unfinished long study: the
     generated sections say partial and carry the tables; other sections are left alone."""
-    cfg = {"duration_s": 7200.0}
     nominal = [_rec(i, "nominal", right=False, glr={"step": 5.0, "ramp": 4.0, "jump": 20.0,
                                                     "outliers": 21.0}) for i in range(3)]
     faults = [_rec(0, onset=900.0), _rec(1, axis="y", onset=4000.0, level=0.1)]
     for name, recs in (("nominal_long.jsonl", nominal), ("faults_long_gyro_step.jsonl", faults)):
-        with (tmp_path / name).open("w") as f:
-            f.write(json.dumps({"records": "flight_fdi.study/1", "study": cfg}) + "\n")
-            for r in recs:
-                f.write(json.dumps({**r, "single_axis": {
-                                    "verdict": "no_fault", "isolation": "none", "kind": None,
-                                    "candidates": []},
-                                    "kind": "step", "magnitude": 1e-7,
-                                    "onset_in_turn": False, "next_turn_s": None}) + "\n")
+        _write_records(tmp_path / name, recs)
     doc = tmp_path / "doc.md"
     doc.write_text("keep\n<!-- BEGIN GENERATED nominal_long -->\nold\n"
                    "<!-- END GENERATED nominal_long -->\n<!-- BEGIN GENERATED faults_long -->\n"
@@ -187,3 +193,90 @@ def test_right_rate_split_by_a_turn_after_the_onset():
     text = format_by_turn_after(recs + [_rec(3, "nominal", right=False)])
     assert "| gyro_step | x | 0.05 | 1/1 | 0/1 |" in text
     assert "| gyro_step | x | 0.1 | 1/1 | - |" in text
+
+
+def test_a_profile_study_has_its_own_files_and_sections(tmp_path):
+    """Long studies on another profile (``--long-profile cruise_turns``) write
+    ``<study>_cruise_turns*`` files: reading the ``random`` study does not pick them up (their
+    names begin with its name), and --render-only fills the profile's own sections only."""
+    nominal = [_rec(i, "nominal", right=False, glr={"step": 5.0, "ramp": 4.0, "jump": 20.0,
+                                                    "outliers": 21.0}) for i in range(2)]
+    nominal_ct = [_rec(i, "nominal", right=False, glr={"step": 6.0, "ramp": 4.0, "jump": 22.0,
+                                                       "outliers": 21.0}) for i in range(5)]
+    faults_ct = [_rec(0, onset=900.0, axis="z")]
+    _write_records(tmp_path / "nominal_long.jsonl", nominal)
+    _write_records(tmp_path / "nominal_long_cruise_turns.jsonl", nominal_ct)
+    _write_records(tmp_path / "faults_long_cruise_turns_gyro_step.jsonl", faults_ct)
+    assert [p.name for p in study_files(tmp_path, "nominal_long")] == ["nominal_long.jsonl"]
+    assert [p.name for p in study_files(tmp_path, "faults_long")] == []
+    assert len(read_study(tmp_path, "nominal_long")[1]) == 2
+    assert len(read_study(tmp_path, "nominal_long_cruise_turns")[1]) == 5
+    assert len(read_study(tmp_path, "faults_long_cruise_turns")[1]) == 1
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- BEGIN GENERATED faults_long -->\nrandom faults\n"
+                   "<!-- END GENERATED faults_long -->\n"
+                   "<!-- BEGIN GENERATED nominal_long_cruise_turns -->\n"
+                   "<!-- END GENERATED nominal_long_cruise_turns -->\n"
+                   "<!-- BEGIN GENERATED faults_long_cruise_turns -->\n"
+                   "<!-- END GENERATED faults_long_cruise_turns -->\n")
+    subprocess.run([sys.executable, str(REPO / "tools" / "ins3d_eval.py"), "--render-only",
+                    "--out", str(tmp_path), "--doc", str(doc)], check=True,
+                   capture_output=True, timeout=120)
+    text = doc.read_text()
+    assert "\nrandom faults\n" in text                   # no random fault records: kept
+    assert "**Partial: 5 flights" in text and "**Partial: 1 flights" in text
+    assert "| ins3d | 5 | 0.0 % (0) | 0.0-52.2 % |" in text      # 1 - 0.025 ** (1 / 5)
+    assert "| jump | 5 | 22.0 | 22.0 | 32.8 | 0 |" in text
+    assert "| gyro_step | z | 1/1 | 10.0 | 10 | - |" in text      # onset error 10 s
+
+
+def test_onset_error_and_interval_coverage_by_axis():
+    recs = [_rec(0, onset=1000.0), _rec(1, onset=2000.0), _rec(2, onset=3000.0, right=False),
+            _rec(3, axis="z", onset=1000.0), _rec(4, "nominal", right=False)]
+    recs = [{**r, "kind": "step", "magnitude": 1e-7} for r in recs]
+    recs[1]["ins3d"]["onset_s"] = 1970.0                             # 30 s early
+    recs[0]["ins3d"]["onset_interval_s"] = [990.0, 1030.0]           # holds 1000, width 40
+    recs[1]["ins3d"]["onset_interval_s"] = [1950.0, 1990.0]          # misses 2000
+    text = format_onset_by_axis(recs)
+    # x: right 2 of 3, abs errors 10 and 30: median 20, 90th percentile 28
+    assert "| gyro_step | x | 2/3 | 20.0 | 28 | 1/2 (40) |" in text
+    assert "| gyro_step | z | 1/1 | 10.0 | 10 | - |" in text
+    assert "nominal" not in text and "| gyro_step | y |" not in text
+
+
+def test_exact_binomial_interval_known_answers():
+    assert binomial_interval(0, 200) == (0.0, pytest.approx(1 - 0.025 ** (1 / 200)))
+    assert binomial_interval(200, 200) == (pytest.approx(0.025 ** (1 / 200)), 1.0)
+    lo, hi = binomial_interval(5, 10)                  # Clopper-Pearson tables: 0.187-0.813
+    assert (lo, hi) == (pytest.approx(0.18709, abs=1e-5), pytest.approx(0.81291, abs=1e-5))
+    lo, hi = binomial_interval(1, 200)                 # 1 - (1 - p)^200 = 0.025 at the bound
+    assert 1 - (1 - lo) ** 200 == pytest.approx(0.025)
+    assert (1 - hi) ** 200 + 200 * hi * (1 - hi) ** 199 == pytest.approx(0.025)
+    assert binomial_interval(0, 0) is None
+    with pytest.raises(ValueError):
+        binomial_interval(3, 2)
+
+
+@pytest.mark.slow
+def test_tool_runs_a_long_study_on_the_cruise_turns_profile(tmp_path):
+    """tools/ins3d_eval.py --only nominal_long --long-profile cruise_turns: 2 short flights of
+    that profile, recorded and rendered under the profile's names with the load it ran under."""
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- BEGIN GENERATED nominal_long -->\nrandom\n"
+                   "<!-- END GENERATED nominal_long -->\n"
+                   "<!-- BEGIN GENERATED nominal_long_cruise_turns -->\n"
+                   "<!-- END GENERATED nominal_long_cruise_turns -->\n")
+    subprocess.run([sys.executable, str(REPO / "tools" / "ins3d_eval.py"), "--only",
+                    "nominal_long", "--long-profile", "cruise_turns", "--long-nominal", "2",
+                    "--long-duration", "120", "--seed", "100", "--jobs", "1", "--out",
+                    str(tmp_path), "--doc", str(doc)], check=True, capture_output=True,
+                   timeout=600)
+    res = json.loads((tmp_path / "nominal_long_cruise_turns.json").read_text())
+    assert res["config"]["profile"] == "cruise_turns" and res["config"]["seed"] == 106
+    assert len(res["flights"]) == 2 and not (tmp_path / "nominal_long.json").exists()
+    lo, hi = res["load_average"]
+    assert 0.0 <= lo <= hi
+    text = doc.read_text()
+    assert "\nrandom\n" in text
+    assert "Settings: 2 flights of 120 s, profile `cruise_turns`, grade navigation, seed 106" \
+        in text and f"load average {lo:.1f}-{hi:.1f}" in text
