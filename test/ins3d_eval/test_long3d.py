@@ -130,6 +130,22 @@ def _write_records(path, recs, study=None):
                                 "onset_in_turn": False, "next_turn_s": None}) + "\n")
 
 
+def _section(name, body=None):
+    """A generated section of the document, ``body`` its old content."""
+    return (f"<!-- BEGIN GENERATED {name} -->\n" + (f"{body}\n" if body else "")
+            + f"<!-- END GENERATED {name} -->\n")
+
+
+def _render_only(out, text):
+    """The document ``text`` after tools/ins3d_eval.py --render-only from the results in out."""
+    doc = out / "doc.md"
+    doc.write_text(text)
+    subprocess.run([sys.executable, str(REPO / "tools" / "ins3d_eval.py"), "--render-only",
+                    "--out", str(out), "--doc", str(doc)], check=True,
+                   capture_output=True, timeout=120)
+    return doc.read_text()
+
+
 def test_tool_renders_the_long_sections_from_partial_records(tmp_path):
     """tools/ins3d_eval.py --render-only on records files of an unfinished long study: the
     generated sections say partial and carry the tables; other sections are left alone."""
@@ -138,14 +154,8 @@ def test_tool_renders_the_long_sections_from_partial_records(tmp_path):
     faults = [_rec(0, onset=900.0), _rec(1, axis="y", onset=4000.0, level=0.1)]
     for name, recs in (("nominal_long.jsonl", nominal), ("faults_long_gyro_step.jsonl", faults)):
         _write_records(tmp_path / name, recs)
-    doc = tmp_path / "doc.md"
-    doc.write_text("keep\n<!-- BEGIN GENERATED nominal_long -->\nold\n"
-                   "<!-- END GENERATED nominal_long -->\n<!-- BEGIN GENERATED faults_long -->\n"
-                   "<!-- END GENERATED faults_long -->\ntail\n")
-    subprocess.run([sys.executable, str(REPO / "tools" / "ins3d_eval.py"), "--render-only",
-                    "--out", str(tmp_path), "--doc", str(doc)], check=True,
-                   capture_output=True, timeout=120)
-    text = doc.read_text()
+    text = _render_only(tmp_path, "keep\n" + _section("nominal_long", "old")
+                        + _section("faults_long") + "tail\n")
     assert text.startswith("keep\n") and text.endswith("tail\n") and "\nold\n" not in text
     assert "**Partial: 3 flights" in text and "**Partial: 2 flights" in text
     assert "| jump | 3 | 20.0 | 20.0 | 32.8 | 0 |" in text
@@ -212,17 +222,9 @@ def test_a_profile_study_has_its_own_files_and_sections(tmp_path):
     assert len(read_study(tmp_path, "nominal_long")[1]) == 2
     assert len(read_study(tmp_path, "nominal_long_cruise_turns")[1]) == 5
     assert len(read_study(tmp_path, "faults_long_cruise_turns")[1]) == 1
-    doc = tmp_path / "doc.md"
-    doc.write_text("<!-- BEGIN GENERATED faults_long -->\nrandom faults\n"
-                   "<!-- END GENERATED faults_long -->\n"
-                   "<!-- BEGIN GENERATED nominal_long_cruise_turns -->\n"
-                   "<!-- END GENERATED nominal_long_cruise_turns -->\n"
-                   "<!-- BEGIN GENERATED faults_long_cruise_turns -->\n"
-                   "<!-- END GENERATED faults_long_cruise_turns -->\n")
-    subprocess.run([sys.executable, str(REPO / "tools" / "ins3d_eval.py"), "--render-only",
-                    "--out", str(tmp_path), "--doc", str(doc)], check=True,
-                   capture_output=True, timeout=120)
-    text = doc.read_text()
+    text = _render_only(tmp_path, _section("faults_long", "random faults")
+                        + _section("nominal_long_cruise_turns")
+                        + _section("faults_long_cruise_turns"))
     assert "\nrandom faults\n" in text                   # no random fault records: kept
     assert "**Partial: 5 flights" in text and "**Partial: 1 flights" in text
     assert "| ins3d | 5 | 0.0 % (0) | 0.0-52.2 % |" in text      # 1 - 0.025 ** (1 / 5)
@@ -262,10 +264,7 @@ def test_tool_runs_a_long_study_on_the_cruise_turns_profile(tmp_path):
     """tools/ins3d_eval.py --only nominal_long --long-profile cruise_turns: 2 short flights of
     that profile, recorded and rendered under the profile's names with the load it ran under."""
     doc = tmp_path / "doc.md"
-    doc.write_text("<!-- BEGIN GENERATED nominal_long -->\nrandom\n"
-                   "<!-- END GENERATED nominal_long -->\n"
-                   "<!-- BEGIN GENERATED nominal_long_cruise_turns -->\n"
-                   "<!-- END GENERATED nominal_long_cruise_turns -->\n")
+    doc.write_text(_section("nominal_long", "random") + _section("nominal_long_cruise_turns"))
     subprocess.run([sys.executable, str(REPO / "tools" / "ins3d_eval.py"), "--only",
                     "nominal_long", "--long-profile", "cruise_turns", "--long-nominal", "2",
                     "--long-duration", "120", "--seed", "100", "--jobs", "1", "--out",
