@@ -134,6 +134,12 @@ def binomial_interval(k: int, n: int, level: float = 0.95) -> tuple[float, float
     return lo, hi
 
 
+def _interval(k: int, n: int) -> list[float] | None:
+    """:func:`binomial_interval` as JSON has it (a list): metrics equal after a round trip."""
+    iv = binomial_interval(k, n)
+    return None if iv is None else list(iv)
+
+
 def nominal_rates(records: Sequence[dict], model: str) -> dict:
     """False isolation (a confident sensor on a nominal flight; its rate with the exact 95 %
     interval), false declaration (any fault declared, ambiguous included) and ambiguous counts
@@ -143,7 +149,7 @@ def nominal_rates(records: Sequence[dict], model: str) -> dict:
     n = len(nom)
     return {"n": n, "false_isolations": oc.count("wrong"),
             "false_isolation_rate": _rate(oc.count("wrong"), n),
-            "false_isolation_interval": binomial_interval(oc.count("wrong"), n),
+            "false_isolation_interval": _interval(oc.count("wrong"), n),
             "ambiguous": oc.count("ambiguous"), "unnamed": oc.count("unnamed"),
             "false_declaration_rate": _rate(n - oc.count("none"), n),
             "isolated_as": _count(r[model]["sensor"] for r, o in zip(nom, oc) if o == "wrong")}

@@ -4,6 +4,8 @@ sensor only for body-axis faults, onset and magnitude errors, the smallest level
 95 %, and how the two single-axis channels make one flight result."""
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from flight_fdi.eval.metrics3d import (format_metrics, named, nominal_rates, outcome, rates,
@@ -110,6 +112,10 @@ def test_nominal_flights_false_isolation_versus_declaration():
     assert x["ambiguous"] == 2 and x["unnamed"] == 1
     assert x["false_declaration_rate"] == pytest.approx(4 / 6)
     assert x["isolated_as"] == {"gyro": 1}
+    lo, hi = x["false_isolation_interval"]         # exact: P(>= 1 of 6) = 0.025 at lo
+    assert 1 - (1 - lo) ** 6 == pytest.approx(0.025) and (1 - hi) ** 6 + 6 * hi * (
+        1 - hi) ** 5 == pytest.approx(0.025)
+    assert json.loads(json.dumps(x)) == x          # JSON-able as it is (a list, not a tuple)
 
 
 def test_smallest_level_isolated_in_95_percent():
