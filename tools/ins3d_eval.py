@@ -48,7 +48,6 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import os
 import pathlib
 import re
 import sys
@@ -79,33 +78,6 @@ def commit() -> str:
     dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--",
                             "flight_fdi"], capture_output=True, text=True).stdout.strip()
     return rev + ("+changes" if dirty else "")
-
-
-class LoadSampler:
-    """The machine's 1-min load average sampled every ``every_s`` seconds on a daemon thread
-    while a study runs (the machine is shared: the settings lines state the load)."""
-
-    def __init__(self, every_s: float = 30.0) -> None:
-        import threading
-
-        self.samples: list[float] = []
-        self._stop = threading.Event()
-        self._every = every_s
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while True:
-            self.samples.append(os.getloadavg()[0])
-            if self._stop.wait(self._every):
-                return
-
-    def stop(self) -> list[float]:
-        """Stop sampling; the [lowest, highest] load average seen (a last sample included)."""
-        self._stop.set()
-        self._thread.join()
-        self.samples.append(os.getloadavg()[0])
-        return [min(self.samples), max(self.samples)]
 
 
 def _save(out: pathlib.Path, name: str, doc: dict, args=None) -> None:
@@ -509,6 +481,7 @@ def render(out: pathlib.Path, doc: pathlib.Path = DOC) -> None:
 
 
 def main() -> int:
+    from flight_fdi.eval.long3d import LoadSampler
     from flight_fdi.eval.montecarlo3d import PROFILES
 
     ap = argparse.ArgumentParser(description=__doc__,

@@ -5,6 +5,7 @@ the 20-min flights of the first studies leave too little for late onsets. These 
 same studies (:mod:`flight_fdi.eval.montecarlo3d`) on flight-test-length flights and summarise
 what the longer flights add:
 
+* :class:`LoadSampler`: the load average while a study runs (its settings line states it);
 * :func:`run_recorded`: a study whose per-flight records stream to a JSON-lines file and resume
   from it (:class:`~flight_fdi.eval.records.RecordsFile`): a long study survives a stop;
 * :func:`merge_records`: the records of several studies as one set (indices renumbered);
@@ -18,6 +19,8 @@ what the longer flights add:
 from __future__ import annotations
 
 import json
+import os
+import threading
 from pathlib import Path
 from typing import Sequence
 
@@ -28,6 +31,31 @@ from .montecarlo3d import SCENARIOS, Study3DConfig, Study3DResult, run_study, st
 from .records import RecordsFile, read_records
 
 KINDS = ("step", "ramp", "jump", "outliers")
+
+
+class LoadSampler:
+    """The machine's 1-min load average sampled every ``every_s`` seconds on a daemon thread
+    while a study runs (the machine is shared: the settings lines state the load)."""
+
+    def __init__(self, every_s: float = 30.0) -> None:
+        self.samples: list[float] = []
+        self._stop = threading.Event()
+        self._every = every_s
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self.samples.append(os.getloadavg()[0])
+            if self._stop.wait(self._every):
+                return
+
+    def stop(self) -> list[float]:
+        """Stop sampling; the [lowest, highest] load average seen (a last sample included)."""
+        self._stop.set()
+        self._thread.join()
+        self.samples.append(os.getloadavg()[0])
+        return [min(self.samples), max(self.samples)]
 
 
 def run_recorded(config: Study3DConfig, path: str | Path, jobs: int = 1,
@@ -313,7 +341,7 @@ def format_onset_coverage(rows: Sequence[dict], drops: Sequence[float]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["KINDS", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",
+__all__ = ["KINDS", "LoadSampler", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",
            "format_by_turn_after", "format_detectable", "format_nominal",
            "format_onset_by_axis", "study_files",
            "format_nominal_maxima",

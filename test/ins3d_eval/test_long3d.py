@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, thresholds_for
-from flight_fdi.eval.long3d import (by_onset, calibration_table, detectable_steps,
+from flight_fdi.eval.long3d import (LoadSampler, by_onset, calibration_table, detectable_steps,
                                     format_by_onset, format_by_turn_after,
                                     format_nominal_maxima, format_onset_by_axis,
                                     format_onset_coverage, merge_records, nominal_maxima,
@@ -279,3 +279,10 @@ def test_tool_runs_a_long_study_on_the_cruise_turns_profile(tmp_path):
     assert "\nrandom\n" in text
     assert "Settings: 2 flights of 120 s, profile `cruise_turns`, grade navigation, seed 106" \
         in text and f"load average {lo:.1f}-{hi:.1f}" in text
+
+
+def test_load_sampler_reports_the_range_of_its_samples():
+    sampler = LoadSampler(every_s=3600.0)
+    lo, hi = sampler.stop()            # the thread's first sample, then the last one at stop
+    assert len(sampler.samples) == 2 and [lo, hi] == [min(sampler.samples), max(sampler.samples)]
+    assert 0.0 <= lo <= hi
