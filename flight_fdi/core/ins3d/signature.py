@@ -29,6 +29,17 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
                     K_pr, Si_pr, nu, k0, tau, e_o, d_o):
     """Cumulative e and d (module docstring) at every update j (0 before the onset); K_pr,
     Si_pr: the forward filter's scaled gains and S^-1 (``Ins3dForward.Ks``, ``S_inv``)."""
+    signature_series(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows,
+                     K_pr, Si_pr, nu, k0, tau, e_o, d_o, np.empty((0, rows)))
+
+
+@njit(cache=True, nogil=True)
+def signature_series(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows,
+                     K_pr, Si_pr, nu, k0, tau, e_o, d_o, rho_o):
+    """``signature_stats``, and the signature rho_j itself (m/s per scaled unit of tau) into
+    ``rho_o`` (M, rows) when it has M rows (0 before the onset; an empty ``rho_o``: not kept)
+    -- what the onset's Fisher information needs (``eval.onset_bound``)."""
+    keep = rho_o.shape[0] > 0
     n = s.size
     pB = sB.size
     F = np.empty((n, n))
@@ -44,6 +55,9 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
     while j < m and ref_step[j] < k0:
         e_o[j] = 0.0
         d_o[j] = 0.0
+        if keep:
+            for i in range(rows):
+                rho_o[j, i] = 0.0
         j += 1
     for k in range(k0, dt.size + 1):
         while j < m and ref_step[j] == k:
@@ -53,6 +67,8 @@ def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il,
                 for b in range(n):
                     r_i += Hs[i, b] * mu[b]
                 rho[i] = r_i
+                if keep:
+                    rho_o[j, i] = r_i
             for i in range(rows):               # S^-1 rho
                 acc_ = 0.0
                 for c in range(rows):
@@ -95,4 +111,4 @@ def _mul_vec(A, nz, cnt, x, out):
         out[i] = acc
 
 
-__all__ = ["signature_stats"]
+__all__ = ["signature_series", "signature_stats"]
