@@ -187,11 +187,14 @@ def bounds_table(recs: list[dict]) -> str:
             f"{_f(_med([v['bound'] for v in x]))} | {_f(_med([v['hcr'] for v in x]))} | "
             f"{sum(v['hcr'] > TARGET_S for v in x)}/{len(g)} | "
             f"{_f(_med([v['obs'] / v['bound'] for v in x if v['obs']]), '.2f')} |")
-    spread = max(_flight_numbers(r)["fd_spread"] for r in recs)
+    spread = {}
+    for r in recs:
+        spread[r["scenario"]] = max(spread.get(r["scenario"], 0.0),
+                                    _flight_numbers(r)["fd_spread"])
     lines += ["", "Medians over the flights. Central difference: largest relative spread of the "
               f"CRLB over the half steps {recs[0]['bounds'][0]['delta_s']:.2g}-"
-              f"{recs[0]['bounds'][-1]['delta_s']:.2g} s over the {len(recs)} flights: "
-              f"{spread:.1e}."]
+              f"{recs[0]['bounds'][-1]['delta_s']:.2g} s: "
+              + ", ".join(f"{k} {v:.1e}" for k, v in spread.items()) + "."]
     return "\n".join(lines)
 
 
