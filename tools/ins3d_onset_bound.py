@@ -86,7 +86,7 @@ def run_study(args, out: pathlib.Path) -> None:
     cases, _ = study_plan(args)
     deltas = tuple(int(d) for d in args.deltas.split(","))
     items = [(f"{c.scenario}:{c.index}", (c, cfg, args.reps, deltas)) for c, cfg in cases]
-    settings = {"study": args.study, "per": args.per, "seed": args.seed, "reps": args.reps,
+    settings = {"study": args.study, "seed": args.seed, "reps": args.reps,   # --per: any
                 "deltas": list(deltas), "duration_s": args.duration, "profile": args.profile}
     _run(items, study_record, out / f"study_{args.study}.jsonl", settings, args.jobs,
          "onset bound (study)")
@@ -260,6 +260,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(REPO / "out" / "ins3d_onset_bound"))
     ap.add_argument("--render-only", action="store_true")
     args = ap.parse_args(argv)
+    _parse_per(args.per)                # a bad --per fails before anything runs
     if args.study == "20min":
         args.duration, args.profile = 1200.0, "cruise_turns"
     out = pathlib.Path(args.out)

@@ -204,3 +204,41 @@ def test_model_drawn_glr_onset_near_the_truth_for_a_large_step(sig):
                            (60.0, 480.0))
     assert abs(got["mle"][0] - 200.0) < 3.0 * sig.fisher("gyro", "y", 200.0, b)[0].sd_joint
     assert 0.0 < got["p_marginal"][0] <= 1.0 and 0.0 < got["p_known"][0] <= 1.0
+
+
+# --------------------------------------------------------------------------- the tool
+
+def _tool():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "tools" / "ins3d_onset_bound.py"
+    spec = importlib.util.spec_from_file_location("ins3d_onset_bound", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_tool_on_one_flight_of_the_20min_study(tmp_path, capsys):
+    """The 20-min study's first gyro-step flight (x, 0.05 deg/h): a record with the bounds at
+    the three half steps, the HCR, one model draw, and the two tables."""
+    tool = _tool()
+    args = ["--study", "20min", "--only", "study", "--per", "gyro_step=1", "--reps", "1",
+            "--out", str(tmp_path)]
+    assert tool.main(args) == 0
+    from flight_fdi.eval.records import read_records
+
+    study, recs = read_records(tmp_path / "study_20min.jsonl", key="key")
+    assert study["reps"] == 1 and len(recs) == 1
+    r = recs[0]
+    assert (r["scenario"], r["axis"], r["level"]) == ("gyro_step", "x", 0.05)
+    assert [b["delta_s"] for b in r["bounds"]] == pytest.approx([0.1, 0.2, 0.5])
+    assert r["bounds"][0]["sd_joint_s"] > 5.0
+    assert r["hcr"]["sd_profiled_s"] >= 0.99 * r["bounds"][0]["sd_joint_s"]
+    assert len(r["synthetic"]["mle"]) == 1
+    tables = (tmp_path / "tables_20min.md").read_text()
+    assert "| gyro_step | x | 0.05 deg/h | 1 |" in tables and "best estimator" in tables
+    assert tool.main(args + ["--render-only"]) == 0        # the same tables from the records
+    assert (tmp_path / "tables_20min.md").read_text() == tables
+    with pytest.raises(SystemExit, match="bad --per item"):
+        tool.main(["--per", "gyro_ramp=3", "--out", str(tmp_path)])
