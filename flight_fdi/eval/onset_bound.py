@@ -103,8 +103,8 @@ def fused_forward(an):
 
 
 class Signatures:
-    """Step signatures of one analysed flight (``analyze_ins3d(..., post=True)`` or
-    ``post=False`` with the forward pass's priors kept), per SI unit of the fault."""
+    """Step signatures of one analysed flight (``analyze_ins3d`` with its post-flight part,
+    whose forward pass keeps its priors and gains), per SI unit of the fault."""
 
     def __init__(self, an):
         if an.steps is None or an.forward.Ks is None:
