@@ -32,7 +32,7 @@ import numpy as np
 from flight_fdi.core.diagnosis import DiagnosisConfig
 from flight_fdi.core.ins3d.backward import ACC_A, GYR_A, REF
 from flight_fdi.core.ins3d.filter import run_forward
-from flight_fdi.core.ins3d.postflight import _kernel_args, glr_curves, run_backward
+from flight_fdi.core.ins3d.postflight import kernel_args, glr_curves, run_backward
 from flight_fdi.core.ins3d.signature import signature_series
 
 from .errors import EvalError
@@ -111,7 +111,7 @@ class Signatures:
             raise EvalError("Signatures: the analysis must keep its grid and forward priors")
         self.an = an
         self.fwd = fused_forward(an)
-        self.args = _kernel_args(an.model, an.steps, an.refs)
+        self.args = kernel_args(an.model, an.steps, an.refs)
         self.t = an.steps.t
         self.rows = an.model.rows
 

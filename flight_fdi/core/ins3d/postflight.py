@@ -65,7 +65,9 @@ def fault_scales(model: Ins3dModel, duration: float) -> np.ndarray:
     return sB
 
 
-def _kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
+def kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
+    """The compiled post-flight kernels' flight arguments (navigation steps, model parameters,
+    fault scales, reference rows), built once per flight; also for ``eval.onset_bound``."""
     return (steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt,
             np.ascontiguousarray(steps.t[:-1] - steps.t[0]), model.kernel_params(), model.qc(),
             np.sqrt(model.p0()), fault_scales(model, float(steps.t[-1] - steps.t[0])),
@@ -89,7 +91,7 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
     if fwd.fused is not None and not np.all(fwd.fused):
         fwd = run_forward(model, steps, refs, x0=fwd.x0, P0=fwd.P0, keep_prior=True)
     n, rows, m = model.n, model.rows, refs.t.size
-    args = _kernel_args(model, steps, refs)
+    args = kernel_args(model, steps, refs)
     sB = args[10]
     out = (*(np.empty((m, n)) for _ in range(3)), np.empty((m, n), dtype=np.int64),
            *(np.empty((m, n)) for _ in range(3)), np.empty((m, rows)), np.empty((m, rows, rows)))
@@ -193,7 +195,7 @@ def direction(model: Ins3dModel, cv: GlrCurve, t_start: float, duration: float) 
 def data_up_to(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
                cv: GlrCurve) -> np.ndarray:
     """GLR(t) of a hypothesis at its best onset with the data up to every update (M,)."""
-    args = _kernel_args(model, steps, refs)
+    args = kernel_args(model, steps, refs)
     k0 = int(np.searchsorted(steps.t, cv.t[cv.best] - 1e-9))
     e, d = np.zeros(refs.t.size), np.zeros(refs.t.size)
     tau = direction(model, cv, float(steps.t[0]), float(steps.t[-1] - steps.t[0]))
@@ -215,5 +217,5 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
     iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
 
 
-__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "glr_curves",
+__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "glr_curves", "kernel_args",
            "resolve", "run_backward", "seed_method"]
