@@ -19,7 +19,9 @@ from ..errors import CoreError
 from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .filter import Ins3dForward, run_forward
-from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, thresholds_for
+from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
+from .grade_file import grade_thresholds, resolve_grade
+from .grades import ImuGrade
 from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
@@ -107,7 +109,8 @@ class Ins3dAnalysis:
         return [(a, b) for a, b, kind in self.manoeuvres if kind == "turn"]
 
 
-def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", rows: int = 3,
+def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navigation",
+                  rows: int = 3,
                   position: bool = False, vertical: str = "loop", latency: bool = True,
                   ref_markov: tuple[float, float, float] | None = (0.02, 0.03, 30.0),
                   gate: GateConfig = GateConfig(), aligned_prior: bool = True,
@@ -117,16 +120,17 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
                   with_observability: bool = True,
                   loop: VerticalLoop | None = None) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
-    simulated flight). ``max_dt``: the steps are merged onto the reference grid, at least every
+    simulated flight). ``grade``: an ImuGrade, a preset name or a YAML grade file
+    (``grade_file.resolve_grade``). ``max_dt``: the steps are merged onto the reference grid, at least every
     ``max_dt`` s (``data.coarsen``; None: the input grid). ``post``: also the post-flight part
     (backward sweep, seed method, GLR isolation). ``thresholds``: GLR thresholds per kind
-    (default: the grade's for the flight's length, ``glr3d.thresholds_for``). ``loop``: the INS
+    (default: the grade's for the flight's length, ``grade_file.grade_thresholds``). ``loop``: the INS
     height loop of ``vertical="loop"`` (default: the simulator's baro loop, its gains at the first step's
     latitude and height)."""
     if vertical == "loop" and steps.t.size:
         base = loop or VerticalLoop()
         loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))
-    model = Ins3dModel.from_grade(grade, position=position, rows=rows, vertical=vertical,
+    model = Ins3dModel.from_grade(resolve_grade(grade), position=position, rows=rows, vertical=vertical,
                                   latency=latency, ref_markov=ref_markov, loop=loop)
     if refs.t.size == 0:
         raise CoreError("ins3d analysis: no reference update inside the INS record")
@@ -145,8 +149,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str = "navigation", row
         fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=post,
                           threads=1 if obs is not None else None)   # one thread per core
         out = Ins3dAnalysis(model, fwd, None, turns, steps, refs,
-                            thresholds=thresholds_for(model.grade.name,
-                                                      float(steps.t[-1] - steps.t[0])))
+                            thresholds=grade_thresholds(model.grade,
+                                                        float(steps.t[-1] - steps.t[0])))
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:

@@ -1,0 +1,171 @@
+"""IMU grades from a YAML file (docs/ins3d.md, "IMU grade from a file"), and the resolver that
+turns a grade given by name or path into an ``ImuGrade``.
+
+A file names the grade and a ``base`` preset (``grades.GRADES``); every value it does not give
+and the GLR thresholds come from the base. Values are in engineering units, the unit in the key
+(``KEYS``: key -> ImuGrade field, factor to SI). ``thresholds`` (optional): per hypothesis kind
+(step, ramp, jump, outliers) the threshold of the maximum GLR for a flight of
+``glr3d.CALIBRATED_LENGTH_S``; longer flights raise it as the presets' (``glr3d.thresholds_for``).
+
+Example (config/grades/example_mems_custom.yaml)::
+
+    name: my_mems
+    base: mems
+    gyro_bias_deg_h: 20
+    accel_bias_ug: 2000
+    thresholds: {step: 30}
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from ..errors import CoreError
+from .glr3d import thresholds_for
+from .grades import DEG_H, DEG_RTH, GRADES, MPS_RTH, UG, ImuGrade
+
+#: the numeric keys of a grade file: key -> (ImuGrade field, SI per unit of the key)
+KEYS = {
+    "gyro_bias_deg_h": ("gyro_bias", DEG_H),
+    "gyro_instability_deg_h": ("gyro_instability", DEG_H),
+    "gyro_tau_s": ("gyro_tau_s", 1.0),
+    "gyro_arw_deg_rth": ("arw", DEG_RTH),
+    "gyro_scale_ppm": ("gyro_scale", 1e-6),
+    "gyro_misalign_mrad": ("gyro_misalign", 1e-3),
+    "gyro_quantum_rad": ("gyro_quantum", 1.0),
+    "accel_bias_ug": ("accel_bias", UG),
+    "accel_instability_ug": ("accel_instability", UG),
+    "accel_tau_s": ("accel_tau_s", 1.0),
+    "accel_vrw_mps_rth": ("vrw", MPS_RTH),
+    "accel_scale_ppm": ("accel_scale", 1e-6),
+    "accel_misalign_mrad": ("accel_misalign", 1e-3),
+    "accel_quantum_mps": ("accel_quantum", 1.0),
+    "heading_sigma_deg": ("heading_sigma", math.pi / 180.0),
+}
+#: keys that must be > 0 (the others >= 0)
+POSITIVE = ("gyro_tau_s", "accel_tau_s")
+KINDS = ("step", "ramp", "jump", "outliers")
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+@dataclass(frozen=True)
+class CustomGrade(ImuGrade):
+    """A grade that is not a preset: its own GLR thresholds per kind (``KINDS``, for a flight of
+    ``glr3d.CALIBRATED_LENGTH_S``) as (kind, value) pairs."""
+
+    thresholds: tuple[tuple[str, float], ...] = ()
+
+    def numbers(self) -> dict[str, float]:
+        """The SI values of the ImuGrade fields and ``threshold_<kind>`` (what a recording
+        stores; ``from_numbers`` reads them back)."""
+        out = {f.name: float(getattr(self, f.name)) for f in fields(ImuGrade) if f.name != "name"}
+        out.update({f"threshold_{k}": float(v) for k, v in self.thresholds})
+        return out
+
+    @classmethod
+    def from_numbers(cls, name: str, values: dict[str, float]) -> "CustomGrade":
+        try:
+            kw = {f.name: float(values[f.name]) for f in fields(ImuGrade) if f.name != "name"}
+            thr = tuple((k, float(values[f"threshold_{k}"])) for k in KINDS)
+        except KeyError as exc:
+            raise CoreError(f"IMU grade {name!r}: value {exc.args[0]!r} missing") from None
+        return cls(name, thresholds=thr, **kw)
+
+
+def _number(path: str, key: str, value: Any, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise CoreError(f"grade file {path}: {key} must be a number, got {value!r}")
+    try:
+        v = float(value)          # a string too: PyYAML reads 1e-5 (no dot) as a string
+    except ValueError:
+        raise CoreError(f"grade file {path}: {key} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (positive and v == 0):
+        raise CoreError(f"grade file {path}: {key} must be a finite number "
+                        f"{'> 0' if positive else '>= 0'}, got {value!r}")
+    return v
+
+
+def grade_from_dict(doc: Any, path: str = "<dict>") -> CustomGrade:
+    """The grade of a parsed grade file (module docstring); CoreError naming the bad key."""
+    if not isinstance(doc, dict):
+        raise CoreError(f"grade file {path}: expected a mapping of keys to values")
+    unknown = sorted(set(doc) - set(KEYS) - {"name", "base", "thresholds"}, key=str)
+    if unknown:
+        raise CoreError(f"grade file {path}: unknown key {unknown[0]!r} (allowed: name, base, "
+                        f"thresholds, {', '.join(KEYS)})")
+    name, base = doc.get("name"), doc.get("base")
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise CoreError(f"grade file {path}: name must be a word of letters, digits, _ . -, "
+                        f"got {name!r}")
+    if base not in GRADES:
+        raise CoreError(f"grade file {path}: base must be a preset ({', '.join(GRADES)}), "
+                        f"got {base!r}")
+    si = {field: _number(path, key, doc[key], key in POSITIVE) * factor
+          for key, (field, factor) in KEYS.items() if key in doc}
+    thr = _thresholds(path, base, doc.get("thresholds", {}))
+    preset = {f.name: getattr(GRADES[base], f.name) for f in fields(ImuGrade)}
+    return CustomGrade(**{**preset, **si, "name": name}, thresholds=thr)
+
+
+def _thresholds(path: str, base: str, given: Any) -> tuple[tuple[str, float], ...]:
+    if not isinstance(given, dict):
+        raise CoreError(f"grade file {path}: thresholds must be a mapping of kind to value "
+                        f"({', '.join(KINDS)})")
+    bad = sorted(set(given) - set(KINDS), key=str)
+    if bad:
+        raise CoreError(f"grade file {path}: unknown key 'thresholds.{bad[0]}' (allowed: "
+                        f"{', '.join(KINDS)})")
+    thr = thresholds_for(base)
+    thr.update({k: _number(path, f"thresholds.{k}", v, True) for k, v in given.items()})
+    return tuple((k, float(thr[k])) for k in KINDS)
+
+
+def load_grade(path: str | Path) -> CustomGrade:
+    """The grade of a YAML grade file (CoreError, one line, for a file that is not one)."""
+    import yaml  # PyYAML ships with the ROS wheels
+
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CoreError(f"grade file {path}: cannot read it ({exc.__class__.__name__}: "
+                        f"{getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        raise CoreError(f"grade file {path}: not valid YAML"
+                        + (f" (line {where.line + 1})" if where else "")) from None
+    return grade_from_dict(doc, str(path))
+
+
+def is_grade_file(name: str) -> bool:
+    return name.lower().endswith((".yaml", ".yml"))
+
+
+def resolve_grade(grade: str | Path | ImuGrade) -> ImuGrade:
+    """An ImuGrade from a grade, a preset name (``grades.GRADES``) or a YAML grade file."""
+    if isinstance(grade, ImuGrade):
+        return grade
+    name = str(grade)
+    if name in GRADES:
+        return GRADES[name]
+    if is_grade_file(name) or Path(name).is_file():
+        return load_grade(name)
+    raise CoreError(f"unknown IMU grade {name!r}: a preset ({', '.join(GRADES)}) or a YAML "
+                    "grade file (docs/ins3d.md)")
+
+
+def grade_thresholds(grade: ImuGrade, duration_s: float | None = None) -> dict[str, float]:
+    """The GLR thresholds of a grade for a flight of ``duration_s``: a preset's
+    (``glr3d.thresholds_for``), or a CustomGrade's raised by the same length growth."""
+    if not isinstance(grade, CustomGrade) or not grade.thresholds:
+        return thresholds_for(grade.name, duration_s)
+    longer, calibrated = thresholds_for("navigation", duration_s), thresholds_for("navigation")
+    return {k: v + (longer[k] - calibrated[k]) for k, v in grade.thresholds}
+
+
+__all__ = ["CustomGrade", "KEYS", "KINDS", "grade_from_dict", "grade_thresholds",
+           "is_grade_file", "load_grade", "resolve_grade"]
