@@ -23,12 +23,16 @@ SINGLE_AXIS_ONLY = (("channel", "--channel"), ("nav_frame", "--nav-frame"),
                     ("input_profile", "--input-profile"))
 
 
-def add_ins3d_options(p: argparse.ArgumentParser) -> None:
-    from flight_fdi.core.ins3d.grades import GRADES
+#: the grade presets the CLI offers (core/ins3d/grades.py; "perfect" is for tests)
+PRESETS = ("navigation", "tactical", "mems")
 
+
+def add_ins3d_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("3-D model (--model ins3d; docs/ins3d.md)")
-    g.add_argument("--grade", default=None, choices=[k for k in GRADES if k != "perfect"],
-                   help="IMU grade preset of the bias models (default navigation)")
+    g.add_argument("--grade", default=None, metavar="GRADE|FILE.yaml",
+                   help=f"IMU grade of the bias models: a preset ({', '.join(PRESETS)}; default "
+                        "navigation) or a YAML grade file (docs/ins3d.md, 'IMU grade from a "
+                        "file'; e.g. config/grades/example_mems_custom.yaml)")
     g.add_argument("--rows", type=int, default=None, choices=(2, 3),
                    help="reference rows: 2 (east, north) or 3 (with up) (default 3: the vertical "
                         "row sees the INS height loop's response to a vertical accelerometer "
@@ -67,8 +71,27 @@ def settings(args: argparse.Namespace) -> dict:
     """grade, rows and the gate of the options."""
     from flight_fdi.cli.analyze import analysis_config
 
-    return {"grade": args.grade or "navigation", "rows": args.rows or 3,
+    return {"grade": grade_option(args.grade or "navigation"), "rows": args.rows or 3,
             "gate": analysis_config(args).gate}
+
+
+def grade_option(value: str) -> str:
+    """``--grade``: a preset name, or the absolute path of a valid YAML grade file (the
+    pipeline's filter_node loads it again); CliError (one line) otherwise."""
+    from flight_fdi.core.errors import CoreError
+    from flight_fdi.core.ins3d.grade_file import is_grade_file, load_grade
+
+    if value in PRESETS:
+        return value
+    path = Path(value)
+    if not (is_grade_file(value) or path.is_file()):
+        raise CliError(f"--grade {value!r}: not a preset ({', '.join(PRESETS)}) nor a YAML "
+                       "grade file")
+    try:
+        load_grade(path)
+    except CoreError as exc:
+        raise CliError(f"--grade: {exc}") from None
+    return str(path.resolve())
 
 
 def source(names: dict[str, str], s: dict) -> dict:

@@ -1,0 +1,57 @@
+"""``--grade FILE.yaml`` for ``flight-fdi analyze --model ins3d``: a grade file gives the same
+analysis as the preset it writes out; a bad file or an unknown name is a one-line error."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from flight_fdi.cli.main import main
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _tactical_file(tmp_path: Path, extra: str = "") -> Path:
+    """The tactical preset, all from the base, under another name."""
+    p = tmp_path / "my_tactical.yaml"
+    p.write_text("name: my_tactical\nbase: tactical\n" + extra)
+    return p
+
+
+def test_a_grade_file_analyses_as_its_preset(bag3d, tmp_path, capsys):
+    assert main(["analyze", str(bag3d), "--model", "ins3d", "--json", "--grade", "tactical"]) == 0
+    preset = json.loads(capsys.readouterr().out)
+    path = _tactical_file(tmp_path)
+    assert main(["analyze", str(bag3d), "--model", "ins3d", "--json",
+                 "--grade", str(path)]) == 0
+    custom = json.loads(capsys.readouterr().out)
+    assert custom["ins3d"]["grade"] == "my_tactical"
+    assert custom["source"]["grade"] == str(path.resolve())
+    preset["ins3d"].pop("grade"), custom["ins3d"].pop("grade")
+    assert custom["ins3d"] == preset["ins3d"] and custom["post_flight"] == preset["post_flight"]
+    # the example file is accepted
+    assert main(["analyze", str(bag3d), "--model", "ins3d", "--json", "--grade",
+                 str(REPO / "config/grades/example_mems_custom.yaml")]) == 0
+    assert json.loads(capsys.readouterr().out)["ins3d"]["grade"] == "example_mems_custom"
+
+
+@pytest.mark.parametrize("text, needle", [
+    (None, "cannot read"),
+    ("name: x\nbase: mems\naccel_bias_ug: -5\n", "accel_bias_ug must be a finite number >= 0"),
+    ("name: x\nbase: mems\nbias: 5\n", "unknown key 'bias'"),
+    ("name: x\nbase: cheap\n", "base must be a preset"),
+])
+def test_a_bad_grade_file_is_one_line(bag3d, tmp_path, capsys, text, needle):
+    path = tmp_path / "g.yaml"
+    if text is not None:
+        path.write_text(text)
+    assert main(["analyze", str(bag3d), "--model", "ins3d", "--grade", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0] and err[0].startswith("flight-fdi analyze: error:")
+
+
+def test_an_unknown_grade_name_is_one_line(bag3d, capsys):
+    assert main(["analyze", str(bag3d), "--model", "ins3d", "--grade", "consumer"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'consumer': not a preset" in err[0]
