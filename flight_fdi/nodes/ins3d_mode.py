@@ -32,6 +32,7 @@ from __future__ import annotations
 import inspect
 import math
 import time
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -40,12 +41,14 @@ import numpy as np
 from ..core.errors import CoreError
 from ..core.gate import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.ins3d.analysis import analyze_ins3d
+from ..core.ins3d.grade_file import is_grade_file, resolve_grade
 from ..core.ins3d.grades import GRADES as PRESETS
 from ..core.ins3d.model import Ins3dModel
 from ..core.ins3d.stream import Boundary, Ins3dAssembler, Ins3dStream
 from . import diagnostics as diag
 from .convert import header
-from .ins3d_recording import CHANNEL, ROW_NAMES, pack_step, state_units, t0_params
+from .ins3d_recording import (CHANNEL, ROW_NAMES, grade_params, pack_step, state_units,
+                              t0_params)
 from .params import ParamSpec, fail
 
 MODEL = "ins3d"
@@ -59,7 +62,9 @@ INS3D_PARAMS = (
     ParamSpec("fix_topic", "string", "/ins/fix",
               "ins3d mode: INS latitude and height (sensor_msgs/NavSatFix)", non_empty=True),
     ParamSpec("ins3d_grade", "string", "navigation",
-              "ins3d mode: IMU grade preset of the bias models", choices=GRADES),
+              "ins3d mode: IMU grade of the bias models, a preset (navigation, tactical, mems) "
+              "or the path of a YAML grade file (docs/ins3d.md, 'IMU grade from a file')",
+              non_empty=True),
     ParamSpec("ins3d_rows", "int", 3,
               "ins3d mode: reference rows, 2 (east, north) or 3 (with up)", "rows",
               min=2, max=3),
@@ -93,13 +98,16 @@ def build_model(values: dict[str, Any], defaults: dict[str, Any]) -> Ins3dModel:
             {values["ins_topic"], values["fix_topic"], values["reference_topic"]}) < 3:
         fail("imu_topic", values["imu_topic"], "four distinct topics (imu_topic, ins_topic, "
              "fix_topic, reference_topic)")
+    grade = values["ins3d_grade"]
+    if grade not in GRADES and not (is_grade_file(grade) or Path(grade).is_file()):
+        fail("ins3d_grade", grade, f"a preset ({', '.join(GRADES)}) or a YAML grade file")
     try:
-        return Ins3dModel.from_grade(values["ins3d_grade"], position=_ANALYZE["position"],
+        return Ins3dModel.from_grade(resolve_grade(grade), position=_ANALYZE["position"],
                                      rows=values["ins3d_rows"], vertical=_ANALYZE["vertical"],
                                      latency=_ANALYZE["latency"],
                                      ref_markov=_ANALYZE["ref_markov"])
-    except CoreError as exc:  # the table's checks should make this unreachable
-        fail("ins3d_grade", values["ins3d_grade"], f"a valid ins3d model ({exc})")
+    except CoreError as exc:   # a bad grade file
+        fail("ins3d_grade", grade, f"a valid YAML grade file ({exc})")
 
 
 def refuse_in_other_modes(values: dict[str, Any], defaults: dict[str, Any]) -> None:
@@ -287,6 +295,7 @@ class Ins3dMode:
         from flight_fdi_msgs.msg import ModelInfo
 
         m, g, st = self.model, self.gate, self.stream
+        names, values = grade_params(m.grade)
         flat = lambda a: np.asarray(a, dtype=float).reshape(-1).tolist()
         self.node.pub_model.publish(ModelInfo(
             header=header(self.node.get_clock().now().to_msg(), self.p["frame_id"]),
@@ -294,8 +303,8 @@ class Ins3dMode:
             state_units=state_units(m.names), measurement_names=list(ROW_NAMES[:m.rows]),
             n=m.n, m=m.rows, p=0, a=[], qc=flat(np.diag(m.qc())), h=flat(m.H()), r=[],
             p0=flat(st.P), b=[], scale=flat(st.s),
-            param_names=["rows", "t0_sec", "t0_nanosec"],
-            param_values=[float(m.rows), *t0_params(self.asm.t0_ns)],
+            param_names=["rows", "t0_sec", "t0_nanosec", *names],
+            param_values=[float(m.rows), *t0_params(self.asm.t0_ns), *values],
             gate_rule=g.rule, gate_probability=float(g.probability), alarm_m=g.alarm_m,
             alarm_n=g.alarm_n, gate_action=g.action))
 

@@ -6,7 +6,10 @@ ins3d``.
 Channel ``ins3d``. ModelInfo: ``model_name`` ``ins3d/<grade>``, state names and units, the
 measurement rows, Qc (diagonal), H (without the latency column), P0 (the aligned prior), the
 scale, ``param_names`` ``rows, t0_sec, t0_nanosec`` (t0: the stamp all times are relative to,
-the earliest first stamp of the four inputs, as the bag reader takes it) and the gate.
+the earliest first stamp of the four inputs, as the bag reader takes it) and, for a grade that is
+not a preset (a YAML grade file), its numbers ``grade.<field>`` (SI) and GLR thresholds
+``grade.threshold_<kind>`` (``grade_params``: the smoother analyses with the same grade), and the
+gate.
 FilterState, two kinds, in the filter's order:
 
 * a **step** (``dt`` > 0, or ``reset`` for boundary 0): header stamp = the /ins/imu stamp of the
@@ -28,6 +31,7 @@ from flight_fdi.bagio.errors import BagError
 CHANNEL = "ins3d"
 STEP_U = 20
 ROW_NAMES = ("east", "north", "up")
+GRADE_PREFIX = "grade."
 _UNITS = {"dv": "m/s", "ph": "rad", "ba": "m/s^2", "bg": "rad/s", "dp": "m", "re": "m/s",
           "la": "s"}
 
@@ -44,6 +48,27 @@ def pack_step(step: Any) -> np.ndarray:
 
 def t0_params(t0_ns: int) -> tuple[float, float]:
     return float(t0_ns // 1_000_000_000), float(t0_ns % 1_000_000_000)
+
+
+def grade_params(grade: Any) -> tuple[list[str], list[float]]:
+    """The ModelInfo parameters of a grade: none for a preset (``model_name`` names it), the
+    numbers of a CustomGrade (a grade file)."""
+    from flight_fdi.core.ins3d.grade_file import CustomGrade
+
+    if not isinstance(grade, CustomGrade):
+        return [], []
+    nums = grade.numbers()
+    return [GRADE_PREFIX + k for k in nums], list(nums.values())
+
+
+def recorded_grade(model_name: str, params: dict[str, float]) -> Any:
+    """The grade of a recording: the CustomGrade of its ``grade.*`` parameters, else the preset
+    its ``model_name`` (``ins3d/<grade>``) names."""
+    from flight_fdi.core.ins3d.grade_file import CustomGrade
+
+    name = model_name.split("/", 1)[-1]
+    nums = {k[len(GRADE_PREFIX):]: v for k, v in params.items() if k.startswith(GRADE_PREFIX)}
+    return CustomGrade.from_numbers(name, nums) if nums else name
 
 
 def _stamp_ns(msg: Any) -> int:
@@ -102,7 +127,7 @@ def read_recording3d(path: str | Path, state_topic: str = "/fdi/state",
                    np.array(step, dtype=np.int64), np.array(a).reshape(-1, 3))
     gate = GateConfig(rule=info.gate_rule, probability=info.gate_probability,
                       alarm_m=info.alarm_m, alarm_n=info.alarm_n, action=info.gate_action)
-    return {"grade": info.model_name.split("/", 1)[-1], "rows": int(params["rows"]),
+    return {"grade": recorded_grade(info.model_name, params), "rows": int(params["rows"]),
             "gate": gate, "t0_ns": t0_ns, "steps": steps, "refs": refs,
             "x_last": np.asarray(states[-1].x, dtype=float), "frame_id": info.header.frame_id}
 
@@ -140,5 +165,5 @@ def smoother_run3d(bag: str, state_topic: str, model_topic: str, gate: Any = Non
                            error=str(exc))
 
 
-__all__ = ["CHANNEL", "STEP_U", "analyze_recording3d", "pack_step", "read_recording3d",
-           "smoother_run3d", "state_units", "t0_params"]
+__all__ = ["CHANNEL", "STEP_U", "analyze_recording3d", "grade_params", "pack_step",
+           "read_recording3d", "recorded_grade", "smoother_run3d", "state_units", "t0_params"]

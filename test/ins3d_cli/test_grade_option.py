@@ -55,3 +55,21 @@ def test_an_unknown_grade_name_is_one_line(bag3d, capsys):
     assert main(["analyze", str(bag3d), "--model", "ins3d", "--grade", "consumer"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'consumer': not a preset" in err[0]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_run_with_a_grade_file_equals_analyze(bag3d, tmp_path, capfd):
+    """The pipeline's filter_node loads the file, the recording carries its numbers, and the
+    smoother analyses with them: the result of ``analyze`` with the same file."""
+    path = _tactical_file(tmp_path, "gyro_bias_deg_h: 0.5\naccel_bias_ug: 150\n"
+                                    "thresholds: {step: 23.0}\n")
+    argv = ["--model", "ins3d", "--json", "--grade", str(path)]
+    assert main(["analyze", str(bag3d), *argv]) == 0
+    ref = json.loads(capfd.readouterr().out)
+    assert main(["run", str(bag3d), *argv, "--out", str(tmp_path / "run"), "--no-progress",
+                 "--no-report"]) in (0, 3)
+    res = json.loads(capfd.readouterr().out)
+    assert res["ins3d"]["grade"] == "my_tactical"
+    assert res["post_flight"] == ref["post_flight"] and res["ins3d"] == ref["ins3d"]
+    assert res["in_flight"] == ref["in_flight"]
