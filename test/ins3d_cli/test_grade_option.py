@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from flight_fdi.cli.main import main
+from flight_fdi.schema import validate_result
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -26,6 +27,7 @@ def test_a_grade_file_analyses_as_its_preset(bag3d, tmp_path, capsys):
     assert main(["analyze", str(bag3d), "--model", "ins3d", "--json",
                  "--grade", str(path)]) == 0
     custom = json.loads(capsys.readouterr().out)
+    validate_result(custom)
     assert custom["ins3d"]["grade"] == "my_tactical"
     assert custom["source"]["grade"] == str(path.resolve())
     preset["ins3d"].pop("grade"), custom["ins3d"].pop("grade")
@@ -70,6 +72,7 @@ def test_run_with_a_grade_file_equals_analyze(bag3d, tmp_path, capfd):
     assert main(["run", str(bag3d), *argv, "--out", str(tmp_path / "run"), "--no-progress",
                  "--no-report"]) in (0, 3)
     res = json.loads(capfd.readouterr().out)
+    validate_result(res)
     assert res["ins3d"]["grade"] == "my_tactical"
     assert res["post_flight"] == ref["post_flight"] and res["ins3d"] == ref["ins3d"]
     assert res["in_flight"] == ref["in_flight"]
