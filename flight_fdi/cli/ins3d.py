@@ -190,16 +190,14 @@ def _run_folder(src: Path) -> Path | None:
 
 
 def wants_ins3d(args: argparse.Namespace) -> bool:
-    """``report``: --model ins3d, or a result / run folder of the ins3d model."""
-    if is_ins3d(args):
-        return True
-    src = Path(args.input)
-    doc = src / "result.json" if src.is_dir() else src
-    if doc.suffix == ".json" and doc.is_file():
-        if _load_result(doc).get("model") == "ins3d":
+    """``report``: --model ins3d, or a result / run folder of the ins3d model (then the ins3d
+    options apply without --model)."""
+    if getattr(args, "model", None) != "ins3d":
+        src = Path(args.input)
+        doc = src / "result.json" if src.is_dir() else src
+        if doc.suffix == ".json" and doc.is_file() and _load_result(doc).get("model") == "ins3d":
             args.model = "ins3d"
-            return True
-    return False
+    return is_ins3d(args)
 
 
 def _is_bag(p: Path) -> bool:
@@ -241,6 +239,7 @@ def run_report(args: argparse.Namespace) -> int:
     else:
         if not _is_bag(src):
             doc = _load_result(src)
+            settings_of_result(args, doc.get("source") or {})
             src = Path(doc.get("bag") or "")
             if not (_is_bag(src) and src.exists()):
                 raise CliError(f"{args.input} names the bag {doc.get('bag')!r}, which does not "
@@ -256,6 +255,21 @@ def run_report(args: argparse.Namespace) -> int:
         print(f"{res['post_flight']['verdict'].upper()}: {res['post_flight']['headline']}\n"
               f"report in {index}")
     return 0
+
+
+def settings_of_result(args: argparse.Namespace, source: dict) -> None:
+    """``report RESULT.json``: the bag is analysed again as the result was made -- its grade,
+    reference rows and contract topics (``source``) for every option the command leaves unset
+    (an option given on the command line wins)."""
+    given = {"grade": source.get("grade"), "rows": source.get("rows"),
+             "ins_topic": source.get("ins_topic"), "imu_topic": source.get("imu_topic"),
+             "fix_topic": source.get("fix_topic")}
+    for attr, value in given.items():
+        if getattr(args, attr, None) is None and value:
+            setattr(args, attr, value)
+    refs = source.get("reference_topics") or []
+    if not args.reference_topic and len(refs) == 1:
+        args.reference_topic = list(refs)
 
 
 def run_run(args: argparse.Namespace) -> int:

@@ -76,3 +76,21 @@ def test_run_with_a_grade_file_equals_analyze(bag3d, tmp_path, capfd):
     assert res["ins3d"]["grade"] == "my_tactical"
     assert res["post_flight"] == ref["post_flight"] and res["ins3d"] == ref["ins3d"]
     assert res["in_flight"] == ref["in_flight"]
+
+
+def test_report_of_a_result_reanalyses_with_the_results_grade_and_rows(bag3d, tmp_path, capsys):
+    """``report RESULT.json`` analyses the bag again as the result was made (its grade, rows and
+    topics), not with the command's defaults; an option given on the command line wins."""
+    assert main(["analyze", str(bag3d), "--model", "ins3d", "--json", "--grade", "tactical",
+                 "--rows", "2"]) == 0
+    made = json.loads(capsys.readouterr().out)
+    doc = tmp_path / "result.json"
+    doc.write_text(json.dumps(made))
+    assert main(["report", str(doc), "--out", str(tmp_path / "rep"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)["summary"]
+    assert summary["source"]["grade"] == "tactical" and summary["source"]["rows"] == 2
+    assert summary["post_flight"] == made["post_flight"]
+    assert main(["report", str(doc), "--out", str(tmp_path / "rep2"), "--json",
+                 "--grade", "navigation"]) == 0
+    again = json.loads(capsys.readouterr().out)["summary"]
+    assert again["source"]["grade"] == "navigation" and again["source"]["rows"] == 2
