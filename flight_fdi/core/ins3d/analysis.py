@@ -121,16 +121,17 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                   loop: VerticalLoop | None = None) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
     simulated flight). ``grade``: an ImuGrade, a preset name or a YAML grade file
-    (``grade_file.resolve_grade``). ``max_dt``: the steps are merged onto the reference grid, at least every
-    ``max_dt`` s (``data.coarsen``; None: the input grid). ``post``: also the post-flight part
-    (backward sweep, seed method, GLR isolation). ``thresholds``: GLR thresholds per kind
-    (default: the grade's for the flight's length, ``grade_file.grade_thresholds``). ``loop``: the INS
-    height loop of ``vertical="loop"`` (default: the simulator's baro loop, its gains at the first step's
-    latitude and height)."""
+    (``grade_file.resolve_grade``). ``max_dt``: the steps are merged onto the reference grid, at
+    least every ``max_dt`` s (``data.coarsen``; None: the input grid). ``post``: also the
+    post-flight part (backward sweep, seed method, GLR isolation). ``thresholds``: GLR
+    thresholds per kind (default: the grade's for the flight's length,
+    ``grade_file.grade_thresholds``). ``loop``: the INS height loop of ``vertical="loop"``
+    (default: the simulator's baro loop, its gains at the first step's latitude and height)."""
     if vertical == "loop" and steps.t.size:
         base = loop or VerticalLoop()
         loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))
-    model = Ins3dModel.from_grade(resolve_grade(grade), position=position, rows=rows, vertical=vertical,
+    model = Ins3dModel.from_grade(resolve_grade(grade), position=position, rows=rows,
+                                  vertical=vertical,
                                   latency=latency, ref_markov=ref_markov, loop=loop)
     if refs.t.size == 0:
         raise CoreError("ins3d analysis: no reference update inside the INS record")
