@@ -31,6 +31,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from .decisions import rate_of, stats_of
 from .montecarlo3d import DECLARED, MODELS, SCENARIOS
 
 ISOLATION_LEVEL = 0.95
@@ -76,16 +77,10 @@ def named(record: dict, model: str) -> bool:
 
 
 def _stats(values: Iterable[float | None]) -> dict:
-    v = np.asarray([x for x in values if x is not None], dtype=float)
-    if v.size == 0:
-        return {"n": 0, "median": None, "median_abs": None, "p05": None, "p95": None}
-    return {"n": int(v.size), "median": float(np.median(v)),
-            "median_abs": float(np.median(np.abs(v))), "p05": float(np.percentile(v, 5)),
-            "p95": float(np.percentile(v, 95))}
-
-
-def _rate(num: int, den: int) -> float | None:
-    return num / den if den else None
+    """``decisions.stats_of`` of the values given (None: left out), with the median of their
+    absolute values (``median_abs``)."""
+    v = [x for x in values if x is not None]
+    return {**stats_of(v), "median_abs": float(np.median(np.abs(v))) if v else None}
 
 
 def rates(records: Sequence[dict], model: str) -> dict:
@@ -95,22 +90,22 @@ def rates(records: Sequence[dict], model: str) -> dict:
     right = [r for r, o in zip(records, oc) if o == "right"]
     scored = all(axis_scored(r, model) for r in records) if records else True
     out: dict[str, Any] = {"n": n, **{o: oc.count(o) for o in OUTCOMES}}
-    out["right_rate"] = _rate(oc.count("right"), n) if scored else None
-    out["right_sensor_rate"] = _rate(sum(o in ("right", "wrong") and r[model]["sensor"] ==
+    out["right_rate"] = rate_of(oc.count("right"), n) if scored else None
+    out["right_sensor_rate"] = rate_of(sum(o in ("right", "wrong") and r[model]["sensor"] ==
                                          r["sensor"] for r, o in zip(records, oc)), n)
-    out["wrong_rate"] = _rate(oc.count("wrong"), n)
-    out["ambiguous_rate"] = _rate(oc.count("ambiguous"), n)
-    out["missed_rate"] = _rate(oc.count("none"), n)
-    out["unnamed_rate"] = _rate(oc.count("unnamed"), n)
-    out["named_rate"] = _rate(sum(named(r, model) for r in records), n) if scored else None
+    out["wrong_rate"] = rate_of(oc.count("wrong"), n)
+    out["ambiguous_rate"] = rate_of(oc.count("ambiguous"), n)
+    out["missed_rate"] = rate_of(oc.count("none"), n)
+    out["unnamed_rate"] = rate_of(oc.count("unnamed"), n)
+    out["named_rate"] = rate_of(sum(named(r, model) for r in records), n) if scored else None
     out["right_kind"] = sum(r[model]["kind"] == r["kind"] for r in right)
-    out["right_kind_rate"] = _rate(out["right_kind"], n) if scored else None
+    out["right_kind_rate"] = rate_of(out["right_kind"], n) if scored else None
     out["onset_error_s"] = _stats(None if r[model]["onset_s"] is None
                                   else r[model]["onset_s"] - r["onset_s"] for r in right)
     ivs = [(r[model].get("onset_interval_s"), r["onset_s"]) for r in right]
     ivs = [(iv, t) for iv, t in ivs if iv is not None and t is not None]
     out["onset_covered"] = sum(iv[0] - 1e-6 <= t <= iv[1] + 1e-6 for iv, t in ivs)
-    out["onset_coverage"] = _rate(out["onset_covered"], len(ivs))
+    out["onset_coverage"] = rate_of(out["onset_covered"], len(ivs))
     out["onset_interval_n"] = len(ivs)
     out["onset_interval_width_s"] = _stats(iv[1] - iv[0] for iv, _ in ivs)
     out["magnitude_error"] = _stats(None if r[model]["magnitude"] is None or not r["magnitude"]
@@ -148,10 +143,10 @@ def nominal_rates(records: Sequence[dict], model: str) -> dict:
     oc = [outcome(r, model) for r in nom]
     n = len(nom)
     return {"n": n, "false_isolations": oc.count("wrong"),
-            "false_isolation_rate": _rate(oc.count("wrong"), n),
+            "false_isolation_rate": rate_of(oc.count("wrong"), n),
             "false_isolation_interval": _interval(oc.count("wrong"), n),
             "ambiguous": oc.count("ambiguous"), "unnamed": oc.count("unnamed"),
-            "false_declaration_rate": _rate(n - oc.count("none"), n),
+            "false_declaration_rate": rate_of(n - oc.count("none"), n),
             "isolated_as": _count(r[model]["sensor"] for r, o in zip(nom, oc) if o == "wrong")}
 
 
