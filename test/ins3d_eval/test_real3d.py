@@ -135,3 +135,18 @@ def test_bad_ground_truth_is_one_clear_error(tmp_path):
     bad.write_bytes(b"not gzip")
     with pytest.raises(EvalError, match="cannot read the ground truth"):
         R.read_gt(bad)
+
+
+def test_leave_one_out_calibration_without_the_full_recordings():
+    """The same rule on made-up biases (runs wherever the recordings are not): a recording's
+    calibration is the median of the other recordings of its day, never its own."""
+    names = list(R.DAYS["straight"])
+    cal = R.Calibration()
+    for i, name in enumerate(names):
+        cal.biases[(name, 1)] = (np.full(3, float(i)), np.full(3, 10.0 + i * i))
+    for i, name in enumerate(names):
+        others = [j for j in range(len(names)) if j != i]
+        bg, ba = cal.for_recording(name, 1)
+        assert np.allclose(bg, np.median(others))
+        assert np.allclose(ba, 10.0 + np.median([j * j for j in others]))
+    assert [a.tolist() for a in cal.for_recording(names[0], 2)] == [[0.0] * 3, [0.0] * 3]
