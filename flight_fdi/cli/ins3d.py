@@ -84,7 +84,7 @@ def grade_option(value: str) -> str:
     if value in PRESETS:
         return value
     path = Path(value)
-    if not (is_grade_file(value) or path.is_file()):
+    if not is_grade_file(value):
         raise CliError(f"--grade {value!r}: not a preset ({', '.join(PRESETS)}) nor a YAML "
                        "grade file")
     try:

@@ -32,7 +32,6 @@ from __future__ import annotations
 import inspect
 import math
 import time
-from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -99,7 +98,7 @@ def build_model(values: dict[str, Any], defaults: dict[str, Any]) -> Ins3dModel:
         fail("imu_topic", values["imu_topic"], "four distinct topics (imu_topic, ins_topic, "
              "fix_topic, reference_topic)")
     grade = values["ins3d_grade"]
-    if grade not in GRADES and not (is_grade_file(grade) or Path(grade).is_file()):
+    if grade not in GRADES and not is_grade_file(grade):
         fail("ins3d_grade", grade, f"a preset ({', '.join(GRADES)}) or a YAML grade file")
     try:
         return Ins3dModel.from_grade(resolve_grade(grade), position=_ANALYZE["position"],

@@ -73,10 +73,17 @@ def thresholds_for(grade: str, duration_s: float | None = None) -> dict[str, flo
     longer than ``CALIBRATED_LENGTH_S``, each raised by ``LENGTH_GROWTH`` x ln(duration / it)
     (the same false-alarm rate per flight on longer flights; shorter flights keep them)."""
     thr = dict(THRESHOLDS_BY_GRADE.get(grade, THRESHOLDS_BY_GRADE["tactical"]))
-    if duration_s is not None and duration_s > CALIBRATED_LENGTH_S:
-        for k, c in LENGTH_GROWTH.items():
-            thr[k] += c * math.log(duration_s / CALIBRATED_LENGTH_S)
+    for k, g in length_growth(duration_s).items():
+        thr[k] += g
     return thr
+
+
+def length_growth(duration_s: float | None) -> dict[str, float]:
+    """What a flight of ``duration_s`` adds to each kind's threshold: ``LENGTH_GROWTH`` x
+    ln(duration / ``CALIBRATED_LENGTH_S``) when longer, nothing otherwise (None: nothing)."""
+    if duration_s is None or duration_s <= CALIBRATED_LENGTH_S:
+        return {}
+    return {k: c * math.log(duration_s / CALIBRATED_LENGTH_S) for k, c in LENGTH_GROWTH.items()}
 
 
 @dataclass(frozen=True)
@@ -307,4 +314,4 @@ def resolved_time(t_upd: np.ndarray, gap: np.ndarray, margin: float = AMBIGUITY_
 
 __all__ = ["AMBIGUITY_MARGIN", "GlrCurve", "Hypothesis", "IMU_AXES", "Isolation", "REF_AXES",
            "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves", "hypotheses", "isolate", "joint",
-           "resolved_time", "thresholds_for"]
+           "length_growth", "resolved_time", "thresholds_for"]

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CoreError
-from .glr3d import thresholds_for
+from .glr3d import length_growth, thresholds_for
 from .grades import DEG_H, DEG_RTH, GRADES, MPS_RTH, UG, ImuGrade
 
 #: the numeric keys of a grade file: key -> (ImuGrade field, SI per unit of the key)
@@ -142,7 +142,8 @@ def load_grade(path: str | Path) -> CustomGrade:
 
 
 def is_grade_file(name: str) -> bool:
-    return name.lower().endswith((".yaml", ".yml"))
+    """Whether a grade given as ``name`` is meant as a file: a YAML name or an existing file."""
+    return name.lower().endswith((".yaml", ".yml")) or Path(name).is_file()
 
 
 def resolve_grade(grade: str | Path | ImuGrade) -> ImuGrade:
@@ -152,7 +153,7 @@ def resolve_grade(grade: str | Path | ImuGrade) -> ImuGrade:
     name = str(grade)
     if name in GRADES:
         return GRADES[name]
-    if is_grade_file(name) or Path(name).is_file():
+    if is_grade_file(name):
         return load_grade(name)
     raise CoreError(f"unknown IMU grade {name!r}: a preset ({', '.join(GRADES)}) or a YAML "
                     "grade file (docs/ins3d.md)")
@@ -163,8 +164,8 @@ def grade_thresholds(grade: ImuGrade, duration_s: float | None = None) -> dict[s
     (``glr3d.thresholds_for``), or a CustomGrade's raised by the same length growth."""
     if not isinstance(grade, CustomGrade) or not grade.thresholds:
         return thresholds_for(grade.name, duration_s)
-    longer, calibrated = thresholds_for("navigation", duration_s), thresholds_for("navigation")
-    return {k: v + (longer[k] - calibrated[k]) for k, v in grade.thresholds}
+    growth = length_growth(duration_s)
+    return {k: v + growth.get(k, 0.0) for k, v in grade.thresholds}
 
 
 __all__ = ["CustomGrade", "KEYS", "KINDS", "grade_from_dict", "grade_thresholds",
