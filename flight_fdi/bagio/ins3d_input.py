@@ -25,6 +25,10 @@ TYPES = {"ins_velocity": "geometry_msgs/msg/TwistStamped", "ins_imu": "sensor_ms
          "ins_fix": "sensor_msgs/msg/NavSatFix",
          "ref_velocity": "geometry_msgs/msg/TwistWithCovarianceStamped"}
 TRUTH_TOPIC = "/sim/truth"
+#: frames of the contract topics (docs/sim3d.md, "Topics")
+ENU_FRAME, BODY_FRAME = "enu", "base_link"
+#: the variance written on the covariance diagonal of what a message does not measure
+UNMEASURED_VARIANCE = 1e6
 
 
 @dataclass
@@ -188,6 +192,46 @@ def read_truth3d(path: str | Path, t0_ns: int, topic: str = TRUTH_TOPIC
         return None
     x = np.vstack(rows)
     return {"t": np.array(t), **{n: x[:, i] for i, n in enumerate(names)}}
+
+
+def imu_payloads(stamps_ns: np.ndarray, q: np.ndarray, w_b: np.ndarray,
+                 f_b: np.ndarray) -> list[bytes]:
+    """/ins/imu messages (sensor_msgs/Imu, ``BODY_FRAME``): orientation = q_b^n (w, x, y, z
+    given), angular_velocity = w_b, linear_acceleration = f_b; covariances 0 (unknown)."""
+    from . import cdr
+
+    vals = np.zeros((len(stamps_ns), 37))
+    vals[:, 0:3], vals[:, 3] = q[:, 1:4], q[:, 0]
+    vals[:, 13:16], vals[:, 25:28] = w_b, f_b
+    return cdr.encode_doubles(cdr.IMU, stamps_ns, BODY_FRAME, vals)
+
+
+def velocity_payloads(stamps_ns: np.ndarray, v: np.ndarray,
+                      var: np.ndarray | None = None) -> tuple[str, list[bytes]]:
+    """(type, messages) of ENU velocities ``v`` (``ENU_FRAME``): TwistStamped (the INS), or with
+    the per-axis variances ``var`` TwistWithCovarianceStamped (the reference; the angular part
+    ``UNMEASURED_VARIANCE``)."""
+    from . import cdr
+
+    twist = np.zeros((len(stamps_ns), 6))
+    twist[:, :3] = v
+    if var is None:
+        return cdr.TWIST_STAMPED, cdr.encode(cdr.TWIST_STAMPED, stamps_ns, ENU_FRAME, twist)
+    cov = np.zeros(36)
+    cov[[0, 7, 14]] = var
+    cov[[21, 28, 35]] = UNMEASURED_VARIANCE
+    return cdr.TWIST_COV_STAMPED, cdr.encode(cdr.TWIST_COV_STAMPED, stamps_ns, ENU_FRAME,
+                                             twist, cov)
+
+
+def ins_fix_payloads(stamps_ns: np.ndarray, lat: np.ndarray, lon: np.ndarray,
+                     h: np.ndarray) -> list[bytes]:
+    """/ins/fix messages (sensor_msgs/NavSatFix, ``BODY_FRAME``): latitude and longitude (rad
+    given, degrees written), height; covariance unknown."""
+    from . import cdr
+
+    llh = np.stack([np.degrees(lat), np.degrees(lon), h], axis=1)
+    return cdr.encode_navsatfix(stamps_ns, BODY_FRAME, 0, 0, llh, np.zeros(9), 0)
 
 
 def _stamp_ns(m) -> int:

@@ -309,32 +309,20 @@ def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str
     import json
 
     from ..bagio import cdr
+    from ..bagio.ins3d_input import imu_payloads, ins_fix_payloads, velocity_payloads
     from ..bagio.writer import open_writer
-    from ..sim.bag3d import BODY_FRAME, ENU_FRAME, UNMEASURED_VARIANCE
     a = contract_arrays(rec, bg, ba, cfg)
 
     def ns(t):
         return epoch_s * 1_000_000_000 + np.round(np.asarray(t) * 1e9).astype(np.int64)
     s_imu, s_ref = ns(a["t_imu"]), ns(a["t_ref"])
-    vals = np.zeros((s_imu.size, 37))
-    vals[:, 0:3], vals[:, 3] = a["q"][:, 1:4], a["q"][:, 0]
-    vals[:, 13:16], vals[:, 25:28] = a["w_b"], a["f_b"]
-    twist = np.zeros((s_imu.size, 6))
-    twist[:, :3] = a["v"]
-    rtw = np.zeros((s_ref.size, 6))
-    rtw[:, :3] = a["v_ref"]
-    cov = np.zeros(36)
-    cov[[0, 7, 14]] = a["r_ref"][0]
-    cov[[21, 28, 35]] = UNMEASURED_VARIANCE
-    llh = np.stack([np.degrees(a["lat"]), np.degrees(a["lon"]), a["h"]], axis=1)
+    ins_kind, ins_v = velocity_payloads(s_imu, a["v"])
+    ref_kind, ref_v = velocity_payloads(s_ref, a["v_ref"], a["r_ref"][0])
     series = [
-        ("/ins/imu", cdr.IMU, s_imu, cdr.encode_doubles(cdr.IMU, s_imu, BODY_FRAME, vals)),
-        ("/ins/velocity", cdr.TWIST_STAMPED, s_imu,
-         cdr.encode(cdr.TWIST_STAMPED, s_imu, ENU_FRAME, twist)),
-        ("/ins/fix", cdr.NAVSATFIX, s_imu,
-         cdr.encode_navsatfix(s_imu, BODY_FRAME, 0, 0, llh, np.zeros(9), 0)),
-        ("/reference/velocity", cdr.TWIST_COV_STAMPED, s_ref,
-         cdr.encode(cdr.TWIST_COV_STAMPED, s_ref, ENU_FRAME, rtw, cov))]
+        ("/ins/imu", cdr.IMU, s_imu, imu_payloads(s_imu, a["q"], a["w_b"], a["f_b"])),
+        ("/ins/velocity", ins_kind, s_imu, ins_v),
+        ("/ins/fix", cdr.NAVSATFIX, s_imu, ins_fix_payloads(s_imu, a["lat"], a["lon"], a["h"])),
+        ("/reference/velocity", ref_kind, s_ref, ref_v)]
     doc = json.dumps({"vertical": "free", "source": f"mimu_quadrotor {rec.name} IMU_{rec.unit}",
                       "contract": {"imu_rate_hz": cfg.imu_rate_hz, "ref_half": cfg.ref_half,
                                    "ref_every": cfg.ref_every,

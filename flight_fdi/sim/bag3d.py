@@ -44,6 +44,9 @@ import math
 
 import numpy as np
 
+from flight_fdi.bagio.ins3d_input import (BODY_FRAME, ENU_FRAME, UNMEASURED_VARIANCE,
+                                          imu_payloads, ins_fix_payloads, velocity_payloads)
+
 from .errors import SimError
 from .imu3d import AXES
 from .ins3d import Flight3D
@@ -51,7 +54,7 @@ from .rotation import attitude_error_array
 
 EPOCH_S = 1_700_000_000
 _NS = 1_000_000_000
-ENU_FRAME, BODY_FRAME, GNSS_FRAME = "enu", "base_link", "gnss"
+GNSS_FRAME = "gnss"
 FILTER_STATE = "flight_fdi_msgs/msg/FilterState"
 STRING = "std_msgs/msg/String"
 TOPICS = {"ins_velocity": "/ins/velocity", "ins_imu": "/ins/imu", "ins_fix": "/ins/fix",
@@ -66,8 +69,6 @@ TRUTH_NAMES = (["lat", "lon", "h", "v_e", "v_n", "v_u", "q_w", "q_x", "q_y", "q_
                + [f"{s}_{a}" for s in ("accel_bias", "gyro_bias", "accel_fault", "gyro_fault",
                                         "accel_error", "gyro_error") for a in AXES]
                + ["dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u"])
-UNMEASURED_VARIANCE = 1e6
-
 
 def _every(rate_hz: float, base_hz: float, what: str) -> int:
     k = base_hz / rate_hz
@@ -105,20 +106,14 @@ def _truth_payloads(x: np.ndarray, stamps: np.ndarray, dt_truth: float) -> list[
             for k, (s, ns, row) in enumerate(zip(sec.tolist(), nsec.tolist(), x.tolist()))]
 
 
-def _imu_values(flight: Flight3D, every: int) -> tuple[np.ndarray, np.ndarray]:
-    """(state indices, (M, 37) Imu doubles) for messages at states every, 2 every, ..."""
+def _imu_values(flight: Flight3D, every: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(state indices, mean rate, mean specific force) of messages at states every, 2 every..."""
     n_int = flight.gyro.rate.shape[0]
     m = n_int // every
     idx = every * np.arange(1, m + 1)
     w = flight.gyro.rate[:m * every].reshape(m, every, 3).mean(axis=1)
     f = flight.accel.rate[:m * every].reshape(m, every, 3).mean(axis=1)
-    q = flight.ins.q[idx]
-    vals = np.zeros((m, 37))
-    vals[:, 0:3] = q[:, 1:4]
-    vals[:, 3] = q[:, 0]
-    vals[:, 13:16] = w
-    vals[:, 25:28] = f
-    return idx, vals
+    return idx, w, f
 
 
 def encode_topics(flight: Flight3D, velocity_rate_hz: float, imu_rate_hz: float,
@@ -137,13 +132,8 @@ def encode_topics(flight: Flight3D, velocity_rate_hz: float, imu_rate_hz: float,
                    _truth_payloads(truth_matrix(flight, idx), stamp[idx], 1.0 / truth_rate_hz)))
     g = flight.gnss
     g_stamp = epoch_s * _NS + np.round(g.t * _NS).astype(np.int64)
-    twist = np.zeros((g.t.size, 6))
-    twist[:, :3] = g.v
-    cov = np.zeros(36)
-    cov[[0, 7, 14]] = g.vel_var
-    cov[[21, 28, 35]] = UNMEASURED_VARIANCE
-    series.append((TOPICS["ref_velocity"], cdr.TWIST_COV_STAMPED, g_stamp,
-                   cdr.encode(cdr.TWIST_COV_STAMPED, g_stamp, ENU_FRAME, twist, cov)))
+    kind, payloads = velocity_payloads(g_stamp, g.v, g.vel_var)
+    series.append((TOPICS["ref_velocity"], kind, g_stamp, payloads))
     llh = np.stack([np.degrees(g.lat), np.degrees(g.lon), g.h], axis=1)
     series.append((TOPICS["ref_fix"], cdr.NAVSATFIX, g_stamp,
                    cdr.encode_navsatfix(g_stamp, GNSS_FRAME, 0, 1, llh,
@@ -151,18 +141,15 @@ def encode_topics(flight: Flight3D, velocity_rate_hz: float, imu_rate_hz: float,
     k = _every(fix_rate_hz, base, "INS fix")
     idx = np.arange(0, n, k)
     ins = flight.ins
-    llh = np.stack([np.degrees(ins.lat[idx]), np.degrees(ins.lon[idx]), ins.h[idx]], axis=1)
     series.append((TOPICS["ins_fix"], cdr.NAVSATFIX, stamp[idx],
-                   cdr.encode_navsatfix(stamp[idx], BODY_FRAME, 0, 0, llh, np.zeros(9), 0)))
-    idx, vals = _imu_values(flight, _every(imu_rate_hz, base, "IMU"))
+                   ins_fix_payloads(stamp[idx], ins.lat[idx], ins.lon[idx], ins.h[idx])))
+    idx, w, f = _imu_values(flight, _every(imu_rate_hz, base, "IMU"))
     series.append((TOPICS["ins_imu"], cdr.IMU, stamp[idx],
-                   cdr.encode_doubles(cdr.IMU, stamp[idx], BODY_FRAME, vals)))
+                   imu_payloads(stamp[idx], ins.q[idx], w, f)))
     k = _every(velocity_rate_hz, base, "INS velocity")
     idx = np.arange(0, n, k)
-    twist = np.zeros((idx.size, 6))
-    twist[:, :3] = ins.v[idx]
-    series.append((TOPICS["ins_velocity"], cdr.TWIST_STAMPED, stamp[idx],
-                   cdr.encode(cdr.TWIST_STAMPED, stamp[idx], ENU_FRAME, twist)))
+    kind, payloads = velocity_payloads(stamp[idx], ins.v[idx])
+    series.append((TOPICS["ins_velocity"], kind, stamp[idx], payloads))
     return series
 
 
