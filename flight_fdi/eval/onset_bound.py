@@ -31,8 +31,8 @@ import numpy as np
 
 from flight_fdi.core.diagnosis import DiagnosisConfig
 from flight_fdi.core.ins3d.backward import ACC_A, GYR_A, REF
-from flight_fdi.core.ins3d.filter import run_forward
-from flight_fdi.core.ins3d.postflight import kernel_args, glr_curves, run_backward
+from flight_fdi.core.ins3d.postflight import (fused_forward, glr_curves, kernel_args,
+                                             run_backward)
 from flight_fdi.core.ins3d.signature import signature_series
 
 from .errors import EvalError
@@ -94,14 +94,6 @@ def fisher_onset(rho_lo: np.ndarray, rho: np.ndarray, rho_hi: np.ndarray, S_inv:
                        abs(float(b)), float(delta_s))
 
 
-def fused_forward(an):
-    """The forward pass the post-flight sweep runs on (every update fused: ``run_backward``)."""
-    fwd = an.forward
-    if fwd.fused is not None and not np.all(fwd.fused):
-        fwd = run_forward(an.model, an.steps, an.refs, x0=fwd.x0, P0=fwd.P0, keep_prior=True)
-    return fwd
-
-
 class Signatures:
     """Step signatures of one analysed flight (``analyze_ins3d`` with its post-flight part,
     whose forward pass keeps its priors and gains), per SI unit of the fault."""
@@ -110,7 +102,7 @@ class Signatures:
         if an.steps is None or an.forward.Ks is None:
             raise EvalError("Signatures: the analysis must keep its grid and forward priors")
         self.an = an
-        self.fwd = fused_forward(an)
+        self.fwd = fused_forward(an.model, an.steps, an.refs, an.forward)
         self.args = kernel_args(an.model, an.steps, an.refs)
         self.t = an.steps.t
         self.rows = an.model.rows
@@ -341,5 +333,5 @@ def grid_record(item: tuple) -> dict:
 
 
 __all__ = ["AXES", "HCR_SHIFTS", "OnsetFisher", "STEP_COLUMN", "Signatures", "analyse_case",
-           "fisher_onset", "fused_forward", "grid_record", "hcr_bound", "observed_sd", "quad",
+           "fisher_onset", "grid_record", "hcr_bound", "observed_sd", "quad",
            "study_record", "synthetic_onsets", "window_mass"]

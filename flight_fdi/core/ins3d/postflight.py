@@ -65,6 +65,15 @@ def fault_scales(model: Ins3dModel, duration: float) -> np.ndarray:
     return sB
 
 
+def fused_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd):
+    """The forward pass the post-flight part runs on: ``fwd``, or when it rejected updates
+    (gate action ``reject``) the same pass fusing every update (the post-flight part judges all
+    the data)."""
+    if fwd.fused is not None and not np.all(fwd.fused):
+        fwd = run_forward(model, steps, refs, x0=fwd.x0, P0=fwd.P0, keep_prior=True)
+    return fwd
+
+
 def kernel_args(model: Ins3dModel, steps: NavSteps, refs: RefRows) -> tuple:
     """The compiled post-flight kernels' flight arguments (navigation steps, model parameters,
     fault scales, reference rows), built once per flight; also for ``eval.onset_bound``."""
@@ -88,8 +97,7 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
     data)."""
     if fwd.Ps_prior is None:
         raise CoreError("ins3d backward: the forward pass must keep its priors (keep_prior)")
-    if fwd.fused is not None and not np.all(fwd.fused):
-        fwd = run_forward(model, steps, refs, x0=fwd.x0, P0=fwd.P0, keep_prior=True)
+    fwd = fused_forward(model, steps, refs, fwd)
     n, rows, m = model.n, model.rows, refs.t.size
     args = kernel_args(model, steps, refs)
     sB = args[10]
@@ -217,5 +225,5 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
     iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
 
 
-__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "glr_curves", "kernel_args",
+__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "fused_forward", "glr_curves", "kernel_args",
            "resolve", "run_backward", "seed_method"]
