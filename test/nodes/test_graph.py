@@ -184,9 +184,13 @@ def test_10x_real_time_across_processes_with_default_parameters_loses_no_input(r
         os.kill(procs[0].pid, signal.SIGCONT)
         ros.spin_until(lambda: player.poll() is not None, timeout=60, what="the replay")
         assert player.returncode == 0
-        ros.spin_until(lambda: probe.get(f"{f}: inputs", "received_ins") == "1500"
-                       and probe.get(f"{f}: inputs", "received_reference") == "300",
-                       timeout=20, what="every input received")
+        try:
+            ros.spin_until(lambda: probe.get(f"{f}: inputs", "received_ins") == "1500"
+                           and probe.get(f"{f}: inputs", "received_reference") == "300",
+                           timeout=20, what="every input received")
+        except harness.SpinTimeout as exc:   # say what the filter had then
+            raise harness.SpinTimeout(f"{exc}; the filter's inputs: "
+                                      f"{probe.values.get(f'{f}: inputs')}") from None
         ros.spin_until(lambda: probe.get(f"{f}: inputs", "published") in ("598", "600"),
                        timeout=10, what="every step published")
     finally:
