@@ -30,6 +30,13 @@ Timing
       ready subscription takes a message per cycle, so queues stay at 1-2 messages; across
       processes there is then no guarantee (a warning says so).
 
+End of the replay: the player waits up to ``drain_timeout`` until every reliable subscriber
+acknowledged every published message (as ``ros2 bag play --wait-for-all-acked``) before it
+reports done and the executable exits: a reader that fell behind (a stopped or loaded consumer)
+gets lost samples retransmitted only while the writer lives -- without the wait a consumer
+stopped at the end of a replay received 18 of 150 INS samples (test_graph.py). Topics still
+unacknowledged then are named in the log and the ``unacknowledged_at_end`` diagnostic.
+
 ``/clock`` (rosgraph_msgs/Clock) carries the bag receive time of the playback position, at most
 ``clock_frequency`` times per second of bag time, so other nodes can run with ``use_sim_time``.
 
@@ -100,6 +107,10 @@ PLAYER_PARAMS = (
               "give up waiting for subscribers after this long (0 = wait forever)", unit="s",
               min=0.0, max=86400.0),
     ParamSpec("exit_when_done", "bool", True, "the executable exits when the replay is done"),
+    ParamSpec("drain_timeout", "double", 5.0,
+              "at the end of the replay, wait up to this long until every reliable subscriber "
+              "acknowledged every published message (as ros2 bag play --wait-for-all-acked); "
+              "0 = do not wait", unit="s", min=0.0, max=3600.0),
 )
 
 _NS = 1_000_000_000
@@ -165,6 +176,7 @@ class BagPlayer(Node):
         self.started_at = float("nan")          # time.monotonic() of the first message
         self.first_stamp_ns = -1                # earliest header stamp played (-1: none)
         self.ack_timeouts = 0
+        self.unacked_topics: list[str] = []     # topics not acknowledged at the end (drain)
         self.acked_ns = -1                      # latest acknowledged stamp
         self.acks = 0
         self._in_flight: deque[int] = deque()   # header stamps of unacknowledged messages
@@ -401,9 +413,26 @@ class BagPlayer(Node):
             self.error = error
             self.get_logger().error(f"replay stopped after {self.published} messages: {error}")
         else:
-            self.get_logger().info(f"replay done: {self.published} messages published")
+            self._drain()
+            self.get_logger().info(f"replay done: {self.published} messages published"
+                                   + (f"; NOT acknowledged within drain_timeout by every "
+                                      f"subscriber: {', '.join(self.unacked_topics)}"
+                                      if self.unacked_topics else ""))
         self.source.close()
         self.done.set_result(self.published)
+
+    def _drain(self) -> None:
+        """Wait (up to ``drain_timeout`` in all) until every reliable subscriber acknowledged
+        what was published: the last messages must not die with the process when it exits right
+        after the replay (a reader that fell behind gets them retransmitted only while this
+        writer lives). Topics still unacknowledged are kept in ``unacked_topics`` and reported."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + self.params["drain_timeout"]
+        for topic, pub in self.publishers_by_topic.items():
+            left = max(0.0, deadline - time.monotonic())
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * _NS))):
+                self.unacked_topics.append(topic)
 
     @property
     def in_flight(self) -> int:
@@ -415,11 +444,13 @@ class BagPlayer(Node):
 
         values = [("bag", str(self.source.path)), ("published", self.published),
                   ("total", self.source.count), ("acks", self.acks),
-                  ("in_flight", self.in_flight), ("ack_timeouts", self.ack_timeouts)]
+                  ("in_flight", self.in_flight), ("ack_timeouts", self.ack_timeouts),
+                  ("unacknowledged_at_end", ",".join(self.unacked_topics))]
         if self.error:
             level, msg = d.ERROR, self.error
         elif self.done.done():
-            level, msg = d.OK, "replay done"
+            level, msg = ((d.WARN, "replay done, not acknowledged by every subscriber")
+                          if self.unacked_topics else (d.OK, "replay done"))
         elif not self._started:
             level, msg = d.WARN, "waiting for subscribers"
         else:
