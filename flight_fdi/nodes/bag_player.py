@@ -65,6 +65,7 @@ from flight_fdi.bagio.reader import BagStream
 
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters, fail
+from .qos import wait_for_all_acked
 
 NODE_NAME = "bag_player"
 
@@ -413,26 +414,14 @@ class BagPlayer(Node):
             self.error = error
             self.get_logger().error(f"replay stopped after {self.published} messages: {error}")
         else:
-            self._drain()
+            self.unacked_topics = wait_for_all_acked(self.publishers_by_topic,
+                                                     self.params["drain_timeout"])
             self.get_logger().info(f"replay done: {self.published} messages published"
                                    + (f"; NOT acknowledged within drain_timeout by every "
                                       f"subscriber: {', '.join(self.unacked_topics)}"
                                       if self.unacked_topics else ""))
         self.source.close()
         self.done.set_result(self.published)
-
-    def _drain(self) -> None:
-        """Wait (up to ``drain_timeout`` in all) until every reliable subscriber acknowledged
-        what was published: the last messages must not die with the process when it exits right
-        after the replay (a reader that fell behind gets them retransmitted only while this
-        writer lives). Topics still unacknowledged are kept in ``unacked_topics`` and reported."""
-        from rclpy.duration import Duration
-
-        deadline = time.monotonic() + self.params["drain_timeout"]
-        for topic, pub in self.publishers_by_topic.items():
-            left = max(0.0, deadline - time.monotonic())
-            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * _NS))):
-                self.unacked_topics.append(topic)
 
     @property
     def in_flight(self) -> int:

@@ -30,6 +30,24 @@ def output_qos() -> QoSProfile:
                       reliability=ReliabilityPolicy.RELIABLE)
 
 
+def wait_for_all_acked(publishers: dict[str, Any], timeout_s: float) -> list[str]:
+    """Wait, up to ``timeout_s`` in all, until every reliable subscriber acknowledged every
+    sample of ``publishers`` (topic -> Publisher); the topics still unacknowledged. For a
+    process about to exit: a reader that fell behind gets lost samples retransmitted only while
+    the writer lives (as ``ros2 bag play --wait-for-all-acked``)."""
+    import time
+
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + timeout_s
+    unacked = []
+    for topic, pub in publishers.items():
+        left = max(0.0, deadline - time.monotonic())
+        if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+            unacked.append(topic)
+    return unacked
+
+
 def input_profile(kind: str, depth: int, best_effort: bool | None = None) -> QoSProfile:
     """The subscription profile for ``kind`` (``auto``: reliable unless ``best_effort``)."""
     if best_effort is None:

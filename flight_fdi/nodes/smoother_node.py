@@ -87,6 +87,10 @@ SMOOTHER_PARAMS = (
     ParamSpec("analyze_on_start", "bool", True, "analyse 'bag' as soon as the node starts"),
     ParamSpec("exit_when_done", "bool", False,
               "the executable exits after the first analysis (batch use; exit status 1 on error)"),
+    ParamSpec("drain_timeout", "double", 5.0,
+              "with exit_when_done: before exiting, wait up to this long until every reliable "
+              "subscriber acknowledged the published result (0 = do not wait)", unit="s",
+              min=0.0, max=3600.0),
 )
 
 
@@ -201,8 +205,23 @@ class SmootherNode(Node):
         else:
             self.get_logger().info(summary_line(run.result))
         if not self.done.done():
+            if self.params["exit_when_done"]:
+                self._drain()
             self.done.set_result(run.result)
         return run
+
+    def _drain(self) -> None:
+        """The executable exits next: wait until the subscribers have the result (and the
+        smoothed states), naming in the log what they did not acknowledge in time."""
+        from .qos import wait_for_all_acked
+
+        pubs = {"fdi/fault_localization": self.pub_result}
+        if self.pub_smoothed is not None:
+            pubs["fdi/smoothed"] = self.pub_smoothed
+        unacked = wait_for_all_acked(pubs, self.params["drain_timeout"])
+        if unacked:
+            self.get_logger().warning("exiting with output NOT acknowledged within drain_timeout "
+                                      f"by every subscriber: {', '.join(unacked)}")
 
     def _publish(self, run: SmootherRun) -> None:
         from .result_msgs import fault_localization_msg, smoothed_state_msgs
