@@ -1,12 +1,17 @@
-"""Calibrate the ins3d GLR thresholds on nominal simulated flights (docs/ins3d.md, "Thresholds").
+"""Calibrate the ins3d GLR thresholds on nominal simulated flights (docs/ins3d.md, "Thresholds"),
+or check a grade file's thresholds on held-out flights.
 
 The flights are the simulator's (sim/ins3d.py): scale factors and misalignments (not states of the
 estimator's model), correlated GNSS noise with latency, a baro-damped INS -- not data the
 estimator's own model generated. Per flight the maximum GLR over the onsets of every hypothesis
-kind is recorded; the thresholds are then chosen above all of them (printed with the
-distribution). Usage::
+kind is recorded (flight_fdi/eval/calibrate3d.py, as ``flight-fdi calibrate``); printed with the
+distribution and the thresholds the calibration rule gives for --target. ``--grade`` is a preset
+or a YAML grade file. ``--check``: instead, per threshold set (the grade's own -- e.g. calibrated
+by ``flight-fdi calibrate`` -- and its base preset's) the false isolations and declarations on
+these flights with 95 % intervals (use seeds the calibration did not use). Usage::
 
     .venv/bin/python tools/ins3d_calibrate.py --flights 20 --duration 1800 --out out/calib.json
+    .venv/bin/python tools/ins3d_calibrate.py --grade my.yaml --check --seed0 50000 --flights 100
 """
 from __future__ import annotations
 
@@ -14,58 +19,36 @@ import argparse
 import json
 import time
 
-import numpy as np
-
-from flight_fdi.eval.parallel import parallel_map
-from flight_fdi.bagio.ins3d_input import from_flight
-from flight_fdi.core.ins3d.analysis import analyze_ins3d
-from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
-from flight_fdi.sim.trajectory import TrajectoryConfig
-
-KINDS = ("step", "ramp", "jump", "outliers")
+from flight_fdi.core.ins3d.glr3d import thresholds_for
+from flight_fdi.core.ins3d.grade_file import KINDS, CustomGrade, grade_thresholds, resolve_grade
+from flight_fdi.eval.calibrate3d import (bootstrap_spread, calibrate, check_rates,
+                                         exceeded, plan, rate, run_flights, summary)
 
 
-def one(profile: str, duration: float, grade: str, seed: int) -> dict:
-    """The largest GLR per hypothesis kind (and its hypothesis) of one nominal flight."""
-    cfg = Sim3DConfig(TrajectoryConfig(profile=profile, duration_s=duration, rate_hz=100.0,
-                                       seed=seed), grade=grade, seed=seed)
-    inp = from_flight(simulate3d(cfg))
-    a = analyze_ins3d(inp.steps, inp.refs, grade=grade, with_observability=False,
-                      **inp.vertical())   # the flight's own height loop, as the evaluation
-    best = {k: max((c.statistic, n) for n, c in a.glr.items() if c.hypothesis.kind == k)
-            for k in KINDS}
-    return {"profile": profile, "seed": seed, "grade": grade, "duration_s": duration,
-            "max": {k: v[0] for k, v in best.items()},
-            "argmax": {k: v[1] for k, v in best.items()},
-            "verdict": a.post_flight_dict()["verdict"]}
-
-
-def _one(item: tuple) -> dict:
-    return one(*item)
-
-
-def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
-    """Per kind: the largest, median and 90 % quantile of the flights' maxima."""
-    out = {}
-    for k in KINDS:
-        m = np.array([r["max"][k] for r in rows])
-        out[k] = {"max": float(m.max()), "median": float(np.median(m)),
-                  "q90": float(np.quantile(m, 0.9))}
-    return out
+def _pct(r: dict) -> str:
+    lo, hi = r["interval95"]
+    return f"{r['k']}/{r['n']} = {100 * r['rate']:.1f} % (95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flights", type=int, default=20)
     ap.add_argument("--duration", type=float, default=1800.0)
-    ap.add_argument("--grade", default="navigation")
+    ap.add_argument("--grade", default="navigation", help="preset or YAML grade file")
     ap.add_argument("--seed0", type=int, default=1000)
     ap.add_argument("--profiles", default="cruise_turns,random,survey_grid")
+    ap.add_argument("--target", type=float, default=0.01, help="per-flight false isolation")
+    ap.add_argument("--check", action="store_true",
+                    help="held-out check of the grade's thresholds and its base preset's")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", default="")
     a = ap.parse_args()
-    profs = [p for p in a.profiles.split(",") if p]
-    items = [(profs[i % len(profs)], a.duration, a.grade, a.seed0 + i) for i in range(a.flights)]
+    grade = resolve_grade(a.grade)
+    checks = None
+    if a.check:
+        checks = {"grade": grade_thresholds(grade), "base": _base_thresholds(a.grade, grade)}
+    items = plan(grade, a.flights, a.seed0, tuple(p for p in a.profiles.split(",") if p),
+                 a.duration, checks)
     t0 = time.time()
 
     def arrived(r: dict) -> None:
@@ -73,14 +56,33 @@ def main() -> None:
               + ", ".join(f"{k} {r['max'][k]:.1f} ({r['argmax'][k]})" for k in KINDS)
               + f" -> {r['verdict']}  [{time.time() - t0:.0f} s]", flush=True)
 
-    rows = sorted(parallel_map(_one, items, a.jobs, desc="calibrate", on_result=arrived),
-                  key=lambda r: r["seed"])
+    rows = run_flights(items, a.jobs, on_result=arrived)
+    print(f"{len(rows)} flights in {time.time() - t0:.0f} s")
     for k, v in summary(rows).items():
         print(f"{k}: max over flights {v['max']:.1f}, median {v['median']:.1f}, "
               f"90 % {v['q90']:.1f}")
-    if a.out:
+    if a.check:
+        for name, r in check_rates(rows).items():
+            print(f"{name} thresholds {checks[name]}: false isolation "
+                  f"{_pct(r['false_isolation'])}; declared {_pct(r['declared'])}")
+    elif len(rows) >= 20:
+        thr, spread = calibrate(rows, a.target), bootstrap_spread(rows, a.target)
+        print(f"thresholds for {100 * a.target:g} %: "
+              + ", ".join(f"{k} {thr[k]:.1f} +- {spread[k]:.1f}" for k in KINDS)
+              + f"; exceeded on {_pct(rate(exceeded(rows, thr), len(rows)))}")
+    if a.out:      # the flights' rows (tools/ins3d_eval.py reads them; --check: with "checks")
         with open(a.out, "w") as f:
             json.dump(rows, f, indent=1)
+
+
+def _base_thresholds(path: str, grade) -> dict[str, float]:
+    """The thresholds a grade file had before any calibration: its base preset's."""
+    import yaml
+
+    if not isinstance(grade, CustomGrade):
+        return thresholds_for(grade.name)
+    with open(path, encoding="utf-8") as f:
+        return thresholds_for(yaml.safe_load(f)["base"])
 
 
 if __name__ == "__main__":

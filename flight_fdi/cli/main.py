@@ -34,6 +34,7 @@ SUBCOMMANDS = {
     "vote": "flight_fdi.cli.vote",
     "imu-csv": "flight_fdi.cli.imu_csv",
     "batch": "flight_fdi.cli.batch",
+    "calibrate": "flight_fdi.cli.calibrate",
 }
 
 EXIT_ERROR = 1

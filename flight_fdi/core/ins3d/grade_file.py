@@ -92,10 +92,14 @@ def grade_from_dict(doc: Any, path: str = "<dict>") -> CustomGrade:
     """The grade of a parsed grade file (module docstring); CoreError naming the bad key."""
     if not isinstance(doc, dict):
         raise CoreError(f"grade file {path}: expected a mapping of keys to values")
-    unknown = sorted(set(doc) - set(KEYS) - {"name", "base", "thresholds"}, key=str)
+    unknown = sorted(set(doc) - set(KEYS) - {"name", "base", "thresholds", "calibration"},
+                     key=str)
     if unknown:
         raise CoreError(f"grade file {path}: unknown key {unknown[0]!r} (allowed: name, base, "
-                        f"thresholds, {', '.join(KEYS)})")
+                        f"thresholds, calibration, {', '.join(KEYS)})")
+    if not isinstance(doc.get("calibration", {}), dict):
+        raise CoreError(f"grade file {path}: calibration must be a mapping (what `flight-fdi "
+                        "calibrate` wrote)")
     name, base = doc.get("name"), doc.get("base")
     if not isinstance(name, str) or not _NAME.match(name):
         raise CoreError(f"grade file {path}: name must be a word of letters, digits, _ . -, "
@@ -164,9 +168,48 @@ def grade_thresholds(grade: ImuGrade, duration_s: float | None = None) -> dict[s
     (``glr3d.thresholds_for``), or a CustomGrade's raised by the same length growth."""
     if not isinstance(grade, CustomGrade) or not grade.thresholds:
         return thresholds_for(grade.name, duration_s)
+    return at_length(dict(grade.thresholds), duration_s)
+
+
+def at_length(thresholds: dict[str, float], duration_s: float | None) -> dict[str, float]:
+    """Thresholds given for a flight of ``glr3d.CALIBRATED_LENGTH_S``, for a flight of
+    ``duration_s`` (raised by ``glr3d.length_growth`` when longer)."""
     growth = length_growth(duration_s)
-    return {k: v + growth.get(k, 0.0) for k, v in grade.thresholds}
+    return {k: v + growth.get(k, 0.0) for k, v in thresholds.items()}
 
 
-__all__ = ["CustomGrade", "KEYS", "KINDS", "grade_from_dict", "grade_thresholds",
-           "is_grade_file", "load_grade", "resolve_grade"]
+#: the first line of the comment ``with_thresholds`` writes above the thresholds it sets
+CALIBRATED_MARK = "# GLR thresholds calibrated by `flight-fdi calibrate`"
+
+
+def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict) -> str:
+    """A grade file's ``text`` with its ``thresholds`` (and an earlier calibration: its comment
+    and ``calibration`` record) replaced by these, under a comment saying how they were made
+    (``calibration``: flights, seeds, duration_s, profiles, target, exceeded, rate, interval95,
+    date -- ``eval.calibrate3d.Calibration.metadata``). The rest of the file, comments
+    included, is kept."""
+    import json
+
+    ours = ("thresholds:", "calibration:", CALIBRATED_MARK, "# target false isolation")
+    kept, skip = [], False
+    for line in text.splitlines():
+        if line[:1] not in (" ", "\t", ""):     # a top-level line: a key or a comment
+            skip = line.startswith(ours)      # (a block's indented and blank lines follow it)
+        if not skip:
+            kept.append(line)
+    while kept and not kept[-1].strip():
+        kept.pop()
+    c = calibration
+    lo, hi = c["interval95"]
+    note = [CALIBRATED_MARK + f" on {c['date']}: {c['flights']} nominal flights of "
+            f"{c['duration_s']:g} s ({', '.join(c['profiles'])}), seeds {c['seeds'][0]}-"
+            f"{c['seeds'][1]},", f"# target false isolation {100 * c['target']:g} % per flight; "
+            f"{c['exceeded']} of {c['flights']} flights above a threshold "
+            f"({100 * c['rate']:.1f} %, 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)"]
+    thr = "{" + ", ".join(f"{k}: {float(thresholds[k]):.2f}" for k in KINDS) + "}"
+    return "\n".join(kept + note + [f"thresholds: {thr}",
+                                     f"calibration: {json.dumps(c)}"]) + "\n"
+
+
+__all__ = ["CALIBRATED_MARK", "CustomGrade", "KEYS", "KINDS", "at_length", "grade_from_dict",
+           "grade_thresholds", "is_grade_file", "load_grade", "resolve_grade", "with_thresholds"]

@@ -1,0 +1,250 @@
+"""GLR thresholds of an IMU grade calibrated on nominal simulated flights (docs/ins3d.md,
+"Thresholds" and "Calibrating a grade file").
+
+The flights are the simulator's (``sim.ins3d``: scale factors and misalignments that are not
+states of the estimator's model, correlated GNSS noise with latency, a baro-damped INS) -- not
+data the estimator's own model generated -- with the grade's own noise. Per flight the largest
+GLR over the onsets and hypotheses of every kind (step, ramp, jump, outliers) is recorded
+(:func:`nominal_flight`); each kind's threshold is then set from the distribution of those
+maxima (:func:`calibrate`) so that a nominal flight exceeds *any* threshold with probability at
+most the target (each kind gets a quarter: the union bound).
+
+**Rule** (:func:`tail_threshold`). The largest GLR of a flight is a maximum of 2 ln LR
+statistics, whose upper tail falls like a chi^2 tail, P(M > x) ~ exp(-x / beta) with beta ~ 2.
+With n flights and a kind's share p of the target: when n p >= TAIL_POINTS the threshold is the
+empirical (1 - p) quantile; otherwise it is extrapolated from the k = TAIL_POINTS largest
+maxima (at least 10 % of the flights, at most half): x = q + beta ln((k / n) / p), q the
+(k+1)-th largest maximum, beta the mean excess of the k largest over q, at least 2 (a fatter
+tail than chi^2 -- model mismatch -- raises it; a thinner one is not trusted). The spread of
+a calibration is the bootstrap standard deviation over the flights (:func:`bootstrap_spread`).
+
+The thresholds are stated for a flight of ``glr3d.CALIBRATED_LENGTH_S`` (what a grade file
+holds): flights of another length T are moved by ``glr3d.LENGTH_GROWTH`` x ln(1800 s / T).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, LENGTH_GROWTH
+from flight_fdi.core.ins3d.grade_file import KINDS, at_length
+from flight_fdi.core.ins3d.grades import ImuGrade
+
+from .errors import EvalError
+
+#: the flights' profiles by default: the presets were calibrated on them, in turn
+PROFILES = ("cruise_turns", "random", "survey_grid")
+#: fewest flights a calibration takes (the tail extrapolation needs TAIL_POINTS above its anchor)
+MIN_FLIGHTS = 20
+#: maxima above the anchor of the tail extrapolation
+TAIL_POINTS = 10
+#: the smallest tail scale beta (the chi^2 value: P(chi^2 > x) ~ exp(-x / 2))
+TAIL_SCALE = 2.0
+
+
+@dataclass(frozen=True)
+class NominalFlight:
+    """One calibration (or check) flight: its profile, length, grade and seed; ``checks``:
+    named threshold sets (for a 30-min flight) whose isolation decision is also recorded."""
+
+    profile: str
+    duration_s: float
+    grade: ImuGrade
+    seed: int
+    checks: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
+
+
+def plan(grade: ImuGrade, flights: int, seed: int, profiles: tuple[str, ...] = PROFILES,
+         duration_s: float = CALIBRATED_LENGTH_S,
+         checks: dict[str, dict[str, float]] | None = None) -> list[NominalFlight]:
+    """Flight i: profile ``profiles[i mod P]``, seed ``seed + i`` (trajectory and sensors)."""
+    from flight_fdi.sim.trajectory import PROFILES as ALL
+
+    for p in profiles:
+        if p not in ALL:
+            raise EvalError(f"unknown profile {p!r}; choose from {', '.join(ALL)}")
+    if not profiles:
+        raise EvalError("calibration: no profile given")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise EvalError(f"seed must be an integer >= 0, got {seed!r}")
+    if not isinstance(duration_s, (int, float)) or not 60.0 <= duration_s <= 10800.0:
+        raise EvalError(f"flight length must be within 60..10800 s, got {duration_s!r}")
+    chk = tuple((n, tuple((k, float(t[k])) for k in KINDS)) for n, t in (checks or {}).items())
+    return [NominalFlight(profiles[i % len(profiles)], float(duration_s), grade, int(seed) + i,
+                          chk) for i in range(int(flights))]
+
+
+def nominal_flight(f: NominalFlight) -> dict:
+    """The largest GLR per hypothesis kind (and its hypothesis) of one nominal flight, its
+    verdict, and per check the isolation its thresholds give (``glr3d.isolate``)."""
+    from flight_fdi.bagio.ins3d_input import from_flight
+    from flight_fdi.core.ins3d.analysis import analyze_ins3d
+    from flight_fdi.core.ins3d.glr3d import isolate
+    from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
+    from flight_fdi.sim.trajectory import TrajectoryConfig
+
+    cfg = Sim3DConfig(TrajectoryConfig(profile=f.profile, duration_s=f.duration_s,
+                                       rate_hz=100.0, seed=f.seed), grade=f.grade, seed=f.seed)
+    inp = from_flight(simulate3d(cfg))
+    a = analyze_ins3d(inp.steps, inp.refs, grade=f.grade, with_observability=False,
+                      **inp.vertical())   # the flight's own height loop, as the evaluation
+    best = {k: max((c.statistic, n) for n, c in a.glr.items() if c.hypothesis.kind == k)
+            for k in KINDS}
+    checks = {}
+    for name, thr in f.checks:
+        iso = isolate(a.glr, at_length(dict(thr), f.duration_s))
+        checks[name] = {"isolation": iso.isolation, "best": iso.best}
+    return {"profile": f.profile, "seed": f.seed, "grade": f.grade.name,
+            "duration_s": f.duration_s,
+            "max": {k: float(v[0]) for k, v in best.items()},
+            "argmax": {k: v[1] for k, v in best.items()},
+            "verdict": a.post_flight_dict()["verdict"], "checks": checks}
+
+
+def run_flights(flights: list[NominalFlight], jobs: int = 1, progress: bool = False,
+                on_result: Callable[[dict], None] | None = None,
+                scheduler: str | None = None, info: dict | None = None) -> list[dict]:
+    """:func:`nominal_flight` of every flight on the campaign engine, in seed order."""
+    from .parallel import parallel_map
+
+    rows = parallel_map(nominal_flight, flights, jobs, progress, desc="calibrate ins3d",
+                        on_result=on_result, scheduler=scheduler, info=info)
+    return sorted(rows, key=lambda r: r["seed"])
+
+
+def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
+    """Per kind: the largest, median and 90 % quantile of the flights' maxima."""
+    out = {}
+    for k in KINDS:
+        m = np.array([r["max"][k] for r in rows])
+        out[k] = {"max": float(m.max()), "median": float(np.median(m)),
+                  "q90": float(np.quantile(m, 0.9))}
+    return out
+
+
+def tail_threshold(maxima: np.ndarray, p: float) -> float:
+    """The x a flight's maximum exceeds with probability ``p`` (module docstring, "Rule")."""
+    m = np.sort(np.asarray(maxima, dtype=float))[::-1]
+    n = m.size
+    if n < MIN_FLIGHTS:
+        raise EvalError(f"calibration needs at least {MIN_FLIGHTS} flights, got {n}")
+    if n * p >= TAIL_POINTS:
+        return float(np.quantile(m, 1.0 - p))
+    k = min(max(TAIL_POINTS, int(math.ceil(0.1 * n))), n // 2)
+    q = m[k]
+    beta = max(TAIL_SCALE, float(np.mean(m[:k] - q)))
+    return float(q + beta * math.log((k / n) / p))
+
+
+def length_shift(duration_s: float) -> dict[str, float]:
+    """What moves a kind's threshold from flights of ``duration_s`` to the stated length
+    (``CALIBRATED_LENGTH_S``): - c ln(T / 1800 s), c = ``LENGTH_GROWTH`` (both ways)."""
+    return {k: -c * math.log(duration_s / CALIBRATED_LENGTH_S) for k, c in LENGTH_GROWTH.items()}
+
+
+def calibrate(rows: list[dict], target: float) -> dict[str, float]:
+    """Per kind the threshold (for a flight of ``CALIBRATED_LENGTH_S``) that a nominal flight
+    of the rows' kind exceeds with probability ``target / len(KINDS)``."""
+    if not 0.0 < target < 1.0:
+        raise EvalError(f"false-isolation target must be within (0, 1), got {target!r}")
+    lengths = {r["duration_s"] for r in rows}
+    if len(lengths) != 1:
+        raise EvalError("calibration: the flights must all have one length")
+    shift = length_shift(lengths.pop())
+    p = target / len(KINDS)
+    return {k: round(tail_threshold(np.array([r["max"][k] for r in rows]), p) + shift[k], 2)
+            for k in KINDS}
+
+
+def bootstrap_spread(rows: list[dict], target: float, draws: int = 200,
+                     seed: int = 0) -> dict[str, float]:
+    """Per kind the standard deviation of :func:`calibrate` over ``draws`` resamples of the
+    flights (with replacement): the sampling spread of a calibration on this many flights."""
+    rng = np.random.default_rng(seed)
+    thr = [calibrate([rows[i] for i in rng.integers(0, len(rows), len(rows))], target)
+           for _ in range(draws)]
+    return {k: float(np.std([t[k] for t in thr], ddof=1)) for k in KINDS}
+
+
+def exceeded(rows: list[dict], thresholds: dict[str, float]) -> int:
+    """Flights whose maximum of some kind exceeds its threshold (given for a 30-min flight,
+    raised for the flight's length as the analysis does): the flights on which the analysis
+    declares something -- an upper bound of its false isolations."""
+    return sum(any(r["max"][k] > t for k, t in at_length(thresholds, r["duration_s"]).items())
+               for r in rows)
+
+
+def rate(k: int, n: int) -> dict:
+    """k of n as a rate with its exact 95 % interval (``metrics3d.binomial_interval``)."""
+    from .metrics3d import binomial_interval
+
+    lo, hi = binomial_interval(k, n)
+    return {"k": int(k), "n": int(n), "rate": k / n, "interval95": [lo, hi]}
+
+
+def check_rates(rows: list[dict]) -> dict[str, dict]:
+    """Per check (``NominalFlight.checks``): false isolations (the decision names one sensor:
+    ``isolation`` single, a glitch included, as ``metrics3d``) and declarations (any)."""
+    names = rows[0]["checks"] if rows else {}
+    out = {}
+    for name in names:
+        iso = [r["checks"][name]["isolation"] for r in rows]
+        out[name] = {"false_isolation": rate(iso.count("single"), len(rows)),
+                     "declared": rate(sum(i != "none" for i in iso), len(rows))}
+    return out
+
+
+@dataclass
+class Calibration:
+    """What :func:`run_calibration` found: thresholds, their spread, the achieved rate."""
+
+    grade: ImuGrade
+    target: float
+    rows: list[dict]
+    thresholds: dict[str, float]
+    spread: dict[str, float]
+    achieved: dict
+    elapsed_s: float
+    profiles: tuple[str, ...]
+    engine: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def metadata(self) -> dict:
+        """The ``calibration`` record a grade file carries (``grade_file.with_thresholds``)."""
+        seeds = [r["seed"] for r in self.rows]
+        a = self.achieved
+        return {"date": time.strftime("%Y-%m-%d", time.gmtime()), "tool": "flight-fdi calibrate",
+                "flights": len(self.rows), "seeds": [min(seeds), max(seeds)],
+                "duration_s": self.rows[0]["duration_s"], "profiles": list(self.profiles),
+                "target": self.target, "exceeded": a["k"],
+                "rate": round(a["rate"], 4),
+                "interval95": [round(v, 4) for v in a["interval95"]],
+                "spread": {k: round(v, 2) for k, v in self.spread.items()}}
+
+
+def run_calibration(grade: ImuGrade, flights: int, seed: int, target: float,
+                    profiles: tuple[str, ...] = PROFILES,
+                    duration_s: float = CALIBRATED_LENGTH_S, jobs: int = 1,
+                    progress: bool = False, on_result: Callable[[dict], None] | None = None,
+                    scheduler: str | None = None) -> Calibration:
+    """Simulate and analyse ``flights`` nominal flights of ``grade``; calibrate its thresholds."""
+    if isinstance(flights, bool) or not isinstance(flights, int) or flights < MIN_FLIGHTS:
+        raise EvalError(f"calibration needs at least {MIN_FLIGHTS} flights, got {flights!r}")
+    if not 0.0 < target < 1.0:
+        raise EvalError(f"false-isolation target must be within (0, 1), got {target!r}")
+    plan_ = plan(grade, flights, seed, tuple(profiles), duration_s)
+    start, info = time.perf_counter(), {}
+    rows = run_flights(plan_, jobs, progress, on_result, scheduler, info)
+    thr = calibrate(rows, target)
+    return Calibration(grade, target, rows, thr, bootstrap_spread(rows, target),
+                       rate(exceeded(rows, thr), len(rows)), time.perf_counter() - start,
+                       tuple(profiles), str(info.get("engine", "")))
+
+
+__all__ = ["Calibration", "MIN_FLIGHTS", "NominalFlight", "PROFILES", "bootstrap_spread",
+           "calibrate", "check_rates", "exceeded", "length_shift", "nominal_flight", "plan",
+           "rate", "run_calibration", "run_flights", "summary", "tail_threshold"]
