@@ -28,9 +28,10 @@ def add_ins3d_options(p: argparse.ArgumentParser) -> None:
                    help="channel (the single-axis study, default) or ins3d (3-D flights, "
                         "the 3-D model beside the single-axis one)")
     g = p.add_argument_group("--model ins3d")
-    g.add_argument("--grade", default="navigation", metavar="GRADE",
-                   help=f"IMU preset of the flights and the analysis ({', '.join(GRADES)}; "
-                        "default navigation)")
+    g.add_argument("--grade", default="navigation", metavar="GRADE|FILE.yaml",
+                   help=f"IMU grade of the flights and the analysis: a preset "
+                        f"({', '.join(GRADES)}; default navigation) or a YAML grade file "
+                        "(docs/ins3d.md, 'IMU grade from a file': its values and thresholds)")
     g.add_argument("--profile", default="random", metavar="PROFILE",
                    help=f"trajectory ({', '.join(PROFILES)}; random: one seeded trajectory per "
                         "flight; default random)")
@@ -131,7 +132,7 @@ def run_ins3d(args: argparse.Namespace) -> int:
         raise CliError(str(exc)) from None
     emit_result(result, out, args, format_metrics(result.metrics),
                 f"{len(result.records)} flights of {config.duration_s:g} s "
-                f"({config.profile}, {config.grade})")
+                f"({config.profile}, {config.grade_name})")
     return 0
 
 

@@ -30,8 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--profile", choices=PROFILES, default="cruise_turns",
                    help="trajectory (default cruise_turns: cruise with turns, climbs, speed "
                         "changes)")
-    g.add_argument("--grade", choices=tuple(GRADES), default="navigation",
-                   help="IMU error preset (default navigation)")
+    g.add_argument("--grade", default="navigation", metavar="GRADE|FILE.yaml",
+                   help=f"IMU errors: a preset ({', '.join(GRADES)}; default navigation) or a "
+                        "YAML grade file (docs/ins3d.md, 'IMU grade from a file'): its values")
     g.add_argument("--lat", type=float, default=45.0, metavar="DEG",
                    help="start latitude, |lat| <= 70 (default 45)")
     g.add_argument("--lon", type=float, default=7.0, metavar="DEG", help="start longitude")
@@ -94,6 +95,25 @@ def _gnss(items: list[str], rate_hz: float):
     return GnssConfig(rate_hz=rate_hz, **values)
 
 
+def sim_grade(value: str):
+    """``--grade``: a preset name (the simulator's, ``sim.imu3d.GRADES``) or the ImuGrade of a
+    YAML grade file (``core.ins3d.grade_file``); SimError (one line) otherwise."""
+    from flight_fdi.core.errors import CoreError
+    from flight_fdi.core.ins3d.grade_file import is_grade_file, load_grade
+    from flight_fdi.sim.errors import SimError
+    from flight_fdi.sim.imu3d import GRADES
+
+    if value in GRADES:
+        return value
+    if not is_grade_file(value):
+        raise SimError(f"--grade {value!r}: not a preset ({', '.join(GRADES)}) nor a YAML "
+                       "grade file")
+    try:
+        return load_grade(value)
+    except CoreError as exc:
+        raise SimError(f"--grade: {exc}") from None
+
+
 def run3d(args: argparse.Namespace) -> int:
     from flight_fdi.sim.bag3d import EPOCH_S, write_bag3d
     from flight_fdi.sim.errors import SimError
@@ -115,7 +135,7 @@ def run3d(args: argparse.Namespace) -> int:
                             duration_s=3600.0 if args.duration is None else args.duration,
                             rate_hz=rate, lat_deg=args.lat, lon_deg=args.lon, alt_m=args.alt,
                             speed_mps=args.speed, heading_deg=args.heading, seed=args.seed)
-    cfg = Sim3DConfig(trajectory=traj, grade=args.grade, quantize=args.quantize,
+    cfg = Sim3DConfig(trajectory=traj, grade=sim_grade(args.grade), quantize=args.quantize,
                       gnss=_gnss(args.gnss, 10.0 if args.ref_rate is None else args.ref_rate),
                       vertical=args.vertical, tau_vertical_s=args.tau_vertical,
                       alignment=args.alignment, seed=args.seed,
@@ -132,7 +152,7 @@ def run3d(args: argparse.Namespace) -> int:
     size = sum(f.stat().st_size for f in Path(args.output).rglob("*") if f.is_file())
     dv = abs(flight.velocity_error()).max(axis=0)
     print(f"wrote {args.output}: ins3d {traj.profile}, {traj.duration_s:g} s at {rate:g} Hz, "
-          f"{args.grade} IMU, seed {cfg.seed}, "
+          f"{cfg.imu_grade.name} IMU, seed {cfg.seed}, "
           + ", ".join(f"{n} {t}" for t, n in counts.items()) + f"; {size / 1e6:.2f} MB, "
           f"{elapsed:.1f} s")
     print(f"INS velocity error max |E, N, U| = {dv[0]:.3g}, {dv[1]:.3g}, {dv[2]:.3g} m/s")

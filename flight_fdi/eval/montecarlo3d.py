@@ -73,7 +73,8 @@ class Study3DConfig:
     scenarios: names from :data:`SCENARIOS`; levels: per scenario, absolute magnitudes in the
     scenario's unit (mg, deg/h, mg/h, deg/h^2, m/s; the sign is random).
     duration_s: flight length; profile: the trajectory (``random``: a seeded trajectory per
-    flight); grade: the IMU preset the flights are simulated with and analysed for.
+    flight); grade: the IMU grade the flights are simulated with and analysed for (a preset
+    name, a YAML grade file or an ImuGrade: :func:`study_grade`).
     onset_window: onset uniform in [a, b] x duration_s. gnss_latency_s: the receiver's latency
     (default the simulator's 20 ms; Markov noise as the simulator's defaults).
     single_axis: also run the single-axis model on the east and north channels.
@@ -85,7 +86,7 @@ class Study3DConfig:
     levels: dict = field(default_factory=lambda: dict(DEFAULT_LEVELS))
     duration_s: float = 900.0
     profile: str = "random"
-    grade: str = "navigation"
+    grade: Any = "navigation"   # a preset name, or an ImuGrade / YAML grade file (study_grade)
     onset_window: tuple = (0.1, 0.8)
     gnss_latency_s: float = 0.02
     rows: int = 3
@@ -117,8 +118,7 @@ class Study3DConfig:
             raise EvalError(f"Study3DConfig.duration_s must be within 60..10800 s, got {d!r}")
         if self.profile not in PROFILES:
             raise EvalError(f"unknown profile {self.profile!r}; choose from {', '.join(PROFILES)}")
-        if self.grade not in GRADES:
-            raise EvalError(f"unknown grade {self.grade!r}; choose from {', '.join(GRADES)}")
+        object.__setattr__(self, "grade", study_grade(self.grade))
         try:
             a, b = (float(v) for v in self.onset_window)
         except (TypeError, ValueError):
@@ -139,8 +139,15 @@ class Study3DConfig:
         if self.rows not in (2, 3):
             raise EvalError(f"Study3DConfig.rows must be 2 or 3, got {self.rows!r}")
 
+    @property
+    def grade_name(self) -> str:
+        return grade_name(self.grade)
+
     def describe(self) -> dict:
         d = asdict(self)
+        d["grade"] = self.grade_name
+        if not isinstance(self.grade, str):      # a grade file's: its numbers (SI)
+            d["grade_values"] = self.grade.to_dict()
         a = self.analysis
         d["analysis"] = {"gate": asdict(a.gate), "glr_p_false_alarm": a.glr_p_false_alarm}
         d["scenarios"] = list(self.scenarios)
@@ -148,6 +155,29 @@ class Study3DConfig:
         d["onset_window"] = list(self.onset_window)
         d["units"] = {s: SCENARIOS[s][5] for s in self.scenarios}
         return d
+
+
+def study_grade(grade: Any) -> Any:
+    """A study's grade: a preset name (:data:`GRADES`), or the ImuGrade of a YAML grade file
+    (``core.ins3d.grade_file``) or given as one; EvalError otherwise."""
+    from flight_fdi.core.errors import CoreError
+    from flight_fdi.core.ins3d.grade_file import is_grade_file, load_grade
+    from flight_fdi.core.ins3d.grades import ImuGrade
+
+    if isinstance(grade, ImuGrade) or grade in GRADES:
+        return grade
+    if isinstance(grade, str) and is_grade_file(grade):
+        try:
+            return load_grade(grade)
+        except CoreError as exc:
+            raise EvalError(str(exc)) from None
+    raise EvalError(f"unknown grade {grade!r}; choose from {', '.join(GRADES)} or give a YAML "
+                    "grade file")
+
+
+def grade_name(grade: Any) -> str:
+    """The name of a preset name or an ImuGrade."""
+    return grade if isinstance(grade, str) else grade.name
 
 
 @dataclass(frozen=True)
@@ -266,7 +296,7 @@ def glr_max_by_kind(statistics: Mapping[str, float]) -> dict[str, float]:
     return out
 
 
-def ins3d_post_flight(flight, config: Study3DConfig, grade: str) -> tuple[dict, dict]:
+def ins3d_post_flight(flight, config: Study3DConfig, grade: Any) -> tuple[dict, dict]:
     """(post_flight section, in-flight alarm count) of the 3-D analysis of one flight."""
     from flight_fdi.bagio.ins3d_input import from_flight
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
@@ -334,7 +364,7 @@ def run_case(case: Case3D, config: Study3DConfig) -> dict:
     grade = case.grade or config.grade
     post, extra = ins3d_post_flight(flight, config, grade)
     in_turn, next_turn = turn_facts(flight, case.onset_s)
-    rec = {"index": case.index, "scenario": case.scenario, "grade": grade,
+    rec = {"index": case.index, "scenario": case.scenario, "grade": grade_name(grade),
            "sim_seed": case.sim_seed, "traj_seed": case.traj_seed,
            "sensor": case.sensor, "axis": case.axis, "kind": case.kind, "level": case.level,
            "unit": None if case.sensor is None else SCENARIOS[case.scenario][5],
@@ -422,4 +452,4 @@ def run_study(config: Study3DConfig, jobs: int = 1, progress: bool = False,
 
 __all__ = ["Case3D", "DEFAULT_LEVELS", "SCENARIOS", "Study3DConfig", "Study3DResult",
            "combine_channels", "decision", "glr_max_by_kind", "plan_study", "run_case",
-           "run_cases", "run_study", "study_settings"]
+           "grade_name", "run_cases", "run_study", "study_grade", "study_settings"]

@@ -58,6 +58,10 @@ class CustomGrade(ImuGrade):
 
     thresholds: tuple[tuple[str, float], ...] = ()
 
+    def to_dict(self) -> dict:
+        """The fields (SI), the thresholds as a mapping kind -> value."""
+        return {**super().to_dict(), "thresholds": dict(self.thresholds)}
+
     def numbers(self) -> dict[str, float]:
         """The SI values of the ImuGrade fields and ``threshold_<kind>`` (what a recording
         stores; ``from_numbers`` reads them back)."""

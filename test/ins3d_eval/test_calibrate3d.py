@@ -1,0 +1,195 @@
+"""The threshold calibration of a grade (flight_fdi/eval/calibrate3d.py): the tail rule on maxima
+of known distributions, the length rule both ways, the rates, the grade file written back, and
+one nominal flight's maxima against the post_flight section's."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from flight_fdi.core.errors import CoreError
+from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, thresholds_for
+from flight_fdi.core.ins3d.grade_file import (KINDS, grade_from_dict, load_grade,
+                                              with_thresholds)
+from flight_fdi.core.ins3d.grades import GRADES
+from flight_fdi.eval.calibrate3d import (MIN_FLIGHTS, bootstrap_spread, calibrate, check_rates,
+                                         exceeded, length_shift, nominal_flight, plan, rate,
+                                         tail_threshold)
+from flight_fdi.eval.errors import EvalError
+from flight_fdi.eval.metrics3d import binomial_interval
+
+
+def _gumbel_rows(n: int, seed: int, scale: float = 2.0, duration: float = 1800.0,
+                 loc: dict | None = None) -> list[dict]:
+    """Flights whose maxima per kind are Gumbel(loc, scale): P(M > x) ~ exp(-(x - loc) / scale)
+    in the tail, the (1 - p) quantile loc - scale ln(-ln(1 - p))."""
+    rng = np.random.default_rng(seed)
+    loc = loc or {"step": 8.0, "ramp": 5.0, "jump": 18.0, "outliers": 19.0}
+    return [{"duration_s": duration, "seed": i,
+             "max": {k: float(rng.gumbel(loc[k], scale)) for k in KINDS}} for i in range(n)]
+
+
+def _gumbel_quantile(loc: float, scale: float, p: float) -> float:
+    return loc - scale * math.log(-math.log(1.0 - p))
+
+
+def test_tail_threshold_extrapolates_a_chi2_like_tail():
+    """Gumbel(8, 2) maxima: the 0.25 % quantile (20.0) from 200 flights, the tail extrapolated
+    from the 20 largest; over 40 independent samples the mean is 0-1 above it (the floor of
+    the tail scale at 2 makes the rule conservative: ~+0.7, a rate ~0.7 x the target) and the
+    sd ~1."""
+    p, est = 0.0025, []
+    for s in range(40):
+        m = np.random.default_rng(s).gumbel(8.0, 2.0, 200)
+        est.append(tail_threshold(m, p))
+    truth = _gumbel_quantile(8.0, 2.0, p)
+    assert 0.0 < np.mean(est) - truth < 1.0, (np.mean(est), truth)
+    assert 0.3 < np.std(est) < 2.0
+
+
+def test_a_fatter_tail_raises_the_scale_and_enough_flights_use_the_quantile():
+    m = np.random.default_rng(1).gumbel(8.0, 5.0, 400)    # scale 5 > 2: measured, not the floor
+    est = tail_threshold(m, 0.0025)
+    assert abs(est - _gumbel_quantile(8.0, 5.0, 0.0025)) < 5.0
+    assert est > _gumbel_quantile(8.0, 2.0, 0.0025) + 5.0
+    m = np.random.default_rng(2).gumbel(8.0, 2.0, 4000)   # n p = 10: the empirical quantile
+    assert tail_threshold(m, 0.0025) == pytest.approx(np.quantile(m, 0.9975))
+    with pytest.raises(EvalError, match=f"at least {MIN_FLIGHTS} flights"):
+        tail_threshold(m[:MIN_FLIGHTS - 1], 0.01)
+
+
+def test_calibrate_splits_the_target_over_the_kinds_and_moves_to_30_min():
+    rows = _gumbel_rows(4000, 3)
+    thr = calibrate(rows, 0.01)
+    for k in KINDS:
+        m = np.array([r["max"][k] for r in rows])
+        assert thr[k] == pytest.approx(np.quantile(m, 1 - 0.01 / 4), abs=0.01)
+    # flights of 2 h: moved down by c ln 4 (steps 1, ramps 0, jumps and outliers 2)
+    long = [{**r, "duration_s": 4 * CALIBRATED_LENGTH_S} for r in rows]
+    shifted = calibrate(long, 0.01)
+    assert shifted["ramp"] == thr["ramp"]
+    assert shifted["step"] == pytest.approx(thr["step"] - math.log(4), abs=0.011)
+    assert shifted["jump"] == pytest.approx(thr["jump"] - 2 * math.log(4), abs=0.011)
+    assert length_shift(900.0)["outliers"] == pytest.approx(2 * math.log(2))   # up when shorter
+    with pytest.raises(EvalError, match="target"):
+        calibrate(rows, 0.0)
+
+
+def test_exceeded_and_the_achieved_rate_on_held_out_flights():
+    """Calibrated on 300 flights for 10 %: on 3000 fresh flights of the same distribution the
+    rate of flights above some threshold is near 10 % (the union bound: at most)."""
+    thr = calibrate(_gumbel_rows(300, 4), 0.10)
+    fresh = _gumbel_rows(3000, 5)
+    k = exceeded(fresh, thr)
+    assert 0.05 < k / 3000 < 0.13, k
+    r = rate(k, 3000)
+    assert r["interval95"] == list(binomial_interval(k, 3000)) and r["rate"] == k / 3000
+    # a 2-h flight is judged against the thresholds raised for its length
+    row = {"duration_s": 7200.0, "max": {"step": thr["step"] + 1.0, "ramp": 0.0, "jump": 0.0,
+                                         "outliers": 0.0}}
+    assert exceeded([row], thr) == 0          # + 1.39 for a step on a 2-h flight
+
+
+def test_bootstrap_spread_matches_the_spread_over_independent_calibrations():
+    rows = _gumbel_rows(200, 6)
+    boot = bootstrap_spread(rows, 0.01, draws=150, seed=1)
+    indep = [calibrate(_gumbel_rows(200, 100 + s), 0.01) for s in range(40)]
+    for k in KINDS:
+        sd = float(np.std([t[k] for t in indep], ddof=1))
+        assert 0.4 * sd < boot[k] < 2.5 * sd, (k, boot[k], sd)
+
+
+def test_check_rates_count_single_isolations_and_declarations():
+    rows = [{"checks": {"a": {"isolation": iso}}} for iso in
+            ("none", "single", "ambiguous", "none", "single")]
+    r = check_rates(rows)["a"]
+    assert r["false_isolation"]["k"] == 2 and r["declared"]["k"] == 3
+    assert r["false_isolation"]["n"] == 5
+
+
+GRADE = """\
+# my IMU: a comment the calibration keeps
+name: my_imu
+base: navigation
+gyro_bias_deg_h: 0.01        # twice the preset's
+thresholds:
+  step: 25
+  ramp: 21
+accel_bias_ug: 40
+"""
+META = {"date": "2026-11-24", "tool": "flight-fdi calibrate", "flights": 200,
+        "seeds": [1000, 1199], "duration_s": 1800.0, "profiles": ["cruise_turns", "random"],
+        "target": 0.01, "exceeded": 1, "rate": 0.005, "interval95": [0.0001, 0.0275],
+        "spread": {"step": 0.9, "ramp": 1.0, "jump": 0.8, "outliers": 0.7}}
+
+
+def test_with_thresholds_replaces_the_block_and_keeps_the_rest(tmp_path):
+    new = {"step": 21.5, "ramp": 19.25, "jump": 31.0, "outliers": 33.125}
+    text = with_thresholds(GRADE, new, META)
+    assert "# my IMU: a comment the calibration keeps" in text and "twice the preset's" in text
+    assert "1 of 200 flights above a threshold (0.5 %, 95 % interval 0.0-2.8 %)" in text
+    path = tmp_path / "g.yaml"
+    path.write_text(text)
+    g = load_grade(path)
+    assert dict(g.thresholds) == {"step": 21.5, "ramp": 19.25, "jump": 31.0, "outliers": 33.12}
+    before = load_grade_text(GRADE, tmp_path)
+    assert {k: v for k, v in g.numbers().items() if not k.startswith("threshold")} == \
+        {k: v for k, v in before.numbers().items() if not k.startswith("threshold")}
+    again = with_thresholds(text, {k: v + 1 for k, v in new.items()}, {**META, "flights": 50})
+    assert again.count("thresholds:") == 1 and again.count("calibration:") == 1
+    assert again.count("# GLR thresholds calibrated") == 1 and "accel_bias_ug: 40" in again
+    import yaml
+
+    assert yaml.safe_load(again)["calibration"]["flights"] == 50
+
+
+def load_grade_text(text: str, tmp_path):
+    p = tmp_path / "before.yaml"
+    p.write_text(text)
+    return load_grade(p)
+
+
+def test_a_calibration_record_must_be_a_mapping():
+    with pytest.raises(CoreError, match="calibration must be a mapping"):
+        grade_from_dict({"name": "a", "base": "navigation", "calibration": 3})
+
+
+def test_nominal_flight_maxima_are_the_post_flight_statistics_and_seeded():
+    """One 60-s flight: the maxima per kind equal the post_flight section's GLR statistics
+    (montecarlo3d.glr_max_by_kind, another path), the same seed gives the same numbers, the
+    navigation preset written as a file the same flight; a check's isolation is recorded."""
+    from flight_fdi.bagio.ins3d_input import from_flight
+    from flight_fdi.core.ins3d.analysis import analyze_ins3d
+    from flight_fdi.eval.montecarlo3d import glr_max_by_kind
+    from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
+    from flight_fdi.sim.trajectory import TrajectoryConfig
+
+    nav = thresholds_for("navigation")
+    low = {k: 0.0 for k in KINDS}
+    f = plan(GRADES["navigation"], 1, 77, ("cruise_turns",), 60.0,
+             checks={"nav": nav, "low": low})[0]
+    r = nominal_flight(f)
+    assert r["seed"] == 77 and r["checks"]["low"]["isolation"] != "none"
+    inp = from_flight(simulate3d(Sim3DConfig(TrajectoryConfig(
+        profile="cruise_turns", duration_s=60.0, rate_hz=100.0, seed=77), grade="navigation",
+        seed=77)))
+    post = analyze_ins3d(inp.steps, inp.refs, grade="navigation", with_observability=False,
+                         **inp.vertical()).post_flight_dict()
+    assert r["max"] == pytest.approx(glr_max_by_kind(post["glr"]["statistics"]), rel=1e-9)
+    assert r["checks"]["nav"]["isolation"] == post.get("isolation", "none")   # its thresholds
+    assert nominal_flight(f)["max"] == r["max"]
+    file_grade = grade_from_dict({"name": "nav_file", "base": "navigation"})
+    g = nominal_flight(plan(file_grade, 1, 77, ("cruise_turns",), 60.0)[0])
+    assert g["max"] == pytest.approx(r["max"], rel=1e-9) and g["grade"] == "nav_file"
+
+
+def test_plan_checks_its_settings():
+    g = GRADES["navigation"]
+    assert [f.seed for f in plan(g, 3, 10)] == [10, 11, 12]
+    assert [f.profile for f in plan(g, 4, 0, ("random", "straight"))] == \
+        ["random", "straight", "random", "straight"]
+    for kw, msg in (({"profiles": ("loop",)}, "unknown profile 'loop'"),
+                    ({"seed": -1}, "seed must be"), ({"duration_s": 10.0}, "60..10800")):
+        with pytest.raises(EvalError, match=msg):
+            plan(g, 2, **{"seed": 0, **kw})
