@@ -69,6 +69,7 @@ def _inputs(args: argparse.Namespace):
     """(grade, its file's text, output path, profiles) of the options, checked."""
     from flight_fdi.core.errors import CoreError
     from flight_fdi.core.ins3d.grade_file import load_grade
+    from flight_fdi.core.ins3d.grades import GRADES
     from flight_fdi.eval.calibrate3d import MIN_FLIGHTS
 
     if args.model != "ins3d":
@@ -80,6 +81,9 @@ def _inputs(args: argparse.Namespace):
     if args.seed < 0:
         raise CliError(f"--seed must be >= 0, got {args.seed}")
     profiles = _profiles(args)
+    if args.grade in GRADES:
+        raise CliError(f"--grade {args.grade!r} is a preset (its thresholds are calibrated: "
+                       f"glr3d.THRESHOLDS_BY_GRADE); give a YAML grade file (base: {args.grade})")
     try:
         grade = load_grade(args.grade)
     except CoreError as exc:

@@ -71,6 +71,7 @@ def test_the_same_seed_calibrates_the_same_and_in_place(calibrated, capsys, tmp_
     (["--profile", "loop"], "--profile 'loop': unknown profile"),
     (["--false-isolation", "1.5"], "--false-isolation must be within (0, 1)"),
     (["--model", "channel"], "only ins3d"),
+    (["--grade", "tactical"], "'tactical' is a preset"),
     (["-o", "/no/such/dir/x.yaml"], "-o: cannot write"),
 ])
 def test_bad_input_is_one_line_and_loses_nothing(argv, message, tmp_path, capsys):
