@@ -96,20 +96,14 @@ def _gnss(items: list[str], rate_hz: float):
 
 
 def sim_grade(value: str):
-    """``--grade``: a preset name (the simulator's, ``sim.imu3d.GRADES``) or the ImuGrade of a
-    YAML grade file (``core.ins3d.grade_file``); SimError (one line) otherwise."""
+    """``--grade``: the ImuGrade of a preset name or of a YAML grade file
+    (``core.ins3d.grade_file.resolve_grade``); SimError (one line) otherwise."""
     from flight_fdi.core.errors import CoreError
-    from flight_fdi.core.ins3d.grade_file import is_grade_file, load_grade
+    from flight_fdi.core.ins3d.grade_file import resolve_grade
     from flight_fdi.sim.errors import SimError
-    from flight_fdi.sim.imu3d import GRADES
 
-    if value in GRADES:
-        return value
-    if not is_grade_file(value):
-        raise SimError(f"--grade {value!r}: not a preset ({', '.join(GRADES)}) nor a YAML "
-                       "grade file")
     try:
-        return load_grade(value)
+        return resolve_grade(value)
     except CoreError as exc:
         raise SimError(f"--grade: {exc}") from None
 
