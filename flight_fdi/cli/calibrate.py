@@ -8,7 +8,8 @@ threshold is set from the distribution of the flights' largest GLR so that a nom
 exceeds any of them with probability at most the --false-isolation target. The grade file (or
 -o FILE) is written back with a ``thresholds:`` block, a comment and a ``calibration`` record
 (flights, seeds, target, date, the rate reached on these flights with its 95 % interval).
-A flight of 30 min takes ~10-20 s of one core; 200 flights on 2 workers ~20-30 min.
+Cost: a 30-min flight (simulation and analysis) ~1.6 s of one core; 200 of them on 2 workers
+3.5-6 min on the shared 2-core machine at load 5-7 (docs/ins3d.md).
 """
 from __future__ import annotations
 

@@ -193,3 +193,15 @@ def test_plan_checks_its_settings():
                     ({"seed": -1}, "seed must be"), ({"duration_s": 10.0}, "60..10800")):
         with pytest.raises(EvalError, match=msg):
             plan(g, 2, **{"seed": 0, **kw})
+
+
+def test_writing_a_calibrated_file_again_with_its_own_record_changes_nothing():
+    from pathlib import Path
+
+    import yaml
+
+    path = Path(__file__).resolve().parents[2] / "config/grades/example_nav_noisy.yaml"
+    text = path.read_text()
+    doc = yaml.safe_load(text)
+    assert with_thresholds(text, doc["thresholds"], doc["calibration"]) == text
+    assert doc["calibration"]["flights"] == 200 and doc["thresholds"]["step"] > 20.0

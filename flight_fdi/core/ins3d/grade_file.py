@@ -194,7 +194,7 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict) 
     included, is kept."""
     import json
 
-    ours = ("thresholds:", "calibration:", CALIBRATED_MARK, "# target false isolation")
+    ours = ("thresholds:", "calibration:", CALIBRATED_MARK, "# calibration ")
     kept, skip = [], False
     for line in text.splitlines():
         if line[:1] not in (" ", "\t", ""):     # a top-level line: a key or a comment
@@ -205,10 +205,11 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict) 
         kept.pop()
     c = calibration
     lo, hi = c["interval95"]
-    note = [CALIBRATED_MARK + f" on {c['date']}: {c['flights']} nominal flights of "
-            f"{c['duration_s']:g} s ({', '.join(c['profiles'])}), seeds {c['seeds'][0]}-"
-            f"{c['seeds'][1]},", f"# target false isolation {100 * c['target']:g} % per flight; "
-            f"{c['exceeded']} of {c['flights']} flights above a threshold "
+    note = [CALIBRATED_MARK + f" on {c['date']}:",
+            f"# calibration flights: {c['flights']} nominal of {c['duration_s']:g} s "
+            f"({', '.join(c['profiles'])}), seeds {c['seeds'][0]}-{c['seeds'][1]};",
+            f"# calibration target: false isolation {100 * c['target']:g} % per flight;",
+            f"# calibration result: {c['exceeded']} of {c['flights']} flights above a threshold "
             f"({100 * c['rate']:.1f} %, 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)"]
     thr = "{" + ", ".join(f"{k}: {float(thresholds[k]):.2f}" for k in KINDS) + "}"
     return "\n".join(kept + note + [f"thresholds: {thr}",
