@@ -27,7 +27,8 @@ from flight_fdi.eval.calibrate3d import (bootstrap_spread, calibrate, check_rate
 
 def _pct(r: dict) -> str:
     lo, hi = r["interval95"]
-    return f"{r['k']}/{r['n']} = {100 * r['rate']:.1f} % (95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)"
+    return (f"{r['k']}/{r['n']} = {100 * r['rate']:.1f} % "
+            f"(95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)")
 
 
 def main() -> None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -211,7 +211,6 @@ class Calibration:
     elapsed_s: float
     profiles: tuple[str, ...]
     engine: str = ""
-    extra: dict = field(default_factory=dict)
 
     def metadata(self) -> dict:
         """The ``calibration`` record a grade file carries (``grade_file.with_thresholds``)."""
