@@ -62,6 +62,10 @@ def main() -> None:
     for k, v in summary(rows).items():
         print(f"{k}: max over flights {v['max']:.1f}, median {v['median']:.1f}, "
               f"90 % {v['q90']:.1f}")
+    verdicts = {v: sum(r["verdict"] == v for r in rows)
+                for v in sorted({r["verdict"] for r in rows})}
+    print(f"verdicts (the grade's own thresholds; the seed method where the GLR finds nothing): "
+          f"{verdicts}")
     if a.check:
         for name, r in check_rates(rows).items():
             print(f"{name} thresholds {checks[name]}: false isolation "
