@@ -205,3 +205,29 @@ def test_writing_a_calibrated_file_again_with_its_own_record_changes_nothing():
     doc = yaml.safe_load(text)
     assert with_thresholds(text, doc["thresholds"], doc["calibration"]) == text
     assert doc["calibration"]["flights"] == 200 and doc["thresholds"]["step"] > 20.0
+
+
+def test_the_tools_held_out_check(tmp_path):
+    """tools/ins3d_calibrate.py --check: per flight the isolation of the grade file's thresholds
+    and of its base preset's, and the rates; its JSON holds the rows (tools/ins3d_eval.py)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    out = tmp_path / "check.json"
+    low = tmp_path / "low.yaml"
+    low.write_text("name: low\nbase: navigation\nthresholds: {step: 0.1, ramp: 0.1, jump: 0.1, "
+                   "outliers: 0.1}\n")
+    run = subprocess.run([sys.executable, str(repo / "tools" / "ins3d_calibrate.py"), "--grade",
+                          str(low), "--check", "--flights", "2", "--duration", "60", "--seed0",
+                          "40", "--out", str(out)], capture_output=True, text=True, timeout=300,
+                         cwd=repo)
+    assert run.returncode == 0, run.stderr
+    rows = json.loads(out.read_text())
+    assert [r["seed"] for r in rows] == [40, 41]
+    assert all(r["checks"]["grade"]["isolation"] != "none" for r in rows)   # thresholds 0.1
+    assert "grade thresholds {'step': 0.1" in run.stdout
+    assert f"base thresholds {thresholds_for('navigation')}" in run.stdout
+    assert "false isolation" in run.stdout and "2/2 = 100.0 %" in run.stdout
