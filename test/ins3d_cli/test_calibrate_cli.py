@@ -89,8 +89,16 @@ def test_bad_input_is_one_line_and_loses_nothing(argv, message, tmp_path, capsys
     assert good.read_text() == GRADE and bad.read_text() == "name: [unclosed\n"
 
 
-def test_the_example_grade_file_is_valid():
-    """The shipped example keeps loading (its thresholds: the calibrated ones)."""
-    repo = Path(__file__).resolve().parents[2]
-    g = load_grade(repo / "config/grades/example_mems_custom.yaml")
-    assert set(dict(g.thresholds)) == set(KINDS)
+def test_the_shipped_grade_files_are_valid():
+    """The examples keep loading; navigation_as_file (check a of the docs) is the preset."""
+    from dataclasses import fields
+
+    from flight_fdi.core.ins3d.grades import GRADES
+
+    grades = Path(__file__).resolve().parents[2] / "config/grades"
+    for name in ("example_mems_custom", "example_nav_noisy", "navigation_as_file"):
+        assert set(dict(load_grade(grades / f"{name}.yaml").thresholds)) == set(KINDS)
+    g, nav = load_grade(grades / "navigation_as_file.yaml"), GRADES["navigation"]
+    for f in fields(nav):
+        if f.name != "name":
+            assert getattr(g, f.name) == pytest.approx(getattr(nav, f.name), rel=1e-15)
