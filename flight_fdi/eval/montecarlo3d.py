@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import time
+from os import PathLike
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Mapping
 
@@ -166,7 +167,7 @@ def study_grade(grade: Any) -> Any:
 
     if isinstance(grade, ImuGrade) or grade in GRADES:
         return grade
-    if isinstance(grade, str) and is_grade_file(grade):
+    if isinstance(grade, (str, PathLike)) and is_grade_file(str(grade)):
         try:
             return load_grade(grade)
         except CoreError as exc:
