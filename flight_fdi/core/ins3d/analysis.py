@@ -118,7 +118,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                   thresholds: dict[str, float] | None = None,
                   diagnosis: DiagnosisConfig | None = None,
                   with_observability: bool = True,
-                  loop: VerticalLoop | None = None) -> Ins3dAnalysis:
+                  loop: VerticalLoop | None = None,
+                  signature_error: float | None = None) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
     simulated flight). ``grade``: an ImuGrade, a preset name or a YAML grade file
     (``grade_file.resolve_grade``). ``max_dt``: the steps are merged onto the reference grid, at
@@ -126,7 +127,10 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     post-flight part (backward sweep, seed method, GLR isolation). ``thresholds``: GLR
     thresholds per kind (default: the grade's for the flight's length,
     ``grade_file.grade_thresholds``). ``loop``: the INS height loop of ``vertical="loop"``
-    (default: the simulator's baro loop, its gains at the first step's latitude and height)."""
+    (default: the simulator's baro loop, its gains at the first step's latitude and height).
+    ``signature_error``: the relative error of the model's fault signatures on this kind of
+    flight, which a confident isolation must leave room for (``glr3d.settle``; default the
+    grade's axis misalignment)."""
     if vertical == "loop" and steps.t.size:
         base = loop or VerticalLoop()
         loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))
@@ -155,19 +159,20 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:
-            _post_flight(out, diagnosis or DiagnosisConfig())
+            _post_flight(out, diagnosis or DiagnosisConfig(), signature_error)
         out.observability = obs.result() if obs is not None else None
     return out
 
 
-def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig) -> None:
+def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
+                 signature_error: float | None = None) -> None:
     model, steps, refs, fwd = out.model, out.steps, out.refs, out.forward
     out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
     out.seed = seed_method(model, out.backward, cfg)
     out.glr = glr_curves(model, steps, out.backward)
     out.joint = out.backward.joint
     out.isolation = isolate(out.glr, out.thresholds)
-    resolve(model, steps, refs, fwd, out.glr, out.isolation)
+    resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
 
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d"]

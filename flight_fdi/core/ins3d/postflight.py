@@ -21,9 +21,9 @@ from .combination import combine_kept
 from .data import NavSteps, RefRows
 from .filter import Ins3dForward, run_forward, white_variance
 from .glr3d import (AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, joint,
-                    resolved_time)
+                    resolved_time, settle)
 from .model import IBA, IBG, Ins3dModel
-from .signature import signature_stats
+from .signature import signature_series
 
 
 @dataclass
@@ -200,30 +200,56 @@ def direction(model: Ins3dModel, cv: GlrCurve, t_start: float, duration: float) 
     return tau
 
 
-def data_up_to(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
-               cv: GlrCurve) -> np.ndarray:
-    """GLR(t) of a hypothesis at its best onset with the data up to every update (M,)."""
+def signature(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+              cv: GlrCurve) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A hypothesis at its best onset through the forward filter (``signature_series``): the
+    cumulative e and d with the data up to every update (M,) and its signature rho (M, rows),
+    m/s per scaled unit of its direction."""
     args = kernel_args(model, steps, refs)
     k0 = int(np.searchsorted(steps.t, cv.t[cv.best] - 1e-9))
-    e, d = np.zeros(refs.t.size), np.zeros(refs.t.size)
+    m = refs.t.size
+    e, d, rho = np.zeros(m), np.zeros(m), np.zeros((m, model.rows))
     tau = direction(model, cv, float(steps.t[0]), float(steps.t[-1] - steps.t[0]))
-    signature_stats(*args, np.ascontiguousarray(refs.a), model.il,
-                    model.im if model.n_markov else 0, model.rows, fwd.Ks, fwd.S_inv, fwd.nu,
-                    k0, tau, e, d)
+    signature_series(*args, np.ascontiguousarray(refs.a), model.il,
+                     model.im if model.n_markov else 0, model.rows, fwd.Ks, fwd.S_inv, fwd.nu,
+                     k0, tau, e, d, rho)
+    return e, d, rho
+
+
+def _glr(e: np.ndarray, d: np.ndarray) -> np.ndarray:
     return np.where(d > 0, e * e / np.where(d > 0, d, 1.0), 0.0)
 
 
+def data_up_to(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+               cv: GlrCurve) -> np.ndarray:
+    """GLR(t) of a hypothesis at its best onset with the data up to every update (M,)."""
+    return _glr(*signature(model, steps, refs, fwd, cv)[:2])
+
+
 def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
-            cv: dict[str, GlrCurve], iso: Isolation) -> None:
-    """Fill ``iso.gap`` and ``iso.ambiguity_resolved_s`` for a single IMU/jump isolation."""
-    if iso.isolation != "single" or iso.rival is None or cv[iso.best].hypothesis.kind == \
+            cv: dict[str, GlrCurve], iso: Isolation, signature_error: float | None = None
+            ) -> None:
+    """For an IMU/jump isolation with a rival: the two fitted together (their signatures
+    through the forward filter; ``glr3d.settle`` with the model's relative
+    ``signature_error``, default the grade's axis misalignment, may make a single one
+    ``ambiguous``), then ``iso.gap`` and, for a single one, ``iso.ambiguity_resolved_s``."""
+    if iso.isolation == "none" or iso.rival is None or cv[iso.best].hypothesis.kind == \
             "outliers":
         return
+    if signature_error is None:
+        signature_error = max(model.grade.gyro_misalign, model.grade.accel_misalign)
+    fwd = fused_forward(model, steps, refs, fwd)        # the pass the GLR curves judged
     with ThreadPoolExecutor(max_workers=1) as pool:     # the kernels release the GIL
-        rival = pool.submit(data_up_to, model, steps, refs, fwd, cv[iso.rival])
-        iso.gap = data_up_to(model, steps, refs, fwd, cv[iso.best]) - rival.result()
-    iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
+        rival = pool.submit(signature, model, steps, refs, fwd, cv[iso.rival])
+        e_b, d_b, rho_b = signature(model, steps, refs, fwd, cv[iso.best])
+        e_r, d_r, rho_r = rival.result()
+    x = float(np.einsum("mi,mij,mj->", rho_b, fwd.S_inv, rho_r))
+    settle(iso, np.array([e_b[-1], e_r[-1]]), np.array([[d_b[-1], x], [x, d_r[-1]]]),
+           signature_error, AMBIGUITY_MARGIN)
+    iso.gap = _glr(e_b, d_b) - _glr(e_r, d_r)
+    if iso.isolation == "single":
+        iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
 
 
-__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "fused_forward", "glr_curves", "kernel_args",
-           "resolve", "run_backward", "seed_method"]
+__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "fused_forward",
+           "glr_curves", "kernel_args", "resolve", "run_backward", "seed_method", "signature"]

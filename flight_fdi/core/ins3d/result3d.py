@@ -138,10 +138,7 @@ def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0) -> dict:
     if iso.isolation == "ambiguous":
         cands = [fault_record(cv, iso.best, thresholds, t0, iso.rival),
                  fault_record(cv, iso.rival, thresholds, t0, iso.best)]
-        a, b = (c["statistic"] for c in cands)
-        head = ("ambiguous: " + " or ".join(describe(c) for c in cands)
-                + f" (statistics {a:.4g} and {b:.4g}, within the margin: the flight does not "
-                "separate them, e.g. a straight leg without a turn)")
+        head = "ambiguous: " + " or ".join(describe(c) for c in cands) + _why(iso, cands)
         return {"verdict": "ambiguous", "fault": None, "candidates": cands, "headline": head,
                 "element": None, "onset_s": None, "magnitude": None}
     verdict = seed.verdict
@@ -150,6 +147,16 @@ def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0) -> dict:
             "its threshold, so no sensor is named")
     return {"verdict": verdict, "fault": None, "candidates": [], "headline": head,
             "element": seed.element, "onset_s": _rel(seed.onset_t, t0), "magnitude": None}
+
+
+def _why(iso: Isolation, cands: list[dict]) -> str:
+    """Why two candidates are ambiguous (``glr3d`` module docstring)."""
+    a, b = (c["statistic"] for c in cands)
+    if iso.reason == "model":
+        return (f" (statistics {a:.4g} and {b:.4g}, signatures alike to cos "
+                f"{iso.similarity:.3f}: the gap is within what the model's error allows)")
+    return (f" (statistics {a:.4g} and {b:.4g}, within the margin: the flight does not "
+            "separate them, e.g. a straight leg without a turn)")
 
 
 def _disagreement(seed: SeedDiagnosis, glr_element: str | None, top: GlrCurve,
@@ -200,6 +207,7 @@ def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
             "threshold": float(thresholds[top.hypothesis.kind]),
             "isolation": iso.isolation, "runner_up": iso.rival,
             "runner_up_statistic": float(cv[iso.rival].statistic) if iso.rival else 0.0,
+            "runner_up_gain": _num(iso.rival_gain), "signature_similarity": _num(iso.similarity),
             "residual": None,
             "statistics": {n: float(c.statistic) for n, c in cv.items()},
             "thresholds": {k_: float(v) for k_, v in thresholds.items()},
