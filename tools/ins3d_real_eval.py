@@ -5,7 +5,8 @@ docs/ins3d_real.md (markdown on stdout or --out), seeded.
     .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcde]
                                               [--out F]
 
-For each setting (SETTINGS: process noise, accelerometer prior, reference correction): the units'
+For each setting (SETTINGS: process noise, accelerometer prior, reference correction, the
+decision's model-error allowance): the units'
 turn-on biases and their leave-one-out residuals, the nominal analyses (every recording x unit),
 then bias steps injected into the unit's samples (accelerometer 0.1/0.3/1.0 m/s^2, gyro
 300/1000/3000 deg/h, per body axis, random sign and onset in [3 s, T - 5 s], seeded per run).
@@ -29,6 +30,7 @@ from flight_fdi.cli.errors import CliError  # noqa: E402
 from flight_fdi.core.errors import CoreError  # noqa: E402
 from flight_fdi.core.ins3d.grades import DEG_H  # noqa: E402
 from flight_fdi.eval import real3d as R  # noqa: E402
+from flight_fdi.eval.real3d_error import model_error_angle  # noqa: E402
 
 #: (label, Settings options, with the fault tables): process noise (gyro ARW deg/sqrt(h),
 #: VRW m/s/sqrt(s)) and the reference's INS shape correction (Contract.ref_ins_shape)
@@ -44,7 +46,13 @@ SETTINGS = {
     "d": ("ARW 3 °/√h, VRW 0.02 m/s/√s, accelerometer bias 0.5 m/s² (**default**)", {}, True),
     "e": ("ARW 60 °/√h, VRW 0.05 m/s/√s, accelerometer bias 0.5 m/s²",
           {"arw_deg_rt_h": 60.0, "vrw": 0.05}, True),
+    "f": ("(d) with the decision before: no model-error allowance (signature error = the "
+          "grade's misalignment, the gap rule alone)", {"signature_error": None}, True),
 }
+#: the recordings the model-error allowance was calibrated on (Settings.signature_error) and
+#: the day held out from it
+FIT_DAYS = ("straight", "vertical_a")
+HELD_OUT = "vertical_b"
 SIZES = {"accelerometer": (0.1, 0.3, 1.0), "gyro": (300.0, 1000.0, 3000.0)}
 UNIT = {"accelerometer": "m/s^2", "gyro": "deg/h"}
 
@@ -119,9 +127,10 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
     rows = ["| fault | size | runs | right sensor+axis | confident wrong | of which the nominal "
             "run was clean | ambiguous | of which the right one is a candidate | none | "
             "median onset error (s) | median magnitude error | "
-            "most frequent wrong or ambiguous answer |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    smallest = {}
+            "most frequent wrong or ambiguous answer | held out (vertical 8-14): right / "
+            "confident wrong of 28 |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    smallest, angles, totals = {}, {}, Counter()
     for sensor, sizes in SIZES.items():
         for axis in R.AXES:
             for size in sizes:
@@ -129,6 +138,12 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                 for name, unit, f, out, o in R.fault_runs(data, cal, names, units, sensor, axis,
                                                           _si(sensor, size), seed, st):
                     c[o] += 1
+                    held = R.day_of(name) == HELD_OUT
+                    c["held_" + o] += held
+                    totals[("held" if held else "fit", o)] += 1
+                    a = model_error_angle(out, f)
+                    if a is not None:
+                        angles.setdefault(R.day_of(name), []).append(a)
                     c["wrong_clean"] += o == "wrong" and nominal_outcome[(name, unit)] == "none"
                     c["amb_right"] += o == "ambiguous" and any(
                         x.startswith(f"{sensor} {axis} ") for x in out["candidates"])
@@ -150,11 +165,35 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                             + (f"{np.median(oe):.1f} | {100 * np.median(me):+.0f} % | "
                                if oe else "- | - | ")
                             + (f"{other.most_common(1)[0][0]} ×{other.most_common(1)[0][1]} |"
-                               if other else "- |"))
+                               if other else "- |")
+                            + f" {c['held_right']} / {c['held_wrong']} |")
     rows += ["", "Smallest size isolated to the right sensor and axis on most (> 50 %) runs: "
              + "; ".join(f"{s} {a}: " + (f"{smallest[(s, a)]:g} {UNIT[s]}"
                                          if (s, a) in smallest else "none of the sizes")
                          for s in SIZES for a in R.AXES) + "."]
+    rows += ["", "All fault runs: " + "; ".join(
+        f"{lab} {sum(v for (g, _), v in totals.items() if g == key)} runs: right "
+        f"{totals[(key, 'right')]}, confident wrong {totals[(key, 'wrong')]}, ambiguous "
+        f"{totals[(key, 'ambiguous')]}" for key, lab in (("fit", "fit days (straight, "
+                                                           "vertical 1-7)"),
+                                                          ("held", "held out (vertical 8-14)")))
+             + "."]
+    return rows + [""] + angle_table(angles)
+
+
+def angle_table(angles: dict[str, list[float]]) -> list[str]:
+    """The model's signature error seen in the fault runs (``model_error_angle``) per day and
+    on the fit days pooled: what ``Settings.signature_error`` is calibrated from."""
+    rows = ["Model error: the angle (rad) by which the true hypothesis's signature misses the "
+            "data beyond noise, in the runs where it is the best or the runner-up "
+            "(`real3d_error.model_error_angle`):", "",
+            "| days | runs | median | q90 | q95 | max |", "|---|---|---|---|---|---|"]
+    fit = [a for d in FIT_DAYS for a in angles.get(d, [])]
+    for label, v in [(d, angles.get(d, [])) for d in (*FIT_DAYS, HELD_OUT)] + [
+            ("fit days pooled", fit)]:
+        if v:
+            q = np.quantile(v, [0.5, 0.9, 0.95, 1.0])
+            rows.append(f"| {label} | {len(v)} | " + " | ".join(f"{x:.3f}" for x in q) + " |")
     return rows
 
 
@@ -164,8 +203,8 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=Path, default=R.default_data_dir())
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--units", default="1,2,3,4")
-    p.add_argument("--settings", default="abcde",
-                   help="which SETTINGS (letters a-e, default all)")
+    p.add_argument("--settings", default="abcdef",
+                   help="which SETTINGS (letters a-f, default all)")
     p.add_argument("--no-faults", action="store_true")
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
@@ -207,7 +246,10 @@ def main(argv=None) -> int:
                   f"{st.accel_bias:g} m/s²; {st.rows} rows, vertical {st.vertical}; reference "
                   f"±{st.contract.ref_half * R.GT_DT:g} s central differences every "
                   f"{st.contract.ref_every * R.GT_DT:g} s, INS shape "
-                  f"{'on' if st.contract.ref_ins_shape else 'off'}.", "", "#### Nominal", ""]
+                  f"{'on' if st.contract.ref_ins_shape else 'off'}; the decision's model-error "
+                  f"allowance (signature error) "
+                  + (f"{st.signature_error:g} rad" if st.signature_error is not None else
+                     "none (the grade's misalignment)") + ".", "", "#### Nominal", ""]
         rows, outcome = nominal(args.data, cal, names, units, st)
         lines += rows
         if with_faults and not args.no_faults:

@@ -150,3 +150,24 @@ def test_leave_one_out_calibration_without_the_full_recordings():
         assert np.allclose(bg, np.median(others))
         assert np.allclose(ba, 10.0 + np.median([j * j for j in others]))
     assert [a.tolist() for a in cal.for_recording(names[0], 2)] == [[0.0] * 3, [0.0] * 3]
+
+
+def test_model_error_allowance_on_the_excerpt(rec, cal):
+    """An accelerometer x step of 1 m/s^2 at 9 s: on this straight leg pitched 15 deg nose down
+    its signature and the z accelerometer's are alike (cos > 0.95) and the x step wins by
+    just over the margin (248 against 238) -- the gap rule alone names it, right by a small
+    gap; allowed
+    the model error measured on the fit days (``Settings.signature_error``) both are named.
+    A y step (the gyro x signature at cos ~0.7) stays a confident, right isolation."""
+    bg, ba = cal
+    x = R.Fault("accelerometer", "x", 1.0, 9.0)
+    old = R.record(R.analyze(x.apply(rec), bg, ba, R.Settings(signature_error=None)))
+    new = R.record(R.analyze(x.apply(rec), bg, ba))
+    assert R.judge(old, x) == "right" and old["rival"] == "accelerometer_z_step"
+    assert R.judge(new, x) == "ambiguous" and new["reason"] == "model"
+    assert sorted(new["candidates"]) == ["accelerometer x step", "accelerometer z step"]
+    assert new["similarity"] > 0.95
+    y = R.Fault("accelerometer", "y", 1.0, 5.0)
+    out = R.record(R.analyze(y.apply(rec), bg, ba))
+    assert R.judge(out, y) == "right" and out["similarity"] < 0.8
+    assert out["pair"] >= out["best_statistic"] - 1e-6
