@@ -156,13 +156,15 @@ def test_model_error_allowance_on_the_excerpt(rec, cal):
     """An accelerometer x step of 1 m/s^2 at 9 s: on this straight leg pitched 15 deg nose down
     its signature and the z accelerometer's are alike (cos > 0.95) and the x step wins by
     just over the margin (248 against 238) -- the gap rule alone names it, right by a small
-    gap; allowed
-    the model error measured on the fit days (``Settings.signature_error``) both are named.
+    gap; allowed the model error measured on the fit days (``Settings.signature_error``) both
+    are named.
     A y step (the gyro x signature at cos ~0.7) stays a confident, right isolation."""
     bg, ba = cal
     x = R.Fault("accelerometer", "x", 1.0, 9.0)
     old = R.record(R.analyze(x.apply(rec), bg, ba, R.Settings(signature_error=None)))
-    new = R.record(R.analyze(x.apply(rec), bg, ba))
+    an = R.analyze(x.apply(rec), bg, ba)
+    new = R.record(an)
+    assert "within what the model's error allows" in an.post_flight_dict()["headline"]
     assert R.judge(old, x) == "right" and old["rival"] == "accelerometer_z_step"
     assert R.judge(new, x) == "ambiguous" and new["reason"] == "model"
     assert sorted(new["candidates"]) == ["accelerometer x step", "accelerometer z step"]
