@@ -52,7 +52,7 @@ from .onset_bound import Signatures
 ALPHA = 0.01
 #: the k of the mixture bound P_1(L > k) + k alpha (a fixed grid: a minimum over noisy
 #: estimates at many k would be biased low)
-K_GRID = tuple(float(k) for k in np.geomspace(1.0, 1.0 / ALPHA, 11))
+K_GRID = tuple(float(k) for k in np.geomspace(0.1, 1.0 / ALPHA, 16))
 
 
 def np_power(lam, alpha: float = ALPHA):
@@ -82,18 +82,18 @@ def glr_known_onsets(lam: float, cos2: float, threshold: float,
     if not 0.0 <= cos2 <= 1.0 + 1e-9:
         raise EvalError(f"glr_known_onsets: cos2 must be in [0, 1], got {cos2!r}")
     m = math.sqrt(max(lam, 0.0))
-    z1 = np.linspace(m - 10.0, m + 10.0, n)
-    pdf = norm.pdf(z1 - m)
-    above = z1 * z1 > threshold
+    a0 = math.sqrt(max(threshold, margin, 0.0))
     c = math.sqrt(min(cos2, 1.0))
     s = math.sqrt(max(1.0 - cos2, 0.0))
-    a = np.sqrt(np.maximum(z1 * z1 - margin, 0.0))
-    if s > 0:
+    iso = 0.0
+    for lo, hi in ((a0, m + 10.0), (m - 10.0, -a0)):   # z1^2 above both: z1 >= a0, <= -a0
+        if hi <= lo or s == 0.0:
+            continue
+        z1 = np.linspace(lo, hi, n)
+        a = np.sqrt(np.maximum(z1 * z1 - margin, 0.0))
         inside = norm.cdf((a - c * z1) / s) - norm.cdf((-a - c * z1) / s)
-    else:
-        inside = np.zeros_like(z1)
-    inside = np.where(z1 * z1 >= margin, inside, 0.0)
-    return (float(np.trapezoid(pdf * above, z1)), float(np.trapezoid(pdf * above * inside, z1)))
+        iso += float(np.trapezoid(norm.pdf(z1 - m) * inside, z1))
+    return float(glr_power(lam, threshold)), iso
 
 
 def mixture_power_bound(log_lr: np.ndarray, alpha: float = ALPHA,

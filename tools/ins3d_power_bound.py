@@ -1,0 +1,181 @@
+#!/usr/bin/env python3
+"""Detection and isolation power bounds of IMU bias steps on the evaluation's 3-D flights, beside
+what the GLR achieves (docs/ins3d_power_bound.md; the math: flight_fdi/eval/power_bound.py).
+
+``--study random`` / ``cruise_turns``: the first ``--flights`` gyro-step flights of the 2-h
+evaluation's study on that profile (tools/ins3d_eval.py ``faults_long``: seed ``--seed`` + 11,
+``--seed 100`` for cruise_turns' 111), ``20min``: the 1200-s cruise_turns fault study (seed
+``--seed`` + 1), regenerated from their seeds (tools/ins3d_onset_bound.py ``study_plan``). Per
+flight, at its own onset and ``--extra`` onsets from the study's prior, for every IMU step
+column and level: the information, the nearest rivals and the GLR's decisions on ``--noise``
+model-drawn data sets (eval/power_bound.py ``flight_record``).
+
+Records stream to JSON lines in ``--out`` (resumable); the tables go to stdout and
+``<out>/tables_<study>.md``; progress on stderr. ``--render-only`` re-renders from the records.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import pathlib
+import sys
+import time
+from collections import Counter
+
+import numpy as np
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tools"))
+
+STUDIES = {"random": ("long", 7200.0, "random", 0),
+           "cruise_turns": ("long", 7200.0, "cruise_turns", 100),
+           "20min": ("20min", 1200.0, "cruise_turns", 0)}
+
+
+def plan(args) -> list:
+    """(case, config) of the study's first ``--flights`` gyro-step flights."""
+    from ins3d_onset_bound import study_plan
+
+    kind, dur, prof, seed = STUDIES[args.study]
+    ns = argparse.Namespace(per=f"gyro_step={args.flights}", study=kind, duration=dur,
+                            profile=prof, seed=seed if args.seed is None else args.seed)
+    return study_plan(ns)[0]
+
+
+def run(args, out: pathlib.Path) -> list[dict]:
+    from ins3d_onset_bound import _run
+
+    from flight_fdi.eval.power_bound import flight_record
+
+    cases = plan(args)
+    items = [(f"{c.scenario}:{c.index}", (c, cfg, args.extra, args.noise)) for c, cfg in cases]
+    settings = {"study": args.study, "seed": args.seed, "extra": args.extra,
+                "noise": args.noise}
+    return _run(items, flight_record, out / f"power_{args.study}.jsonl", settings, args.jobs,
+                f"power bound ({args.study})")
+
+
+# --------------------------------------------------------------------------- tables
+
+def _f(x: float, spec: str = ".2f") -> str:
+    return "-" if x is None or not math.isfinite(x) else format(x, spec)
+
+
+def row_bounds(r: dict, thr: dict) -> dict:
+    """The bounds of one (flight, onset, column, level) row."""
+    from flight_fdi.eval.power_bound import (glr_known_onsets, np_power,
+                                             separation_bound)
+
+    lam = r["b"] ** 2 * r["info"]
+    cos2 = r["rivals"][0]["cos2"] if r["rivals"] else 0.0
+    d2 = lam * (1.0 - cos2)
+    det, iso = glr_known_onsets(lam, cos2, thr["step"])
+    p_np, p_sep = float(np_power(lam)), float(separation_bound(d2))
+    return {"lam": lam, "np": p_np, "sep": p_sep, "iso": min(p_np, p_sep), "glr_det": det,
+            "glr_iso": iso, "rival": r["rivals"][0]["name"] if r["rivals"] else "-"}
+
+
+def _groups(recs: list[dict]) -> dict[tuple, list[tuple[dict, dict]]]:
+    g: dict[tuple, list] = {}
+    for rec in recs:
+        for r in rec["rows"]:
+            g.setdefault((r["sensor"], r["axis"], r["level"]), []).append((rec, r))
+    return dict(sorted(g.items(), key=lambda kv: (kv[0][0] != "gyro", kv[0][1], kv[0][2])))
+
+
+def _binom(k: int, n: int) -> str:
+    return f"{k}/{n}" if n else "-"
+
+
+def bound_table(recs: list[dict]) -> str:
+    """Per sensor, axis and level, averaged over the flights and the onsets drawn from the
+    prior: the bounds, the GLR told the onsets, the GLR on model-drawn data and on the flights."""
+    from flight_fdi.eval.metrics3d import outcome
+    from flight_fdi.eval.power_bound import mixture_power_bound
+
+    lines = ["| sensor | axis | level | onsets | lambda (median) | NP bound, onset known "
+             "| NP bound, onset unknown | separation bound (nearest rival) | isolation bound "
+             "| GLR told the onsets: detected, isolated | GLR on model data: detected, right "
+             "(draws) | GLR on the flights: right |", "|---" * 12 + "|"]
+    for (sensor, axis, lev), rows in _groups(recs).items():
+        b = [row_bounds(r, rec["thresholds"]) for rec, r in rows]
+        dr = [r["draws"] for _, r in rows]
+        right = sum(sum(d["right"]) for d in dr)
+        det = sum(sum(d["detected"]) for d in dr)
+        n = sum(len(d["right"]) for d in dr)
+        mix = mixture_power_bound(np.concatenate([d["log_lr"] for d in dr]))
+        own = [rec for rec in recs if rec["sensor"] == sensor and rec["axis"] == axis
+               and rec["level"] == lev]
+        k = sum(outcome(rec, "ins3d") == "right" for rec in own)
+        rival = Counter(x["rival"] for x in b).most_common(1)[0][0]
+        unit = "deg/h" if sensor == "gyro" else "mg"
+        m = lambda key: float(np.mean([x[key] for x in b]))   # noqa: E731
+        lines.append(
+            f"| {sensor} | {axis} | {lev:g} {unit} | {len(rows)} | "
+            f"{_f(float(np.median([x['lam'] for x in b])), '.1f')} | {_f(m('np'))} | "
+            f"{_f(mix)} | {_f(m('sep'))} ({rival}) | {_f(m('iso'))} | "
+            f"{_f(m('glr_det'))}, {_f(m('glr_iso'))} | {_f(det / n if n else math.nan)}, "
+            f"{_f(right / n if n else math.nan)} ({n}) | {_binom(k, len(own))} |")
+    return "\n".join(lines)
+
+
+def h0_line(recs: list[dict]) -> str:
+    """The GLR's isolations on the model-drawn noise alone."""
+    named = [x for rec in recs for x in rec["h0_named"]]
+    c = Counter(x for x in named if x)
+    return (f"GLR on model-drawn nominal data (the same noise draws, no fault): "
+            f"{sum(c.values())}/{len(named)} declared"
+            + (" (" + ", ".join(f"{k} {v}" for k, v in c.most_common()) + ")" if c else "")
+            + ".")
+
+
+def render(args, out: pathlib.Path) -> str:
+    from flight_fdi.eval.records import read_records
+
+    p = out / f"power_{args.study}.jsonl"
+    if not p.exists():
+        raise OSError(f"no records {p}")
+    recs = read_records(p, key="key")[1]
+    text = "\n\n".join([bound_table(recs), h0_line(recs)])
+    (out / f"tables_{args.study}.md").write_text(text + "\n")
+    return text
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--study", choices=tuple(STUDIES), default="random")
+    ap.add_argument("--flights", type=int, default=27,
+                    help="the first N gyro-step flights of the study's plan")
+    ap.add_argument("--extra", type=int, default=2, help="onsets from the prior per flight")
+    ap.add_argument("--noise", type=int, default=4, help="model-drawn data sets per flight")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="tools/ins3d_eval.py's --seed (default: the study's)")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--out", default=str(REPO / "out" / "ins3d_power_bound"))
+    ap.add_argument("--render-only", action="store_true")
+    args = ap.parse_args(argv)
+    if args.flights < 1 or args.extra < 0 or args.noise < 1:
+        print("ins3d_power_bound: --flights and --noise must be >= 1, --extra >= 0",
+              file=sys.stderr)
+        return 2
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    try:
+        if not args.render_only:
+            run(args, out)
+        print(render(args, out))
+    except Exception as exc:            # one line on stderr, no traceback
+        from flight_fdi.eval.errors import EvalError
+
+        if not isinstance(exc, (EvalError, OSError, ValueError)):
+            raise
+        print(f"ins3d_power_bound: {exc}", file=sys.stderr)
+        return 2
+    print(f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
