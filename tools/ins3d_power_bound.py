@@ -62,12 +62,12 @@ def _f(x: float, spec: str = ".2f") -> str:
     return "-" if x is None or not math.isfinite(x) else format(x, spec)
 
 
-def row_bounds(r: dict, thr: dict) -> dict:
-    """The bounds of one (flight, onset, column, level) row."""
+def row_bounds(r: dict, thr: dict, scale: float = 1.0) -> dict:
+    """The bounds of one (flight, onset, column, level) row (the fault ``scale`` x its size)."""
     from flight_fdi.eval.power_bound import (glr_known_onsets, np_power,
                                              separation_bound)
 
-    lam = r["b"] ** 2 * r["info"]
+    lam = (scale * r["b"]) ** 2 * r["info"]
     cos2 = r["rivals"][0]["cos2"] if r["rivals"] else 0.0
     d2 = lam * (1.0 - cos2)
     det, iso = glr_known_onsets(lam, cos2, thr["step"])
@@ -104,19 +104,83 @@ def bound_table(recs: list[dict]) -> str:
         right = sum(sum(d["right"]) for d in dr)
         det = sum(sum(d["detected"]) for d in dr)
         n = sum(len(d["right"]) for d in dr)
-        mix = mixture_power_bound(np.concatenate([d["log_lr"] for d in dr]))
+        m = lambda key: float(np.mean([x[key] for x in b]))   # noqa: E731
+        mix = min(mixture_power_bound(np.concatenate([d["log_lr"] for d in dr])), m("np"))
         own = [rec for rec in recs if rec["sensor"] == sensor and rec["axis"] == axis
                and rec["level"] == lev]
         k = sum(outcome(rec, "ins3d") == "right" for rec in own)
         rival = Counter(x["rival"] for x in b).most_common(1)[0][0]
-        unit = "deg/h" if sensor == "gyro" else "mg"
-        m = lambda key: float(np.mean([x[key] for x in b]))   # noqa: E731
+        unit = UNITS[sensor]
         lines.append(
             f"| {sensor} | {axis} | {lev:g} {unit} | {len(rows)} | "
             f"{_f(float(np.median([x['lam'] for x in b])), '.1f')} | {_f(m('np'))} | "
             f"{_f(mix)} | {_f(m('sep'))} ({rival}) | {_f(m('iso'))} | "
             f"{_f(m('glr_det'))}, {_f(m('glr_iso'))} | {_f(det / n if n else math.nan)}, "
             f"{_f(right / n if n else math.nan)} ({n}) | {_binom(k, len(own))} |")
+    return "\n".join(lines)
+
+
+#: onset bins (fractions of the flight) of the by-onset table: the evaluation's 2-h bins
+#: 720-3600-4320-5040-5760 s
+BINS = (0.1, 0.5, 0.6, 0.7, 0.8)
+UNITS = {"gyro": "deg/h", "accelerometer": "mg"}
+
+
+def onset_table(recs: list[dict], axis: str = "z") -> str:
+    """The gyro ``axis`` by onset bin: isolation bound, the GLR told the onsets, the GLR on
+    model-drawn data."""
+    dur = recs[0]["window"][1] / BINS[-1]
+    edges = [f * dur for f in BINS]
+    lines = [f"gyro {axis} by onset: isolation bound / GLR told the onsets, isolated / GLR on "
+             "model data, right (onsets)", "",
+             "| level | " + " | ".join(f"{a:.0f}-{b:.0f} s" for a, b in zip(edges, edges[1:]))
+             + " |", "|---" * len(edges) + "|"]
+    for (sensor, ax, lev), rows in _groups(recs).items():
+        if sensor != "gyro" or ax != axis:
+            continue
+        cells = []
+        for a, b in zip(edges, edges[1:]):
+            sel = [(rec, r) for rec, r in rows if a <= r["onset_s"] < b]
+            if not sel:
+                cells.append("-")
+                continue
+            x = [row_bounds(r, rec["thresholds"]) for rec, r in sel]
+            right = [v for _, r in sel for v in r["draws"]["right"]]
+            cells.append(f"{np.mean([v['iso'] for v in x]):.2f} / "
+                         f"{np.mean([v['glr_iso'] for v in x]):.2f} / "
+                         f"{np.mean(right):.2f} ({len(sel)})")
+        lines.append(f"| {lev:g} deg/h | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def smallest_level(rows: list[tuple[dict, dict]], key: str, target: float = 0.95) -> float:
+    """The smallest size (the rows' level x s) whose mean ``key`` over the rows (onsets from the
+    prior) reaches ``target`` (bisection in log s; the bounds grow with the size)."""
+    def mean(s: float) -> float:
+        return float(np.mean([row_bounds(r, rec["thresholds"], s)[key] for rec, r in rows]))
+
+    lo, hi = 1e-3, 1e3
+    if mean(hi) < target:
+        return math.inf
+    for _ in range(40):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if mean(mid) < target else (lo, mid)
+    return hi * rows[0][1]["level"]
+
+
+def smallest_table(recs: list[dict]) -> str:
+    """Per IMU axis, the smallest step whose isolation bound (any test) and whose GLR-told-the-
+    onsets isolation reach 95 % averaged over the onset prior."""
+    lines = ["| sensor | axis | smallest step with isolation bound >= 95 % | ... with the GLR "
+             "told the onsets >= 95 % |", "|---|---|---|---|"]
+    seen = set()
+    for (sensor, axis, _), rows in _groups(recs).items():
+        if (sensor, axis) in seen:
+            continue
+        seen.add((sensor, axis))
+        u = UNITS[sensor]
+        lines.append(f"| {sensor} | {axis} | {smallest_level(rows, 'iso'):.3g} {u} | "
+                     f"{smallest_level(rows, 'glr_iso'):.3g} {u} |")
     return "\n".join(lines)
 
 
@@ -137,7 +201,8 @@ def render(args, out: pathlib.Path) -> str:
     if not p.exists():
         raise OSError(f"no records {p}")
     recs = read_records(p, key="key")[1]
-    text = "\n\n".join([bound_table(recs), h0_line(recs)])
+    text = "\n\n".join([bound_table(recs), h0_line(recs), onset_table(recs),
+                          smallest_table(recs)])
     (out / f"tables_{args.study}.md").write_text(text + "\n")
     return text
 

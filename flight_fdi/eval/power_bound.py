@@ -86,7 +86,7 @@ def glr_known_onsets(lam: float, cos2: float, threshold: float,
     c = math.sqrt(min(cos2, 1.0))
     s = math.sqrt(max(1.0 - cos2, 0.0))
     iso = 0.0
-    for lo, hi in ((a0, m + 10.0), (m - 10.0, -a0)):   # z1^2 above both: z1 >= a0, <= -a0
+    for lo, hi in ((max(a0, m - 10.0), m + 10.0), (m - 10.0, min(-a0, m + 10.0))):
         if hi <= lo or s == 0.0:
             continue
         z1 = np.linspace(lo, hi, n)

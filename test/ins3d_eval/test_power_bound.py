@@ -92,6 +92,13 @@ def test_glr_told_the_onsets_matches_a_bivariate_monte_carlo(lam, cos2, margin):
         assert iso == 0.0
 
 
+def test_glr_told_the_onsets_tends_to_certainty_for_large_faults():
+    """lambda -> infinity with cos2 < 1: the gap lambda (1 - cos2) grows without bound."""
+    det, iso = glr_known_onsets(1e6, 0.9, 21.4)
+    assert det == pytest.approx(1.0) and iso == pytest.approx(1.0, abs=1e-9)
+    assert glr_known_onsets(1e6, 1.0, 21.4)[1] == 0.0
+
+
 def test_mixture_bound_of_a_known_onset_is_at_least_the_neyman_pearson_power():
     """A one-point prior: L = exp(sqrt(lambda) z - lambda / 2), z ~ N(sqrt(lambda), 1) under the
     fault; min_k P_1(L > k) + k alpha is an upper bound of the NP power (up to the draws'
