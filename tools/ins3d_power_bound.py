@@ -98,6 +98,7 @@ def bound_table(recs: list[dict]) -> str:
              "| NP bound, onset unknown | separation bound (nearest rival) | isolation bound "
              "| GLR told the onsets: detected, isolated | GLR on model data: detected, right "
              "(draws) | GLR on the flights: right |", "|---" * 12 + "|"]
+    above = []
     for (sensor, axis, lev), rows in _groups(recs).items():
         b = [row_bounds(r, rec["thresholds"]) for rec, r in rows]
         dr = [r["draws"] for _, r in rows]
@@ -117,6 +118,10 @@ def bound_table(recs: list[dict]) -> str:
             f"{_f(mix)} | {_f(m('sep'))} ({rival}) | {_f(m('iso'))} | "
             f"{_f(m('glr_det'))}, {_f(m('glr_iso'))} | {_f(det / n if n else math.nan)}, "
             f"{_f(right / n if n else math.nan)} ({n}) | {_binom(k, len(own))} |")
+        if n and right / n > m("iso") + 3.0 * math.sqrt(max(m("iso") * (1 - m("iso")), 1 / n) / n):
+            above.append(f"{sensor} {axis} {lev:g}")
+    lines += ["", "Model-drawn GLR rate of right isolations above the isolation bound by more than "
+              "3 binomial sd: " + (", ".join(above) if above else "none") + "."]
     return "\n".join(lines)
 
 
