@@ -265,8 +265,8 @@ def main(argv=None) -> int:
         args.duration, args.profile = 1200.0, "cruise_turns"
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    try:
+
+    def work() -> None:
         if not args.render_only:
             only = set(args.only.split(","))
             if "grid" in only:
@@ -274,16 +274,25 @@ def main(argv=None) -> int:
             if "study" in only:
                 run_study(args, out)
         print(render(args, out))
+
+    return reported("ins3d_onset_bound", work)
+
+
+def reported(name: str, work) -> int:
+    """Run ``work()``; an evaluation, file or value error is one line on stderr and exit code 2
+    (no traceback), else the elapsed time on stderr and 0."""
+    t0 = time.perf_counter()
+    try:
+        work()
     except Exception as exc:            # one line on stderr, no traceback
         from flight_fdi.eval.errors import EvalError
 
         if not isinstance(exc, (EvalError, OSError, ValueError)):
             raise
-        print(f"ins3d_onset_bound: {exc}", file=sys.stderr)
+        print(f"{name}: {exc}", file=sys.stderr)
         return 2
     print(f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -19,7 +19,6 @@ import argparse
 import math
 import pathlib
 import sys
-import time
 from collections import Counter
 
 import numpy as np
@@ -31,6 +30,8 @@ sys.path.insert(0, str(REPO / "tools"))
 STUDIES = {"random": ("long", 7200.0, "random", 0),
            "cruise_turns": ("long", 7200.0, "cruise_turns", 100),
            "20min": ("20min", 1200.0, "cruise_turns", 0)}
+
+from ins3d_onset_bound import reported  # noqa: E402  (a sibling tool: tools/ on the path)
 
 
 def plan(args) -> list:
@@ -231,21 +232,13 @@ def main(argv=None) -> int:
         return 2
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    try:
+
+    def work() -> None:
         if not args.render_only:
             run(args, out)
         print(render(args, out))
-    except Exception as exc:            # one line on stderr, no traceback
-        from flight_fdi.eval.errors import EvalError
 
-        if not isinstance(exc, (EvalError, OSError, ValueError)):
-            raise
-        print(f"ins3d_power_bound: {exc}", file=sys.stderr)
-        return 2
-    print(f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    return 0
-
+    return reported("ins3d_power_bound", work)
 
 if __name__ == "__main__":
     sys.exit(main())
