@@ -50,9 +50,14 @@ def run(args, out: pathlib.Path) -> list[dict]:
     from flight_fdi.eval.power_bound import flight_record
 
     cases = plan(args)
-    items = [(f"{c.scenario}:{c.index}", (c, cfg, args.extra, args.noise)) for c, cfg in cases]
+    cols = [tuple(c.split("_")) for c in args.columns.split(",")]
+    if any(len(c) != 2 or c[0] not in ("gyro", "accelerometer") or c[1] not in ("x", "y", "z")
+           for c in cols):
+        raise ValueError(f"bad --columns {args.columns!r} (e.g. gyro_z,accelerometer_x)")
+    items = [(f"{c.scenario}:{c.index}", (c, cfg, args.extra, args.noise, cols))
+             for c, cfg in cases]
     settings = {"study": args.study, "seed": args.seed, "extra": args.extra,
-                "noise": args.noise}
+                "noise": args.noise, "columns": args.columns}
     return _run(items, flight_record, out / f"power_{args.study}.jsonl", settings, args.jobs,
                 f"power bound ({args.study})")
 
@@ -96,7 +101,7 @@ def bound_table(recs: list[dict]) -> str:
     from flight_fdi.eval.power_bound import mixture_power_bound
 
     lines = ["| sensor | axis | level | onsets | lambda (median) | NP bound, onset known "
-             "| NP bound, onset unknown | separation bound (nearest rival) | isolation bound "
+             "| NP bound, onset unknown | separation bound (nearest rival) | isolation bound (± se) "
              "| GLR told the onsets: detected, isolated | GLR on model data: detected, right "
              "(draws) | GLR on the flights: right |", "|---" * 12 + "|"]
     above = []
@@ -107,6 +112,7 @@ def bound_table(recs: list[dict]) -> str:
         det = sum(sum(d["detected"]) for d in dr)
         n = sum(len(d["right"]) for d in dr)
         m = lambda key: float(np.mean([x[key] for x in b]))   # noqa: E731
+        se = lambda key: float(np.std([x[key] for x in b]) / math.sqrt(len(b)))  # noqa: E731
         mix = min(mixture_power_bound(np.concatenate([d["log_lr"] for d in dr])), m("np"))
         own = [rec for rec in recs if rec["sensor"] == sensor and rec["axis"] == axis
                and rec["level"] == lev]
@@ -116,7 +122,7 @@ def bound_table(recs: list[dict]) -> str:
         lines.append(
             f"| {sensor} | {axis} | {lev:g} {unit} | {len(rows)} | "
             f"{_f(float(np.median([x['lam'] for x in b])), '.1f')} | {_f(m('np'))} | "
-            f"{_f(mix)} | {_f(m('sep'))} ({rival}) | {_f(m('iso'))} | "
+            f"{_f(mix)} | {_f(m('sep'))} ({rival}) | {_f(m('iso'))} ± {_f(se('iso'))} | "
             f"{_f(m('glr_det'))}, {_f(m('glr_iso'))} | {_f(det / n if n else math.nan)}, "
             f"{_f(right / n if n else math.nan)} ({n}) | {_binom(k, len(own))} |")
         if n and right / n > m("iso") + 3.0 * math.sqrt(max(m("iso") * (1 - m("iso")), 1 / n) / n):
@@ -220,6 +226,9 @@ def main(argv=None) -> int:
                     help="the first N gyro-step flights of the study's plan")
     ap.add_argument("--extra", type=int, default=2, help="onsets from the prior per flight")
     ap.add_argument("--noise", type=int, default=4, help="model-drawn data sets per flight")
+    ap.add_argument("--columns", default=",".join(f"{s}_{a}" for s in ("gyro", "accelerometer")
+                                                  for a in "xyz"),
+                    help="IMU step columns (sensor_axis, comma-separated)")
     ap.add_argument("--seed", type=int, default=None,
                     help="tools/ins3d_eval.py's --seed (default: the study's)")
     ap.add_argument("--jobs", type=int, default=1)

@@ -246,7 +246,8 @@ def _draws(pf: PowerFlight, noise: list, signal, sensor: str, axis: str, b: floa
 
 
 def flight_record(item: tuple) -> dict:
-    """One study flight, item = (case, config, extra onsets, noise draws): the isolator's
+    """One study flight, item = (case, config, extra onsets, noise draws[, columns: the
+    (sensor, axis) pairs, default every IMU step column]): the isolator's
     result on the flight itself, and at its own onset and ``extra`` onsets drawn from the
     study's prior (uniform over its onset window, on the GLR's onset grid), for every IMU step
     column and level of ``LEVELS``: the information and the nearest rivals
@@ -256,7 +257,8 @@ def flight_record(item: tuple) -> dict:
     from .montecarlo3d import SCENARIOS, decision
     from .onset_bound import AXES, analyse_case
 
-    case, config, extra, n_noise = item
+    case, config, extra, n_noise = item[:4]
+    columns = item[4] if len(item) > 4 else [(s, a) for s in LEVELS for a in AXES]
     _, an = analyse_case(case, config)
     dec = decision(an.post_flight_dict())
     pf = PowerFlight(Signatures(an))
@@ -270,15 +272,15 @@ def flight_record(item: tuple) -> dict:
     noise = [pf.noise(rng) for _ in range(n_noise)]
     rows = []
     for tau, sign in zip(taus, signs):
-        for sensor, (scen, levels) in LEVELS.items():
-            for axis in AXES:
-                signal = pf.noiseless(sensor, axis, tau)
-                sep = pf.separation(sensor, axis, tau, signal)
-                for lev in levels:
-                    b = sign * lev * SCENARIOS[scen][6]
-                    rows.append({"onset_s": tau, "own": tau == taus[0], "sensor": sensor,
-                                 "axis": axis, "level": lev, "b": b, **sep.as_dict(),
-                                 "draws": _draws(pf, noise, signal, sensor, axis, b, window)})
+        for sensor, axis in columns:
+            scen, levels = LEVELS[sensor]
+            signal = pf.noiseless(sensor, axis, tau)
+            sep = pf.separation(sensor, axis, tau, signal)
+            for lev in levels:
+                b = sign * lev * SCENARIOS[scen][6]
+                rows.append({"onset_s": tau, "own": tau == taus[0], "sensor": sensor,
+                             "axis": axis, "level": lev, "b": b, **sep.as_dict(),
+                             "draws": _draws(pf, noise, signal, sensor, axis, b, window)})
     sensor = SCENARIOS[case.scenario][2]
     return {"key": f"{case.scenario}:{case.index}", "index": case.index,
             "scenario": case.scenario, "sensor": sensor, "axis": case.axis,
