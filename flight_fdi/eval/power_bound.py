@@ -253,7 +253,8 @@ def flight_record(item: tuple) -> dict:
     column and level of ``LEVELS``: the information and the nearest rivals
     (:class:`Separation`), and the GLR's decisions on ``noise`` sets of innovations drawn from
     the model (shared by all onsets and columns) with the fault added (sign: the case's at its
-    own onset, random elsewhere); also the decisions on the noise alone (false alarms)."""
+    own onset, random elsewhere); also the decisions on the noise alone (false alarms) and each
+    hypothesis' largest GLR there."""
     from .montecarlo3d import SCENARIOS, decision
     from .onset_bound import AXES, analyse_case
 
@@ -290,6 +291,8 @@ def flight_record(item: tuple) -> dict:
                                              "onset_s", "statistic")},
             "thresholds": pf.thresholds, "window": list(window),
             "h0_named": [pf.decide(pf.curves(b0), None, None)["named"] for b0 in noise],
+            "h0_max": [{k: float(c.statistic) for k, c in pf.curves(b0).items()}
+                       for b0 in noise],
             "rows": rows}
 
 
