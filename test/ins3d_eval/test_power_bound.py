@@ -21,7 +21,8 @@ from flight_fdi.core.ins3d.glr3d import GlrCurve, Hypothesis
 from flight_fdi.eval.errors import EvalError
 from flight_fdi.eval.onset_bound import Signatures, analyse_case, quad
 from flight_fdi.eval.power_bound import (ALPHA, PowerFlight, glr_known_onsets, glr_power,
-                                         log_mixture_lr, mixture_power_bound, np_power,
+                                         log_mixture_lr, mixture_achieved,
+                                         mixture_power_bound, np_power,
                                          separation, separation_bound)
 
 DEG_H = math.radians(1.0) / 3600.0
@@ -114,6 +115,23 @@ def test_mixture_bound_of_a_known_onset_is_at_least_the_neyman_pearson_power():
         assert bound <= p + k_np * ALPHA + 0.05
     with pytest.raises(EvalError):
         mixture_power_bound(np.array([]))
+
+
+def test_mixture_test_at_one_over_alpha_has_its_level_and_the_closed_form_power():
+    """One-point prior: L > 1/alpha <=> z > (ln(1/alpha) + lambda/2) / sqrt(lambda): power
+    Phi(sqrt(lambda)/2 - ln(1/alpha)/sqrt(lambda)) under the fault (<= the NP power), level
+    <= alpha under no fault (Markov)."""
+    rng = np.random.default_rng(9)
+    lam = 16.0
+    z1 = math.sqrt(lam) + rng.standard_normal(20000)
+    z0 = rng.standard_normal(20000)
+    want = norm.cdf(math.sqrt(lam) / 2 - math.log(1 / ALPHA) / math.sqrt(lam))
+    got = mixture_achieved(math.sqrt(lam) * z1 - lam / 2)
+    assert abs(got - want) < _binom_tol(want, 20000)
+    assert got <= float(np_power(lam)) + _binom_tol(want, 20000)
+    assert mixture_achieved(math.sqrt(lam) * z0 - lam / 2) <= ALPHA
+    with pytest.raises(EvalError):
+        mixture_achieved([])
 
 
 def test_log_mixture_lr_of_a_curve_is_the_mean_likelihood_ratio_over_the_window():
