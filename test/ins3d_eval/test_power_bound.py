@@ -186,8 +186,8 @@ def test_glr_on_model_data_lies_between_its_known_onset_rate_and_the_np_bound(pf
     the rate at which the true hypothesis' GLR (max over its onsets) exceeds the threshold is
     at least P(chi^2_1(lambda) > c) (its value at the true onset) and at most the Neyman-
     Pearson power at the level of that same test on nominal draws (its exact 95 % upper
-    limit: the test's level is measured, not assumed). Both can fail: a lambda too large or
-    too small by ~30 % does."""
+    limit: the test's level is measured, not assumed). A lambda twice too large fails the lower
+    side; the upper one only a lambda several times too small."""
     signal = pf.noiseless("gyro", "x", 200.0)
     sep = pf.separation("gyro", "x", 200.0, signal)
     b = math.sqrt(20.0 / sep.info)
