@@ -173,32 +173,48 @@ def test_a_stalled_recorder_loses_nothing(ros, bag40, tmp_path, ack_topic):
     assert c["bag"] == {"/fdi/state": c["published"], "/fdi/innovation": c["published"]}
 
 
+def stalled_timed_replay(ros, probe, tmp_path, f: str, seconds: float, seed: int,
+                         rate: float, stall_s: float) -> tuple[list, bool]:
+    """filter_node ``f`` (default parameters) and bag_player at ``rate`` on a simulated flight
+    of ``seconds``, two processes; the filter stopped (SIGSTOP) for ``stall_s`` once the replay
+    started (a loaded machine descheduling it, exaggerated). Returns the processes once the
+    player exited 0 (the caller stops them), and whether the player was still running when the
+    stall ended."""
+    from flight_fdi.sim import SimConfig, simulate_to_bag
+
+    bag = tmp_path / f"flight_{f}"
+    simulate_to_bag(SimConfig(duration_s=seconds, seed=seed), str(bag))
+    procs = [start("filter_node", tmp_path, "-r", f"__node:={f}",
+                   "-p", "diagnostics_period_s:=0.25")]
+    try:
+        ros.spin_until(lambda: f"{f}: inputs" in probe.values, timeout=60,
+                       what="the filter starting")
+        player = start("bag_player", tmp_path, "-p", f"bag:={bag}", "-p", f"rate:={rate}")
+        procs.append(player)
+        ros.spin_until(lambda: int(probe.get(f"{f}: inputs", "received_ins", "0")) > 0,
+                       timeout=60, what="the replay starting")
+        os.kill(procs[0].pid, signal.SIGSTOP)
+        time.sleep(stall_s)  # the stall itself (not a synchronisation)
+        running = player.poll() is None
+        os.kill(procs[0].pid, signal.SIGCONT)
+        ros.spin_until(lambda: player.poll() is not None, timeout=60, what="the replay")
+        assert player.returncode == 0, player.communicate()[0]
+    except BaseException:
+        stop(procs)
+        raise
+    return procs, running
+
+
 @pytest.mark.slow
 def test_10x_real_time_across_processes_with_default_parameters_loses_no_input(ros, tmp_path):
     """bag_player at rate 10 (600 messages/s) -> filter_node with its default parameters, two
     processes; the filter is stopped for 0.5 s in the middle (a loaded machine descheduling it,
     exaggerated): every input is received and fused, nothing dropped. The old defaults
     (best effort, depth 100) lost ~150 INS samples in the same run (bench/bench_replay_10x.py)."""
-    from flight_fdi.sim import SimConfig, simulate_to_bag
-
-    bag = tmp_path / "flight30"
-    simulate_to_bag(SimConfig(duration_s=30.0, seed=13), str(bag))
     probe = DiagnosticsProbe(ros)
     f = "filter_10x"
-    procs = [start("filter_node", tmp_path, "-r", f"__node:={f}",
-                   "-p", "diagnostics_period_s:=0.25")]
+    procs, _ = stalled_timed_replay(ros, probe, tmp_path, f, 30.0, 13, 10.0, 0.5)
     try:
-        ros.spin_until(lambda: f"{f}: inputs" in probe.values, timeout=60,
-                       what="the filter starting")
-        player = start("bag_player", tmp_path, "-p", f"bag:={bag}", "-p", "rate:=10.0")
-        procs.append(player)
-        ros.spin_until(lambda: int(probe.get(f"{f}: inputs", "received_ins", "0")) > 0,
-                       timeout=60, what="the replay starting")
-        os.kill(procs[0].pid, signal.SIGSTOP)
-        time.sleep(0.5)  # the stall itself (not a synchronisation)
-        os.kill(procs[0].pid, signal.SIGCONT)
-        ros.spin_until(lambda: player.poll() is not None, timeout=60, what="the replay")
-        assert player.returncode == 0
         wait_inputs(ros, probe, f, ins=1500, reference=300)
         ros.spin_until(lambda: probe.get(f"{f}: inputs", "published") in ("598", "600"),
                        timeout=10, what="every step published")
@@ -222,27 +238,11 @@ def test_player_exiting_while_the_consumer_is_stalled_loses_nothing(ros, tmp_pat
     receives every input. Measured without the drain (drain_timeout 0, the old behaviour): the
     player exited during the stall and the filter received 18 of the 150 INS samples -- the
     rest died with the writer (a CI run lost the last 3 INS samples of a fast replay so)."""
-    from flight_fdi.sim import SimConfig, simulate_to_bag
-
-    bag = tmp_path / "flight3"
-    simulate_to_bag(SimConfig(duration_s=3.0, seed=14), str(bag))
     probe = DiagnosticsProbe(ros)
     f = "filter_drain"
-    procs = [start("filter_node", tmp_path, "-r", f"__node:={f}",
-                   "-p", "diagnostics_period_s:=0.25")]
+    # the 3-s flight at rate 2 ends 1.5 s after its start, inside the stall
+    procs, still_draining = stalled_timed_replay(ros, probe, tmp_path, f, 3.0, 14, 2.0, 2.5)
     try:
-        ros.spin_until(lambda: f"{f}: inputs" in probe.values, timeout=60,
-                       what="the filter starting")
-        player = start("bag_player", tmp_path, "-p", f"bag:={bag}", "-p", "rate:=2.0")
-        procs.append(player)
-        ros.spin_until(lambda: int(probe.get(f"{f}: inputs", "received_ins", "0")) > 0,
-                       timeout=60, what="the replay starting")
-        os.kill(procs[0].pid, signal.SIGSTOP)
-        time.sleep(2.5)  # the stall itself (not a synchronisation): the 1.5-s replay ends in it
-        still_draining = player.poll() is None
-        os.kill(procs[0].pid, signal.SIGCONT)
-        ros.spin_until(lambda: player.poll() is not None, timeout=60, what="the replay")
-        assert player.returncode == 0
         wait_inputs(ros, probe, f, ins=150, reference=30)
     finally:
         logs = stop(procs)
