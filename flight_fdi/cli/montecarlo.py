@@ -140,7 +140,8 @@ def emit_result(result, out: Path | None, args: argparse.Namespace, table: str,
         sys.stdout.write("\n")
         return
     print(table)
-    print(f"\n{what} in {result.elapsed_s:.1f} s on {result.engine}"
+    where = f" on {result.engine}" if result.engine else " (no flight left to run)"
+    print(f"\n{what} in {result.elapsed_s:.1f} s{where}"
           + (f" ({result.resumed} resumed from {args.records})" if result.resumed else "")
           + (f"; full result in {out}" if out else "")
           + (f"; records in {args.records}" if args.records else ""))

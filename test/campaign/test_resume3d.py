@@ -55,6 +55,9 @@ def test_cli_resume_runs_only_the_missing_flights_and_equals_an_uninterrupted_ru
     assert main(CLI + ["--jobs", "1", "--records", str(path), "--json"]) == 0  # nothing left
     assert json.loads(capsys.readouterr().out)["resumed"] == N
     assert len(lines(path)) == N + 1
+    # ... and its table's last line says so (it named an empty engine: "on  (5 resumed")
+    assert main(CLI + ["--jobs", "1", "--records", str(path)]) == 0
+    assert f"(no flight left to run) ({N} resumed from" in capsys.readouterr().out
 
 
 @pytest.mark.slow
