@@ -94,3 +94,47 @@ def test_report_of_a_result_reanalyses_with_the_results_grade_and_rows(bag3d, tm
                  "--grade", "navigation"]) == 0
     again = json.loads(capsys.readouterr().out)["summary"]
     assert again["source"]["grade"] == "navigation" and again["source"]["rows"] == 2
+
+
+def test_signature_error_in_a_grade_file_widens_the_confident_answer(bag3d, tmp_path, capsys):
+    """``signature_error_rad``: the model-error allowance of ``glr3d.settle``. On this flight the
+    3 deg/h gyro x step beats its rival, the accelerometer y step (signatures alike to cos 0.89
+    through the filter), by a gap that an allowance of 0.33 rad (the real recordings' setting)
+    leaves confident and one of 0.6 rad does not (the boundary is near 0.47 here): then it is
+    ambiguous, both named, and the headline says why. The allowance survives the recording's
+    grade numbers (the smoother analyses with it)."""
+    from flight_fdi.core.ins3d.grade_file import CustomGrade, load_grade, signature_error_of
+    from flight_fdi.core.ins3d.grades import GRADES
+
+    answers = {}
+    for eps in ("0.33", "0.6"):
+        path = tmp_path / f"nav_{eps}.yaml"
+        path.write_text(f"name: nav_eps\nbase: navigation\nsignature_error_rad: {eps}\n")
+        assert main(["analyze", str(bag3d), "--model", "ins3d", "--json",
+                     "--grade", str(path)]) == 0
+        answers[eps] = json.loads(capsys.readouterr().out)["post_flight"]
+    glr = answers["0.33"]["glr"]
+    assert (glr["hypothesis"], glr["isolation"], glr["runner_up"]) == \
+        ("gyro_x_step", "single", "accelerometer_y_step")
+    assert answers["0.33"]["verdict"] == "failure"
+    glr6 = answers["0.6"]["glr"]
+    assert glr6["isolation"] == "ambiguous" and glr6["statistic"] == glr["statistic"]
+    assert {c["sensor"] + " " + c["axis"] for c in answers["0.6"]["candidates"]} == \
+        {"gyro x", "accelerometer y"}
+    assert "what the model's error allows" in answers["0.6"]["headline"]
+    # the default is the grade's misalignment; the value round-trips through a recording's numbers
+    assert signature_error_of(GRADES["navigation"]) == max(GRADES["navigation"].gyro_misalign,
+                                                           GRADES["navigation"].accel_misalign)
+    g = load_grade(tmp_path / "nav_0.6.yaml")
+    assert signature_error_of(g) == 0.6
+    assert CustomGrade.from_numbers(g.name, g.numbers()) == g
+
+
+@pytest.mark.parametrize("value, needle", [("2.0", "below pi/2"), ("-0.1", ">= 0"),
+                                           ("wide", "must be a number")])
+def test_a_bad_signature_error_is_one_line(bag3d, tmp_path, capsys, value, needle):
+    path = tmp_path / "g.yaml"
+    path.write_text(f"name: x\nbase: navigation\nsignature_error_rad: {value}\n")
+    assert main(["analyze", str(bag3d), "--model", "ins3d", "--grade", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "signature_error_rad" in err[0] and needle in err[0]

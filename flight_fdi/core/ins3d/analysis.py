@@ -130,7 +130,7 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     (default: the simulator's baro loop, its gains at the first step's latitude and height).
     ``signature_error``: the relative error of the model's fault signatures on this kind of
     flight, which a confident isolation must leave room for (``glr3d.settle``; default the
-    grade's axis misalignment)."""
+    grade's: a grade file's ``signature_error_rad``, else its axis misalignment)."""
     if vertical == "loop" and steps.t.size:
         base = loop or VerticalLoop()
         loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))

@@ -6,6 +6,11 @@ and the GLR thresholds come from the base. Values are in engineering units, the 
 (``KEYS``: key -> ImuGrade field, factor to SI). ``thresholds`` (optional): per hypothesis kind
 (step, ramp, jump, outliers) the threshold of the maximum GLR for a flight of
 ``glr3d.CALIBRATED_LENGTH_S``; longer flights raise it as the presets' (``glr3d.thresholds_for``).
+``signature_error_rad`` (optional): how far (an angle) the model's fault signatures may be off on
+this IMU and platform; a confident isolation must leave room for it against its rival
+(``glr3d.settle``; default the grade's axis misalignment, which leaves the gap rule as it is).
+Measured on the real MEMS recordings: 0.06-0.25, and 0.33 keeps confident wrong answers rare
+there (docs/ins3d_real.md).
 
 Example (config/grades/example_mems_custom.yaml)::
 
@@ -48,6 +53,8 @@ KEYS = {
 #: keys that must be > 0 (the others >= 0)
 POSITIVE = ("gyro_tau_s", "accel_tau_s")
 KINDS = ("step", "ramp", "jump", "outliers")
+#: the keys of a grade file besides KEYS
+_OTHER_KEYS = ("name", "base", "thresholds", "calibration", "signature_error_rad")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -57,6 +64,7 @@ class CustomGrade(ImuGrade):
     ``glr3d.CALIBRATED_LENGTH_S``) as (kind, value) pairs."""
 
     thresholds: tuple[tuple[str, float], ...] = ()
+    signature_error: float | None = None    # rad; None: the grade's axis misalignment
 
     def to_dict(self) -> dict:
         """The fields (SI), the thresholds as a mapping kind -> value."""
@@ -67,6 +75,8 @@ class CustomGrade(ImuGrade):
         stores; ``from_numbers`` reads them back)."""
         out = {f.name: float(getattr(self, f.name)) for f in fields(ImuGrade) if f.name != "name"}
         out.update({f"threshold_{k}": float(v) for k, v in self.thresholds})
+        if self.signature_error is not None:
+            out["signature_error"] = float(self.signature_error)
         return out
 
     @classmethod
@@ -76,7 +86,9 @@ class CustomGrade(ImuGrade):
             thr = tuple((k, float(values[f"threshold_{k}"])) for k in KINDS)
         except KeyError as exc:
             raise CoreError(f"IMU grade {name!r}: value {exc.args[0]!r} missing") from None
-        return cls(name, thresholds=thr, **kw)
+        eps = values.get("signature_error")
+        return cls(name, thresholds=thr, signature_error=None if eps is None else float(eps),
+                   **kw)
 
 
 def _number(path: str, key: str, value: Any, positive: bool = False) -> float:
@@ -96,11 +108,10 @@ def grade_from_dict(doc: Any, path: str = "<dict>") -> CustomGrade:
     """The grade of a parsed grade file (module docstring); CoreError naming the bad key."""
     if not isinstance(doc, dict):
         raise CoreError(f"grade file {path}: expected a mapping of keys to values")
-    unknown = sorted(set(doc) - set(KEYS) - {"name", "base", "thresholds", "calibration"},
-                     key=str)
+    unknown = sorted(set(doc) - set(KEYS) - set(_OTHER_KEYS), key=str)
     if unknown:
-        raise CoreError(f"grade file {path}: unknown key {unknown[0]!r} (allowed: name, base, "
-                        f"thresholds, calibration, {', '.join(KEYS)})")
+        raise CoreError(f"grade file {path}: unknown key {unknown[0]!r} (allowed: "
+                        f"{', '.join(_OTHER_KEYS)}, {', '.join(KEYS)})")
     if not isinstance(doc.get("calibration", {}), dict):
         raise CoreError(f"grade file {path}: calibration must be a mapping (what `flight-fdi "
                         "calibrate` wrote)")
@@ -115,7 +126,26 @@ def grade_from_dict(doc: Any, path: str = "<dict>") -> CustomGrade:
           for key, (field, factor) in KEYS.items() if key in doc}
     thr = _thresholds(path, base, doc.get("thresholds", {}))
     preset = {f.name: getattr(GRADES[base], f.name) for f in fields(ImuGrade)}
-    return CustomGrade(**{**preset, **si, "name": name}, thresholds=thr)
+    return CustomGrade(**{**preset, **si, "name": name}, thresholds=thr,
+                       signature_error=_signature_error(path, doc.get("signature_error_rad")))
+
+
+def _signature_error(path: str, value: Any) -> float | None:
+    if value is None:
+        return None
+    v = _number(path, "signature_error_rad", value)
+    if v >= math.pi / 2:
+        raise CoreError(f"grade file {path}: signature_error_rad must be an angle below pi/2 "
+                        f"(1.5708), got {value!r}")
+    return v
+
+
+def signature_error_of(grade: ImuGrade) -> float:
+    """The relative error (an angle, rad) a confident isolation must allow the model's fault
+    signatures (``glr3d.settle``): a grade file's ``signature_error_rad``, else the grade's axis
+    misalignment."""
+    eps = getattr(grade, "signature_error", None)
+    return float(eps) if eps is not None else max(grade.gyro_misalign, grade.accel_misalign)
 
 
 def _thresholds(path: str, base: str, given: Any) -> tuple[tuple[str, float], ...]:
@@ -217,4 +247,5 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict) 
 
 
 __all__ = ["CALIBRATED_MARK", "CustomGrade", "KEYS", "KINDS", "at_length", "grade_from_dict",
-           "grade_thresholds", "is_grade_file", "load_grade", "resolve_grade", "with_thresholds"]
+           "grade_thresholds", "is_grade_file", "load_grade", "resolve_grade",
+           "signature_error_of", "with_thresholds"]

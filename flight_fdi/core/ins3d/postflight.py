@@ -22,6 +22,7 @@ from .data import NavSteps, RefRows
 from .filter import Ins3dForward, run_forward, white_variance
 from .glr3d import (AMBIGUITY_MARGIN, GlrCurve, Isolation, curves, hypotheses, joint,
                     resolved_time, settle)
+from .grade_file import signature_error_of
 from .model import IBA, IBG, Ins3dModel
 from .signature import signature_series
 
@@ -231,13 +232,13 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
             ) -> None:
     """For an IMU/jump isolation with a rival: the two fitted together (their signatures
     through the forward filter; ``glr3d.settle`` with the model's relative
-    ``signature_error``, default the grade's axis misalignment, may make a single one
-    ``ambiguous``), then ``iso.gap`` and, for a single one, ``iso.ambiguity_resolved_s``."""
+    ``signature_error``, default the grade's: ``grade_file.signature_error_of``, may make a
+    single one ``ambiguous``), then ``iso.gap`` and, for a single one, ``iso.ambiguity_resolved_s``."""
     if iso.isolation == "none" or iso.rival is None or cv[iso.best].hypothesis.kind == \
             "outliers":
         return
     if signature_error is None:
-        signature_error = max(model.grade.gyro_misalign, model.grade.accel_misalign)
+        signature_error = signature_error_of(model.grade)
     fwd = fused_forward(model, steps, refs, fwd)        # the pass the GLR curves judged
     with ThreadPoolExecutor(max_workers=1) as pool:     # the kernels release the GIL
         rival = pool.submit(signature, model, steps, refs, fwd, cv[iso.rival])
