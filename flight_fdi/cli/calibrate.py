@@ -5,9 +5,13 @@ docs/ins3d.md "Calibrating a grade file").
 N seeded nominal flights (seeds S .. S+N-1, the profiles in turn) are simulated with the grade's
 values and analysed as ``analyze --model ins3d --grade FILE`` does; each hypothesis kind's
 threshold is set from the distribution of the flights' largest GLR so that a nominal flight
-exceeds any of them with probability at most the --false-isolation target. The grade file (or
--o FILE) is written back with a ``thresholds:`` block, a comment and a ``calibration`` record
-(flights, seeds, target, date, the rate reached on these flights with its 95 % interval).
+exceeds any of them with probability at most the --false-isolation target. From the same flights
+the seed method's episode probability (``seed_episode_probability``: what its persistent J
+episode's peak must fall below for the seed method to declare a flight the GLR finds clean) is
+set so that at most the --seed-declaration target of them would be declared (never above the
+default 1e-6). The grade file (or -o FILE) is written back with a ``thresholds:`` block, the
+``seed_episode_probability``, a comment and a ``calibration`` record (flights, seeds, targets,
+date, the rates reached on these flights with their 95 % intervals).
 Cost: a 30-min flight (simulation and analysis) ~1.6 s of one core; 200 of them on 2 workers
 3.5-6 min on the shared 2-core machine at load 5-7 (docs/ins3d.md).
 """
@@ -39,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="seed of the first flight; flight i has seed S+i (default 1000)")
     p.add_argument("--false-isolation", type=float, default=0.01, metavar="P",
                    help="per-flight false-isolation target (default 0.01)")
+    p.add_argument("--seed-declaration", type=float, default=None, metavar="P",
+                   help="per-flight target of seed-method declarations on nominal flights "
+                        "(default: the --false-isolation target)")
     p.add_argument("--profile", action="append", default=None, metavar="PROFILE",
                    help="trajectory profile, repeatable or comma-separated, taken in turn "
                         f"(default {','.join(PROFILES)})")
@@ -79,6 +86,9 @@ def _inputs(args: argparse.Namespace):
         raise CliError(f"--flights must be at least {MIN_FLIGHTS}, got {args.flights}")
     if not 0.0 < args.false_isolation < 1.0:
         raise CliError(f"--false-isolation must be within (0, 1), got {args.false_isolation:g}")
+    if args.seed_declaration is not None and not 0.0 < args.seed_declaration < 1.0:
+        raise CliError(f"--seed-declaration must be within (0, 1), got "
+                       f"{args.seed_declaration:g}")
     if args.seed < 0:
         raise CliError(f"--seed must be >= 0, got {args.seed}")
     profiles = _profiles(args)
@@ -106,8 +116,9 @@ def run(args: argparse.Namespace) -> int:
     spec = engine_spec(args)
     cal = run_calibration(grade, args.flights, args.seed, args.false_isolation, profiles,
                           args.duration, jobs=spec.workers or default_workers(),
-                          progress=not args.no_progress, scheduler=spec.scheduler)
-    new = with_thresholds(text, cal.thresholds, cal.metadata())
+                          progress=not args.no_progress, scheduler=spec.scheduler,
+                          seed_target=args.seed_declaration)
+    new = with_thresholds(text, cal.thresholds, cal.metadata(), cal.episode_probability)
     tmp = out.with_name(out.name + ".tmp")
     try:
         tmp.write_text(new, encoding="utf-8")
@@ -125,6 +136,7 @@ def _print(cal, out: Path, as_json: bool) -> None:
 
     if as_json:
         json.dump({"grade": cal.grade.name, "output": str(out), "thresholds": cal.thresholds,
+                   "seed_episode_probability": cal.episode_probability,
                    "spread": cal.spread, "calibration": cal.metadata(),
                    "summary": summary(cal.rows), "elapsed_s": cal.elapsed_s,
                    "flights": cal.rows}, sys.stdout)
@@ -143,4 +155,10 @@ def _print(cal, out: Path, as_json: bool) -> None:
     print(f"\n{m['flights']} nominal flights of {m['duration_s']:g} s in {cal.elapsed_s:.0f} s "
           f"({cal.engine}); target {100 * cal.target:g} % per flight: {m['exceeded']} of "
           f"{m['flights']} above a threshold ({100 * m['rate']:.1f} %, 95 % interval "
-          f"{100 * lo:.1f}-{100 * hi:.1f} %); wrote {out}")
+          f"{100 * lo:.1f}-{100 * hi:.1f} %)")
+    sd = m["seed"]
+    lo, hi = sd["interval95"]
+    print(f"seed method: episode probability {sd['episode_probability']:.3g} (target "
+          f"{100 * sd['target']:g} %): {sd['declared']} of {m['flights']} flights declared "
+          f"({100 * sd['rate']:.1f} %, 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %; with the "
+          f"default {sd['default']:g}: {sd['declared_default']}); wrote {out}")

@@ -20,16 +20,28 @@ a calibration is the bootstrap standard deviation over the flights (:func:`boots
 
 The thresholds are stated for a flight of ``glr3d.CALIBRATED_LENGTH_S`` (what a grade file
 holds): flights of another length T are moved by ``glr3d.LENGTH_GROWTH`` x ln(1800 s / T).
+
+**Seed method** (:func:`seed_statistic`, :func:`calibrate_seed`). When the GLR names nothing, the
+seed method still declares (``glitch`` / ``failure`` / ``ambiguous``, no sensor named) a flight
+whose strongest persistent J episode peaks above the chi^2(dof) quantile of
+``DiagnosisConfig.episode_probability`` p. Per flight the calibration records x = -2 ln P(chi^2(dof)
+> J_peak) of that peak (0 without a persistent episode): the flight is declared iff x > -2 ln p,
+whatever p, and for a chi^2 peak x is chi^2(2)-like (tail exp(-x / 2)). The grade's
+``seed_episode_probability`` is p = exp(-x* / 2), x* = :func:`tail_threshold` of the flights' x at
+the seed target (a budget of its own, by default the false-isolation target: a seed-method
+declaration names no sensor), and never above the default 1e-6 (a quiet grade keeps the presets'
+rule; the calibration only makes the seed method stricter where the grade needs it).
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
+from flight_fdi.core.diagnosis import DiagnosisConfig, SeedDiagnosis
 from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, LENGTH_GROWTH
 from flight_fdi.core.ins3d.grade_file import KINDS, at_length
 from flight_fdi.core.ins3d.grades import ImuGrade
@@ -44,6 +56,10 @@ MIN_FLIGHTS = 20
 TAIL_POINTS = 10
 #: the smallest tail scale beta (the chi^2 value: P(chi^2 > x) ~ exp(-x / 2))
 TAIL_SCALE = 2.0
+#: the seed method's episode probability without a calibration (the presets')
+DEFAULT_EPISODE_PROBABILITY = DiagnosisConfig().episode_probability
+#: the smallest tail probability of a J peak told apart (below: x = -2 ln of it)
+_TINY = 1e-300
 
 
 @dataclass(frozen=True)
@@ -102,7 +118,42 @@ def nominal_flight(f: NominalFlight) -> dict:
             "duration_s": f.duration_s,
             "max": {k: float(v[0]) for k, v in best.items()},
             "argmax": {k: v[1] for k, v in best.items()},
-            "verdict": a.post_flight_dict()["verdict"], "checks": checks}
+            "verdict": a.post_flight_dict()["verdict"], "checks": checks,
+            "seed_x": seed_statistic(a.seed), "seed_verdict": a.seed.verdict}
+
+
+def seed_statistic(seed: SeedDiagnosis) -> float:
+    """x = -2 ln P(chi^2(dof) > J) of the peak of the flight's strongest persistent J episode
+    (``diagnosis.diagnose``'s episodes whatever their peak; 0 without one): the seed method
+    declares the flight iff x > -2 ln ``episode_probability`` (module docstring)."""
+    from flight_fdi.core.diagnosis import _strongest_episode
+    from flight_fdi.core.special import chi2_sf
+
+    full = int(seed.dof.max()) if seed.dof.size else 0
+    if int(seed.valid.sum()) < seed.config.min_valid_steps or full < 1:
+        return 0.0                      # insufficient data: no episode probability decides
+    with np.errstate(invalid="ignore"):
+        viol_k = (seed.element_dof > 0) & (seed.terms > seed.gammas) & seed.valid[:, None]
+    every = replace(seed.config, episode_probability=1.0 - 1e-15)   # every persistent one
+    ep = _strongest_episode(seed.t, seed.J, viol_k, full, every)
+    if ep is None:
+        return 0.0
+    return float(-2.0 * math.log(max(chi2_sf(float(seed.J[ep[2]]), full), _TINY)))
+
+
+def seed_declared(rows: list[dict], p: float) -> int:
+    """Flights the seed method declares with episode probability ``p`` (whatever the GLR)."""
+    return sum(r["seed_x"] > -2.0 * math.log(p) for r in rows)
+
+
+def calibrate_seed(rows: list[dict], target: float) -> float:
+    """The grade's seed-method episode probability (module docstring, "Seed method"): at most
+    ``DEFAULT_EPISODE_PROBABILITY``, 3 significant digits."""
+    if not 0.0 < target < 1.0:
+        raise EvalError(f"seed-method target must be within (0, 1), got {target!r}")
+    x = tail_threshold(np.array([r["seed_x"] for r in rows]), target)
+    p = math.exp(-0.5 * x)
+    return float(f"{min(p, DEFAULT_EPISODE_PROBABILITY):.2e}") if p > 0 else _TINY
 
 
 def run_flights(flights: list[NominalFlight], jobs: int = 1, progress: bool = False,
@@ -211,6 +262,9 @@ class Calibration:
     elapsed_s: float
     profiles: tuple[str, ...]
     engine: str = ""
+    episode_probability: float = DEFAULT_EPISODE_PROBABILITY   # the seed method's
+    seed_target: float = 0.01
+    seed_achieved: dict = field(default_factory=dict)          # declared with it (``rate``)
 
     def metadata(self) -> dict:
         """The ``calibration`` record a grade file carries (``grade_file.with_thresholds``)."""
@@ -222,28 +276,44 @@ class Calibration:
                 "target": self.target, "exceeded": a["k"],
                 "rate": round(a["rate"], 4),
                 "interval95": [round(v, 4) for v in a["interval95"]],
-                "spread": {k: round(v, 2) for k, v in self.spread.items()}}
+                "spread": {k: round(v, 2) for k, v in self.spread.items()},
+                "seed": {"target": self.seed_target,
+                         "episode_probability": self.episode_probability,
+                         "declared": self.seed_achieved["k"],
+                         "rate": round(self.seed_achieved["rate"], 4),
+                         "interval95": [round(v, 4) for v in self.seed_achieved["interval95"]],
+                         "default": DEFAULT_EPISODE_PROBABILITY,
+                         "declared_default": seed_declared(self.rows,
+                                                           DEFAULT_EPISODE_PROBABILITY)}}
 
 
 def run_calibration(grade: ImuGrade, flights: int, seed: int, target: float,
                     profiles: tuple[str, ...] = PROFILES,
                     duration_s: float = CALIBRATED_LENGTH_S, jobs: int = 1,
                     progress: bool = False, on_result: Callable[[dict], None] | None = None,
-                    scheduler: str | None = None) -> Calibration:
-    """Simulate and analyse ``flights`` nominal flights of ``grade``; calibrate its thresholds."""
+                    scheduler: str | None = None, seed_target: float | None = None
+                    ) -> Calibration:
+    """Simulate and analyse ``flights`` nominal flights of ``grade``; calibrate its thresholds
+    and its seed-method episode probability (for ``seed_target``, default ``target``)."""
     if isinstance(flights, bool) or not isinstance(flights, int) or flights < MIN_FLIGHTS:
         raise EvalError(f"calibration needs at least {MIN_FLIGHTS} flights, got {flights!r}")
     if not 0.0 < target < 1.0:
         raise EvalError(f"false-isolation target must be within (0, 1), got {target!r}")
+    seed_target = target if seed_target is None else seed_target
+    if not 0.0 < seed_target < 1.0:
+        raise EvalError(f"seed-method target must be within (0, 1), got {seed_target!r}")
     plan_ = plan(grade, flights, seed, tuple(profiles), duration_s)
     start, info = time.perf_counter(), {}
     rows = run_flights(plan_, jobs, progress, on_result, scheduler, info)
-    thr = calibrate(rows, target)
+    thr, p = calibrate(rows, target), calibrate_seed(rows, seed_target)
     return Calibration(grade, target, rows, thr, bootstrap_spread(rows, target),
                        rate(exceeded(rows, thr), len(rows)), time.perf_counter() - start,
-                       tuple(profiles), str(info.get("engine", "")))
+                       tuple(profiles), str(info.get("engine", "")), p, seed_target,
+                       rate(seed_declared(rows, p), len(rows)))
 
 
-__all__ = ["Calibration", "MIN_FLIGHTS", "NominalFlight", "PROFILES", "bootstrap_spread",
-           "calibrate", "check_rates", "exceeded", "length_shift", "nominal_flight", "plan",
-           "rate", "run_calibration", "run_flights", "summary", "tail_threshold"]
+__all__ = ["Calibration", "DEFAULT_EPISODE_PROBABILITY", "MIN_FLIGHTS", "NominalFlight",
+           "PROFILES", "bootstrap_spread", "calibrate", "calibrate_seed", "check_rates",
+           "exceeded", "length_shift", "nominal_flight", "plan",
+           "rate", "run_calibration", "run_flights", "seed_declared", "seed_statistic", "summary",
+           "tail_threshold"]

@@ -14,8 +14,9 @@ from flight_fdi.bagio.ins3d_input import from_flight
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
 from flight_fdi.core.ins3d.glr3d import thresholds_for
-from flight_fdi.core.ins3d.grade_file import (CustomGrade, grade_thresholds, load_grade,
-                                              resolve_grade)
+from flight_fdi.core.diagnosis import DiagnosisConfig
+from flight_fdi.core.ins3d.grade_file import (CustomGrade, diagnosis_config_of, grade_thresholds,
+                                              load_grade, resolve_grade)
 from flight_fdi.core.ins3d.grades import GRADES, ImuGrade
 
 from .conftest import flight
@@ -111,6 +112,11 @@ def test_the_example_file_loads():
     ("name: a\nbase: mems\nthresholds: 20\n", "thresholds"),
     ("- 1\n- 2\n", "mapping"),
     ("name: [\n", "not valid YAML (line"),
+    ("name: a\nbase: mems\nseed_episode_probability: 0\n", "seed_episode_probability"),
+    ("name: a\nbase: mems\nseed_episode_probability: 1\n", "seed_episode_probability"),
+    ("name: a\nbase: mems\nseed_episode_probability: -1e-9\n", "seed_episode_probability"),
+    ("name: a\nbase: mems\nseed_episode_probability: often\n", "seed_episode_probability"),
+    ("name: a\nbase: mems\nseed_episode_probability: true\n", "seed_episode_probability"),
 ])
 def test_a_bad_file_is_refused_naming_the_key(tmp_path, text, key):
     path = _write(tmp_path, text)
@@ -156,3 +162,40 @@ def test_the_analysis_takes_a_grade_file(tmp_path):
     other = analyze_ins3d(inp.steps, inp.refs, grade=str(high), with_observability=False)
     assert other.thresholds["step"] == 99.0
     assert other.thresholds["ramp"] == pytest.approx(preset.thresholds["ramp"], rel=1e-14)
+
+
+def test_the_seed_episode_probability_loads_and_round_trips(tmp_path):
+    """``seed_episode_probability``: read (a YAML string without a dot too), carried by a
+    recording's numbers, the grade's DiagnosisConfig; absent: the default, also for presets."""
+    g = load_grade(_write(tmp_path, NAVIGATION + "seed_episode_probability: 2.5e-12\n"))
+    assert g.episode_probability == 2.5e-12
+    assert diagnosis_config_of(g) == DiagnosisConfig(episode_probability=2.5e-12)
+    assert CustomGrade.from_numbers(g.name, g.numbers()) == g
+    assert g.numbers()["episode_probability"] == 2.5e-12
+    nodot = load_grade(_write(tmp_path, NAVIGATION + "seed_episode_probability: 1e-9\n", "n.yaml"))
+    assert nodot.episode_probability == 1e-9
+    plain = load_grade(_write(tmp_path, NAVIGATION, "p.yaml"))
+    assert plain.episode_probability is None and "episode_probability" not in plain.numbers()
+    assert CustomGrade.from_numbers(plain.name, plain.numbers()).episode_probability is None
+    assert diagnosis_config_of(plain) == DiagnosisConfig() == diagnosis_config_of(GRADES["mems"])
+
+
+def test_the_analysis_uses_the_grades_seed_episode_probability(tmp_path):
+    """A file with ``seed_episode_probability`` p gives the analysis a caller gets with
+    DiagnosisConfig(episode_probability=p) (the seed method's rules, verdict and post_flight
+    section); a caller's DiagnosisConfig still wins; without the key: the default. On this
+    flight (seed 7) the seed method's strongest J episode lies between the two: declared with
+    0.3, not with the default 1e-6."""
+    inp = from_flight(flight("cruise_turns", 420.0, "navigation", "baro", 7))
+    path = _write(tmp_path, NAVIGATION + "seed_episode_probability: 0.3\n")
+    kw = {"with_observability": False}
+    by_file = analyze_ins3d(inp.steps, inp.refs, grade=str(path), **kw)
+    by_cfg = analyze_ins3d(inp.steps, inp.refs, grade=str(_write(tmp_path, NAVIGATION, "n.yaml")),
+                           diagnosis=DiagnosisConfig(episode_probability=0.3), **kw)
+    assert by_file.seed.config == by_cfg.seed.config == DiagnosisConfig(episode_probability=0.3)
+    assert by_file.seed.verdict == by_cfg.seed.verdict != "no_fault"
+    assert by_file.post_flight_dict() == by_cfg.post_flight_dict()
+    caller = analyze_ins3d(inp.steps, inp.refs, grade=str(path), diagnosis=DiagnosisConfig(), **kw)
+    assert caller.seed.config == DiagnosisConfig()
+    preset = analyze_ins3d(inp.steps, inp.refs, grade="navigation", **kw)
+    assert preset.seed.config == DiagnosisConfig() and preset.seed.verdict == "no_fault"

@@ -13,9 +13,10 @@ from flight_fdi.core.ins3d.glr3d import CALIBRATED_LENGTH_S, thresholds_for
 from flight_fdi.core.ins3d.grade_file import (KINDS, grade_from_dict, load_grade,
                                               with_thresholds)
 from flight_fdi.core.ins3d.grades import GRADES
-from flight_fdi.eval.calibrate3d import (MIN_FLIGHTS, bootstrap_spread, calibrate, check_rates,
-                                         exceeded, length_shift, nominal_flight, plan, rate,
-                                         tail_threshold)
+from flight_fdi.eval.calibrate3d import (DEFAULT_EPISODE_PROBABILITY, MIN_FLIGHTS,
+                                         bootstrap_spread, calibrate, calibrate_seed,
+                                         check_rates, exceeded, length_shift, nominal_flight,
+                                         plan, rate, seed_declared, tail_threshold)
 from flight_fdi.eval.errors import EvalError
 from flight_fdi.eval.metrics3d import binomial_interval
 
@@ -203,7 +204,8 @@ def test_writing_a_calibrated_file_again_with_its_own_record_changes_nothing():
     path = Path(__file__).resolve().parents[2] / "config/grades/example_nav_noisy.yaml"
     text = path.read_text()
     doc = yaml.safe_load(text)
-    assert with_thresholds(text, doc["thresholds"], doc["calibration"]) == text
+    assert with_thresholds(text, doc["thresholds"], doc["calibration"],
+                           doc.get("seed_episode_probability")) == text
     assert doc["calibration"]["flights"] == 200 and doc["thresholds"]["step"] > 20.0
 
 
@@ -231,3 +233,72 @@ def test_the_tools_held_out_check(tmp_path):
     assert "grade thresholds {'step': 0.1" in run.stdout
     assert f"base thresholds {thresholds_for('navigation')}" in run.stdout
     assert "false isolation" in run.stdout and "2/2 = 100.0 %" in run.stdout
+
+
+def _seed_rows(n: int, seed: int, quiet: float = 0.6, loc: float = 40.0) -> list[dict]:
+    """Flights of which a fraction ``quiet`` has no persistent J episode (x = 0), the others a
+    peak with x = loc + 2 Exp(1) (a chi^2-like tail shifted by model mismatch)."""
+    rng = np.random.default_rng(seed)
+    return [{"seed_x": 0.0 if rng.random() < quiet else float(loc + rng.exponential(2.0))}
+            for _ in range(n)]
+
+
+def test_calibrate_seed_keeps_the_declarations_within_the_target():
+    """The episode probability p the rule picks: on the calibration flights at most the target
+    declared; on 4000 fresh flights of the same law about the target (the tail rule is
+    conservative: below 1.3 x); never above the default; a quiet grade keeps the default."""
+    rows = _seed_rows(200, 1)
+    p = calibrate_seed(rows, 0.02)
+    assert p < DEFAULT_EPISODE_PROBABILITY
+    assert seed_declared(rows, DEFAULT_EPISODE_PROBABILITY) > 60       # x > 27.6: all loud ones
+    assert seed_declared(rows, p) <= 0.02 * 200
+    fresh = _seed_rows(4000, 2)
+    assert seed_declared(fresh, p) / 4000 < 1.3 * 0.02
+    assert calibrate_seed(_seed_rows(200, 3, loc=5.0), 0.02) == DEFAULT_EPISODE_PROBABILITY
+    x = -2.0 * math.log(p)                                 # declared iff x > -2 ln p
+    assert seed_declared([{"seed_x": x * 1.001}, {"seed_x": x * 0.999}], p) == 1
+    with pytest.raises(EvalError, match="seed-method target"):
+        calibrate_seed(rows, 1.0)
+
+
+def test_with_thresholds_writes_the_seed_episode_probability(tmp_path):
+    new = {"step": 21.5, "ramp": 19.25, "jump": 31.0, "outliers": 33.125}
+    meta = {**META, "seed": {"declared": 2, "default": 1e-06, "declared_default": 57}}
+    text = with_thresholds(GRADE, new, meta, 3.4567e-21)
+    assert "seed_episode_probability: 3.457e-21" in text
+    assert "2 of 200 flights declared (with the default 1e-06: 57)" in text
+    path = tmp_path / "g.yaml"
+    path.write_text(text)
+    assert load_grade(path).episode_probability == 3.457e-21
+    again = with_thresholds(text, new, meta, 1e-7)
+    assert again.count("seed_episode_probability:") == 1 and "1.000e-07" in again
+    assert "seed_episode_probability" not in with_thresholds(again, new, META)
+
+
+def test_the_seed_statistic_is_where_the_seed_method_starts_declaring():
+    """One 180-s flight of the noisy example grade with a persistent J episode: x of its row is
+    exactly the boundary -- the seed method declares with episode probability exp(-x/2) x 1.001
+    and not with exp(-x/2) x 0.999; its recorded verdict (the default 1e-6) agrees with x."""
+    from flight_fdi.bagio.ins3d_input import from_flight
+    from flight_fdi.core.diagnosis import DiagnosisConfig
+    from flight_fdi.core.ins3d.analysis import analyze_ins3d
+    from flight_fdi.core.ins3d.postflight import seed_method
+    from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
+    from flight_fdi.sim.trajectory import TrajectoryConfig
+
+    from pathlib import Path
+
+    g = load_grade(Path(__file__).resolve().parents[2] / "config/grades/example_nav_noisy.yaml")
+    f = plan(g, 1, 502, ("cruise_turns",), 180.0)[0]
+    r = nominal_flight(f)
+    assert r["seed_x"] > 1.0
+    assert (r["seed_verdict"] != "no_fault") == (seed_declared([r], 1e-6) == 1)
+    inp = from_flight(simulate3d(Sim3DConfig(TrajectoryConfig(
+        profile="cruise_turns", duration_s=180.0, rate_hz=100.0, seed=502), grade=g, seed=502)))
+    a = analyze_ins3d(inp.steps, inp.refs, grade=g, with_observability=False, **inp.vertical())
+    p = math.exp(-0.5 * r["seed_x"])
+    verdicts = [seed_method(a.model, a.backward, DiagnosisConfig(episode_probability=q)).verdict
+                for q in (1.001 * p, 0.999 * p)]
+    assert verdicts[0] != "no_fault" and verdicts[1] == "no_fault"
+    quiet = nominal_flight(plan(g, 1, 500, ("cruise_turns",), 180.0)[0])   # no episode
+    assert quiet["seed_x"] == 0.0 and quiet["seed_verdict"] == "no_fault"

@@ -20,7 +20,7 @@ from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .filter import Ins3dForward, run_forward
 from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
-from .grade_file import grade_thresholds, resolve_grade
+from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade
 from .grades import ImuGrade
 from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
@@ -130,7 +130,9 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     (default: the simulator's baro loop, its gains at the first step's latitude and height).
     ``signature_error``: the relative error of the model's fault signatures on this kind of
     flight, which a confident isolation must leave room for (``glr3d.settle``; default the
-    grade's: a grade file's ``signature_error_rad``, else its axis misalignment)."""
+    grade's: a grade file's ``signature_error_rad``, else its axis misalignment).
+    ``diagnosis``: the seed method's rules (default ``grade_file.diagnosis_config_of`` the
+    grade: a grade file's ``seed_episode_probability``, else ``DiagnosisConfig()``)."""
     if vertical == "loop" and steps.t.size:
         base = loop or VerticalLoop()
         loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))
@@ -159,7 +161,7 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:
-            _post_flight(out, diagnosis or DiagnosisConfig(), signature_error)
+            _post_flight(out, diagnosis or diagnosis_config_of(model.grade), signature_error)
         out.observability = obs.result() if obs is not None else None
     return out
 

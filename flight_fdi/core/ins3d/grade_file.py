@@ -10,7 +10,10 @@ and the GLR thresholds come from the base. Values are in engineering units, the 
 this IMU and platform; a confident isolation must leave room for it against its rival
 (``glr3d.settle``; default the grade's axis misalignment, which leaves the gap rule as it is).
 Measured on the real MEMS recordings: 0.06-0.25, and 0.33 keeps confident wrong answers rare
-there (docs/ins3d_real.md).
+there (docs/ins3d_real.md). ``seed_episode_probability`` (optional, in (0, 1)): the seed method's
+``DiagnosisConfig.episode_probability`` for this grade -- the upper-tail probability a persistent
+J episode's peak must fall below to be declared (default 1e-6, the presets'); ``flight-fdi
+calibrate`` sets it so that the grade's nominal flights are rarely declared (``diagnosis_config_of``).
 
 Example (config/grades/example_mems_custom.yaml)::
 
@@ -28,6 +31,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from ..diagnosis import DiagnosisConfig
 from ..errors import CoreError
 from .glr3d import length_growth, thresholds_for
 from .grades import DEG_H, DEG_RTH, GRADES, MPS_RTH, UG, ImuGrade
@@ -54,7 +58,8 @@ KEYS = {
 POSITIVE = ("gyro_tau_s", "accel_tau_s")
 KINDS = ("step", "ramp", "jump", "outliers")
 #: the keys of a grade file besides KEYS
-_OTHER_KEYS = ("name", "base", "thresholds", "calibration", "signature_error_rad")
+_OTHER_KEYS = ("name", "base", "thresholds", "calibration", "signature_error_rad",
+               "seed_episode_probability")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -65,6 +70,7 @@ class CustomGrade(ImuGrade):
 
     thresholds: tuple[tuple[str, float], ...] = ()
     signature_error: float | None = None    # rad; None: the grade's axis misalignment
+    episode_probability: float | None = None  # the seed method's; None: DiagnosisConfig's
 
     def to_dict(self) -> dict:
         """The fields (SI), the thresholds as a mapping kind -> value."""
@@ -77,6 +83,8 @@ class CustomGrade(ImuGrade):
         out.update({f"threshold_{k}": float(v) for k, v in self.thresholds})
         if self.signature_error is not None:
             out["signature_error"] = float(self.signature_error)
+        if self.episode_probability is not None:
+            out["episode_probability"] = float(self.episode_probability)
         return out
 
     @classmethod
@@ -86,9 +94,9 @@ class CustomGrade(ImuGrade):
             thr = tuple((k, float(values[f"threshold_{k}"])) for k in KINDS)
         except KeyError as exc:
             raise CoreError(f"IMU grade {name!r}: value {exc.args[0]!r} missing") from None
-        eps = values.get("signature_error")
+        eps, p = values.get("signature_error"), values.get("episode_probability")
         return cls(name, thresholds=thr, signature_error=None if eps is None else float(eps),
-                   **kw)
+                   episode_probability=None if p is None else float(p), **kw)
 
 
 def _number(path: str, key: str, value: Any, positive: bool = False) -> float:
@@ -127,7 +135,9 @@ def grade_from_dict(doc: Any, path: str = "<dict>") -> CustomGrade:
     thr = _thresholds(path, base, doc.get("thresholds", {}))
     preset = {f.name: getattr(GRADES[base], f.name) for f in fields(ImuGrade)}
     return CustomGrade(**{**preset, **si, "name": name}, thresholds=thr,
-                       signature_error=_signature_error(path, doc.get("signature_error_rad")))
+                       signature_error=_signature_error(path, doc.get("signature_error_rad")),
+                       episode_probability=_episode_probability(
+                           path, doc.get("seed_episode_probability")))
 
 
 def _signature_error(path: str, value: Any) -> float | None:
@@ -138,6 +148,23 @@ def _signature_error(path: str, value: Any) -> float | None:
         raise CoreError(f"grade file {path}: signature_error_rad must be an angle below pi/2 "
                         f"(1.5708), got {value!r}")
     return v
+
+
+def _episode_probability(path: str, value: Any) -> float | None:
+    if value is None:
+        return None
+    v = _number(path, "seed_episode_probability", value)
+    if not 0.0 < v < 1.0:
+        raise CoreError(f"grade file {path}: seed_episode_probability must be a probability "
+                        f"within (0, 1), got {value!r}")
+    return v
+
+
+def diagnosis_config_of(grade: ImuGrade) -> DiagnosisConfig:
+    """The seed method's rules for a grade: ``DiagnosisConfig()`` with a grade file's
+    ``seed_episode_probability`` as its ``episode_probability`` (a preset: the default)."""
+    p = getattr(grade, "episode_probability", None)
+    return DiagnosisConfig() if p is None else DiagnosisConfig(episode_probability=float(p))
 
 
 def signature_error_of(grade: ImuGrade) -> float:
@@ -216,15 +243,18 @@ def at_length(thresholds: dict[str, float], duration_s: float | None) -> dict[st
 CALIBRATED_MARK = "# GLR thresholds calibrated by `flight-fdi calibrate`"
 
 
-def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict) -> str:
+def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict,
+                    episode_probability: float | None = None) -> str:
     """A grade file's ``text`` with its ``thresholds`` (and an earlier calibration: its comment
     and ``calibration`` record) replaced by these, under a comment saying how they were made
     (``calibration``: flights, seeds, duration_s, profiles, target, exceeded, rate, interval95,
-    date -- ``eval.calibrate3d.Calibration.metadata``). The rest of the file, comments
+    date, and ``seed`` for the seed method -- ``eval.calibrate3d.Calibration.metadata``) and,
+    when given, the seed method's ``seed_episode_probability``. The rest of the file, comments
     included, is kept."""
     import json
 
-    ours = ("thresholds:", "calibration:", CALIBRATED_MARK, "# calibration ")
+    ours = ("thresholds:", "calibration:", "seed_episode_probability:", CALIBRATED_MARK,
+            "# calibration ")
     kept, skip = [], False
     for line in text.splitlines():
         if line[:1] not in (" ", "\t", ""):     # a top-level line: a key or a comment
@@ -242,10 +272,18 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict) 
             f"# calibration result: {c['exceeded']} of {c['flights']} flights above a threshold "
             f"({100 * c['rate']:.1f} %, 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)"]
     thr = "{" + ", ".join(f"{k}: {float(thresholds[k]):.2f}" for k in KINDS) + "}"
-    return "\n".join(kept + note + [f"thresholds: {thr}",
-                                     f"calibration: {json.dumps(c)}"]) + "\n"
+    seed = []
+    if episode_probability is not None:
+        sd = c.get("seed", {})
+        note.append(f"# calibration seed method: episode probability {episode_probability:.3g}"
+                    + (f", {sd['declared']} of {c['flights']} flights declared (with the "
+                       f"default {sd['default']:g}: {sd['declared_default']})" if sd else ""))
+        seed = [f"seed_episode_probability: {episode_probability:.3e}"]
+    return "\n".join(kept + note + [f"thresholds: {thr}"] + seed
+                     + [f"calibration: {json.dumps(c)}"]) + "\n"
 
 
-__all__ = ["CALIBRATED_MARK", "CustomGrade", "KEYS", "KINDS", "at_length", "grade_from_dict",
+__all__ = ["CALIBRATED_MARK", "CustomGrade", "KEYS", "KINDS", "at_length", "diagnosis_config_of",
+           "grade_from_dict",
            "grade_thresholds", "is_grade_file", "load_grade", "resolve_grade",
            "signature_error_of", "with_thresholds"]
