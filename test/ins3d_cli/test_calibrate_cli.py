@@ -11,7 +11,7 @@ import yaml
 
 from flight_fdi.cli.main import main
 from flight_fdi.core.ins3d.grade_file import KINDS, load_grade
-from flight_fdi.eval.calibrate3d import calibrate, exceeded
+from flight_fdi.eval.calibrate3d import calibrate, calibrate_seed, exceeded, seed_declared
 
 GRADE = """\
 # a navigation unit with noisier gyros (kept by the calibration)
@@ -30,7 +30,7 @@ def calibrated(tmp_path_factory):
     out = d / "noisy_cal.yaml"
     argv = ["calibrate", "--model", "ins3d", "--grade", str(src), "--flights", "20",
             "--seed", "300", "--duration", "60", "--false-isolation", "0.1", "--profile",
-            "cruise_turns,random", "--jobs", "1", "--no-progress", "--json", "-o", str(out)]
+            "cruise_turns,random", "--seed-declaration", "0.05", "--jobs", "1", "--no-progress", "--json", "-o", str(out)]
     return src, out, argv
 
 
@@ -52,6 +52,12 @@ def test_calibrate_writes_the_thresholds_of_the_rule(calibrated, capsys):
     assert set(rec["spread"]) == set(KINDS) and rec["date"].startswith("20")
     assert out.read_text().startswith("# a navigation unit with noisier gyros")
     assert "thresholds: {step: 99}" not in out.read_text()
+    p = calibrate_seed(rows, 0.05)               # the seed method's, for its own target
+    assert g.episode_probability == pytest.approx(p, rel=1e-3) == doc["seed_episode_probability"]
+    # (YAML 1.1 reads the record's JSON 1e-06 -- no dot -- as a string; float() takes both)
+    assert rec["seed"]["target"] == 0.05 and float(rec["seed"]["episode_probability"]) == p
+    assert rec["seed"]["declared"] == seed_declared(rows, p)
+    assert rec["seed"]["declared_default"] == seed_declared(rows, 1e-6)
 
 
 def test_the_same_seed_calibrates_the_same_and_in_place(calibrated, capsys, tmp_path):
@@ -70,6 +76,7 @@ def test_the_same_seed_calibrates_the_same_and_in_place(calibrated, capsys, tmp_
     (["--flights", "5"], "--flights must be at least 20, got 5"),
     (["--profile", "loop"], "--profile 'loop': unknown profile"),
     (["--false-isolation", "1.5"], "--false-isolation must be within (0, 1)"),
+    (["--seed-declaration", "0"], "--seed-declaration must be within (0, 1)"),
     (["--model", "channel"], "only ins3d"),
     (["--grade", "tactical"], "'tactical' is a preset"),
     (["-o", "/no/such/dir/x.yaml"], "-o: cannot write"),
