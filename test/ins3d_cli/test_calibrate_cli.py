@@ -54,8 +54,8 @@ def test_calibrate_writes_the_thresholds_of_the_rule(calibrated, capsys):
     assert "thresholds: {step: 99}" not in out.read_text()
     p = calibrate_seed(rows, 0.05)               # the seed method's, for its own target
     assert g.episode_probability == pytest.approx(p, rel=1e-3) == doc["seed_episode_probability"]
-    # (YAML 1.1 reads the record's JSON 1e-06 -- no dot -- as a string; float() takes both)
-    assert rec["seed"]["target"] == 0.05 and float(rec["seed"]["episode_probability"]) == p
+    assert rec["seed"]["target"] == 0.05 and rec["seed"]["episode_probability"] == p
+    assert rec["seed"]["default"] == 1e-6          # a number for YAML too (written 1.0e-06)
     assert rec["seed"]["declared"] == seed_declared(rows, p)
     assert rec["seed"]["declared_default"] == seed_declared(rows, 1e-6)
 

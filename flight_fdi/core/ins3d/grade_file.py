@@ -251,8 +251,6 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict,
     date, and ``seed`` for the seed method -- ``eval.calibrate3d.Calibration.metadata``) and,
     when given, the seed method's ``seed_episode_probability``. The rest of the file, comments
     included, is kept."""
-    import json
-
     ours = ("thresholds:", "calibration:", "seed_episode_probability:", CALIBRATED_MARK,
             "# calibration ")
     kept, skip = [], False
@@ -275,12 +273,22 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict,
     seed = []
     if episode_probability is not None:
         sd = c.get("seed", {})
-        note.append(f"# calibration seed method: episode probability {episode_probability:.3g}"
+        p = float(episode_probability)
+        note.append(f"# calibration seed method: episode probability {p:.3g}"
                     + (f", {sd['declared']} of {c['flights']} flights declared (with the "
-                       f"default {sd['default']:g}: {sd['declared_default']})" if sd else ""))
-        seed = [f"seed_episode_probability: {episode_probability:.3e}"]
+                       f"default {sd['default']:g}: {sd['declared_default']})"
+                       if sd else ""))
+        seed = [f"seed_episode_probability: {p:.3e}"]
     return "\n".join(kept + note + [f"thresholds: {thr}"] + seed
-                     + [f"calibration: {json.dumps(c)}"]) + "\n"
+                     + [f"calibration: {_yaml_json(c)}"]) + "\n"
+
+
+def _yaml_json(record: dict) -> str:
+    """``record`` as JSON whose numbers YAML 1.1 also reads as numbers (1e-06 -> 1.0e-06: PyYAML
+    takes an exponent without a dot for a string)."""
+    import json
+
+    return re.sub(r"(?<=[\s\[:,])(-?\d+)e([-+]\d+)", r"\1.0e\2", json.dumps(record))
 
 
 __all__ = ["CALIBRATED_MARK", "CustomGrade", "KEYS", "KINDS", "at_length", "diagnosis_config_of",
