@@ -199,3 +199,15 @@ def test_the_analysis_uses_the_grades_seed_episode_probability(tmp_path):
     assert caller.seed.config == DiagnosisConfig()
     preset = analyze_ins3d(inp.steps, inp.refs, grade="navigation", **kw)
     assert preset.seed.config == DiagnosisConfig() and preset.seed.verdict == "no_fault"
+
+
+def test_a_recording_carries_the_seed_episode_probability(tmp_path):
+    """filter_node's ModelInfo parameters of a grade file (``grade_params``) give the smoother
+    (``recorded_grade``) the same grade, its seed_episode_probability included."""
+    from flight_fdi.nodes.ins3d_recording import grade_params, recorded_grade
+
+    g = load_grade(REPO / "config/grades/example_nav_noisy.yaml")
+    assert g.episode_probability == 1.51e-23
+    names, values = grade_params(g)
+    back = recorded_grade(f"ins3d/{g.name}", dict(zip(names, values)))
+    assert back == g and diagnosis_config_of(back).episode_probability == 1.51e-23
