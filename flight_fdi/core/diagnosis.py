@@ -21,7 +21,8 @@ from .smoother import BackwardResult
 from .special import chi2_isf
 
 __all__ = ["VERDICTS", "DiagnosisConfig", "ElementReport", "Localization", "SeedDiagnosis",
-           "diagnose", "fisher", "fisher_threshold", "ldl", "localize", "udu"]
+           "diagnose", "fisher", "fisher_threshold", "ldl", "localize", "strongest_episode", "udu",
+           "violation_mask"]
 
 VERDICTS = ("no_fault", "glitch", "failure", "ambiguous", "insufficient_data")
 
@@ -207,7 +208,14 @@ def _localization(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
     return loc, loc.v_tilde * sm.s, loc.d * sm.SS.diagonal()
 
 
-def _strongest_episode(t: np.ndarray, J: np.ndarray, viol_k: np.ndarray, full: int,
+def violation_mask(element_dof: np.ndarray, terms: np.ndarray, gammas: np.ndarray,
+                   valid: np.ndarray) -> np.ndarray:
+    """(N, n) the seed bound's violations: element k's term above its gamma at a valid step."""
+    with np.errstate(invalid="ignore"):
+        return (element_dof > 0) & (terms > gammas) & valid[:, None]
+
+
+def strongest_episode(t: np.ndarray, J: np.ndarray, viol_k: np.ndarray, full: int,
                        config: DiagnosisConfig) -> tuple[int, int, int] | None:
     """(start, end, peak) of the J episode with the largest peak among those lasting
     ``persistence_s`` whose peak exceeds the chi2(full) quantile; None when there is none."""
@@ -286,8 +294,8 @@ def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
 
     full = int(dof.max()) if N else 0
     valid = (dof == full) & (full > 0)
+    viol_k = violation_mask(edof, terms, gammas, valid)
     with np.errstate(invalid="ignore"):
-        viol_k = (edof > 0) & (terms > gammas) & valid[:, None]
         F_viol = (F > eta2) & valid[:, None]
     n_valid = int(valid.sum())
 
@@ -304,7 +312,7 @@ def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
 
     if n_valid < config.min_valid_steps:
         return result("insufficient_data")
-    episode_idx = _strongest_episode(t, J, viol_k, full, config)
+    episode_idx = strongest_episode(t, J, viol_k, full, config)
     if episode_idx is None:
         return result("no_fault")
     s0, e0, peak = episode_idx

@@ -126,16 +126,15 @@ def seed_statistic(seed: SeedDiagnosis) -> float:
     """x = -2 ln P(chi^2(dof) > J) of the peak of the flight's strongest persistent J episode
     (``diagnosis.diagnose``'s episodes whatever their peak; 0 without one): the seed method
     declares the flight iff x > -2 ln ``episode_probability`` (module docstring)."""
-    from flight_fdi.core.diagnosis import _strongest_episode
+    from flight_fdi.core.diagnosis import strongest_episode, violation_mask
     from flight_fdi.core.special import chi2_sf
 
     full = int(seed.dof.max()) if seed.dof.size else 0
     if int(seed.valid.sum()) < seed.config.min_valid_steps or full < 1:
         return 0.0                      # insufficient data: no episode probability decides
-    with np.errstate(invalid="ignore"):
-        viol_k = (seed.element_dof > 0) & (seed.terms > seed.gammas) & seed.valid[:, None]
+    viol_k = violation_mask(seed.element_dof, seed.terms, seed.gammas, seed.valid)
     every = replace(seed.config, episode_probability=1.0 - 1e-15)   # every persistent one
-    ep = _strongest_episode(seed.t, seed.J, viol_k, full, every)
+    ep = strongest_episode(seed.t, seed.J, viol_k, full, every)
     if ep is None:
         return 0.0
     return float(-2.0 * math.log(max(chi2_sf(float(seed.J[ep[2]]), full), _TINY)))
