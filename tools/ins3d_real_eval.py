@@ -14,12 +14,13 @@ then bias steps injected into the unit's samples (accelerometer 0.1/0.3/1.0 m/s^
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import subprocess
 import sys
 import time
 from collections import Counter
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +80,8 @@ def bias_table(cal: R.Calibration) -> list[str]:
     return rows
 
 
-def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], dict]:
+def nominal(data: Path, cal, names, units, st: R.Settings, dump=None
+            ) -> tuple[list[str], dict]:
     per_day: dict[str, list[dict]] = {}
     detail, outcome = [], {}
     for name in names:
@@ -88,6 +90,9 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
             bg, ba = cal.for_recording(name, u)
             out = R.record(R.analyze(R.read_recording(data, name, u), bg, ba, st))
             out["outcome"] = outcome[(name, u)] = R.judge(out, None)
+            if dump is not None:
+                dump.write(json.dumps({"name": name, "unit": u, "fault": None,
+                                       "outcome": out["outcome"], "record": out}) + "\n")
             outs.append(out)
             per_day.setdefault(R.day_of(name), []).append(out)
         named = Counter(f"{o['verdict']}" + (f" {o['sensor']} {o['axis']}" if o["sensor"] else "")
@@ -122,8 +127,8 @@ def nominal(data: Path, cal, names, units, st: R.Settings) -> tuple[list[str], d
                    f"calibrated): {thr}.", ""] + head + detail, outcome
 
 
-def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_outcome: dict
-           ) -> list[str]:
+def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_outcome: dict,
+           dump=None) -> list[str]:
     rows = ["| fault | size | runs | right sensor+axis | confident wrong | of which the nominal "
             "run was clean | ambiguous | of which the right one is a candidate | none | "
             "median onset error (s) | median magnitude error | "
@@ -138,6 +143,9 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                 for name, unit, f, out, o in R.fault_runs(data, cal, names, units, sensor, axis,
                                                           _si(sensor, size), seed, st):
                     c[o] += 1
+                    if dump is not None:
+                        dump.write(json.dumps({"name": name, "unit": unit, "fault": asdict(f),
+                                               "outcome": o, "record": out}) + "\n")
                     held = R.day_of(name) == HELD_OUT
                     c["held_" + o] += held
                     totals[("held" if held else "fit", o)] += 1
@@ -207,6 +215,9 @@ def main(argv=None) -> int:
                    help="which SETTINGS (letters a-f, default all)")
     p.add_argument("--no-faults", action="store_true")
     p.add_argument("--out", type=Path)
+    p.add_argument("--records", type=Path,
+                   help="also write every run's record (JSON lines: recording, unit, fault, "
+                        "outcome, record) to this file")
     args = p.parse_args(argv)
     if not args.data.is_dir():
         print(f"ins3d_real_eval: no data directory {args.data}", file=sys.stderr)
@@ -238,6 +249,7 @@ def main(argv=None) -> int:
              f"{args.seed}, commit {commit}, {platform.node()}, load {' '.join(load)} at start.",
              "", "### Units (the calibration removed before mechanization)", ""]
     lines += bias_table(cal)
+    dump = args.records.open("w", encoding="utf-8") if args.records else None
     for key in args.settings:
         label, opts, with_faults = SETTINGS[key]
         st = R.Settings(**opts)
@@ -250,11 +262,13 @@ def main(argv=None) -> int:
                   f"allowance (signature error) "
                   + (f"{st.signature_error:g} rad" if st.signature_error is not None else
                      "none (the grade's misalignment)") + ".", "", "#### Nominal", ""]
-        rows, outcome = nominal(args.data, cal, names, units, st)
+        rows, outcome = nominal(args.data, cal, names, units, st, dump)
         lines += rows
         if with_faults and not args.no_faults:
             lines += ["", "#### Injected bias steps", ""]
-            lines += faults(args.data, cal, names, units, st, args.seed, outcome)
+            lines += faults(args.data, cal, names, units, st, args.seed, outcome, dump)
+    if dump is not None:
+        dump.close()
     lines += ["", f"Wall time {time.time() - t0:.0f} s."]
     text = "\n".join(lines) + "\n"
     if args.out:

@@ -380,7 +380,6 @@ def record(analysis, t0: float = 0.0) -> dict:
     magnitude), the largest GLR statistic per kind, the thresholds, beta^2 per row, latency."""
     pf = analysis.post_flight_dict(t0=t0)
     summ = analysis.summary()
-    stats = pf["glr"]["statistics"]
     f = pf.get("fault")
     out = {"verdict": pf["verdict"], "isolation": pf.get("isolation"),
            "sensor": f and f["sensor"], "axis": f and f["axis"], "kind": f and f["kind"],
@@ -393,16 +392,19 @@ def record(analysis, t0: float = 0.0) -> dict:
            "beta2": summ["beta2_mean"], "beta2_rows": summ["beta2_row_mean"],
            "latency_s": summ["final_state"].get("latency")}
     iso = analysis.isolation
-    cv = analysis.glr
+    cv = analysis.decision_glr
     out.update({"best": iso.best, "rival": iso.rival, "reason": iso.reason,
                 "best_statistic": cv[iso.best].statistic if iso.best else None,
                 "rival_statistic": cv[iso.rival].statistic if iso.rival else None,
-                "pair": iso.pair, "similarity": iso.similarity})
-    for kind in ("step", "ramp", "jump", "outliers"):
-        vals = {k: v for k, v in stats.items() if k.endswith("_" + kind)}
-        top = max(vals, key=vals.get)
-        out[f"max_{kind}"] = float(vals[top])
-        out[f"max_{kind}_hyp"] = top
+                "pair": iso.pair, "similarity": iso.similarity,
+                "turn_on": [{k: t[k] for k in ("sensor", "axis", "magnitude", "magnitude_std",
+                                                "prior_sigmas", "statistic")}
+                            for t in pf["turn_on_bias"]]})
+    for kind in ("step", "ramp", "jump", "outliers"):     # unconditional (not given turn-on)
+        top = max((c for c in analysis.glr.values() if c.hypothesis.kind == kind),
+                  key=lambda c: c.statistic)
+        out[f"max_{kind}"] = float(top.statistic)
+        out[f"max_{kind}_hyp"] = top.hypothesis.name
     return out
 
 

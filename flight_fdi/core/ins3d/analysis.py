@@ -26,6 +26,7 @@ from .model import IBA, IBG, Ins3dModel
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
 from .result3d import post_flight
+from .turn_on import TurnOn, decide
 from .vertical import VerticalLoop
 
 
@@ -43,6 +44,14 @@ class Ins3dAnalysis:
     isolation: Isolation | None = None
     joint: dict[str, np.ndarray] = field(default_factory=dict)   # 3-dof GLR over the onsets
     thresholds: dict[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
+    #: turn-on biases (a step best at the first update) and the in-flight decision given them
+    #: (``turn_on.decide``; None: none, the decision is the unconditional one)
+    turn_on: TurnOn | None = None
+
+    @property
+    def decision_glr(self) -> dict[str, GlrCurve]:
+        """The GLR curves ``isolation`` was decided on: ``glr``, or given the turn-on biases."""
+        return self.glr if self.turn_on is None else self.turn_on.curves
 
     def summary(self) -> dict:
         """Plain numbers for reports and JSON."""
@@ -67,7 +76,10 @@ class Ins3dAnalysis:
         """The ``post_flight`` section (times relative to ``t0``)."""
         if self.seed is None or self.isolation is None:
             raise CoreError("analyze_ins3d ran without the post-flight part (post=False)")
-        out = post_flight(self.glr, self.isolation, self.seed, self.thresholds, t0)
+        turn_on = None if self.turn_on is None else \
+            self.turn_on.records(self.glr, self.thresholds, t0)
+        out = post_flight(self.decision_glr, self.isolation, self.seed, self.thresholds, t0,
+                          turn_on)
         out["glr"]["joint"] = {k: float(v.max(initial=0.0)) for k, v in self.joint.items()}
         return out
 
@@ -95,7 +107,7 @@ class Ins3dAnalysis:
                "gyro_fault": np.zeros((b.t.size, 3))}
         iso = self.isolation
         if iso is not None and iso.isolation == "single":
-            c = self.glr[iso.best]
+            c = self.decision_glr[iso.best]
             h = c.hypothesis
             if h.sensor in ("accelerometer", "gyro"):
                 t0, m = float(c.t[c.best]), float(c.mag[c.best])
@@ -174,7 +186,12 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
     out.glr = glr_curves(model, steps, out.backward)
     out.joint = out.backward.joint
     out.isolation = isolate(out.glr, out.thresholds)
-    resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
+    out.turn_on = decide(model, steps, refs, fwd, out.backward, out.glr, out.isolation,
+                         out.thresholds, signature_error)
+    if out.turn_on is not None:
+        out.isolation = out.turn_on.isolation
+    else:
+        resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
 
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d"]

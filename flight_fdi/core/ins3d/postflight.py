@@ -100,19 +100,8 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
         raise CoreError("ins3d backward: the forward pass must keep its priors (keep_prior)")
     fwd = fused_forward(model, steps, refs, fwd)
     n, rows, m = model.n, model.rows, refs.t.size
-    args = kernel_args(model, steps, refs)
-    sB = args[10]
-    out = (*(np.empty((m, n)) for _ in range(3)), np.empty((m, n), dtype=np.int64),
-           *(np.empty((m, n)) for _ in range(3)), np.empty((m, rows)), np.empty((m, rows, rows)))
-    eta, I3 = np.empty((m, sB.size)), np.zeros((m, 3, 6, 6))
-    z, r, a = np.ascontiguousarray(refs.z), white_variance(model, refs.r), \
-        np.ascontiguousarray(refs.a)
-    im = model.im if model.n_markov else 0
-    sweep = (*args[:8], *args[9:], z, r, a, model.il, im, rows, fwd.xs_prior, fwd.Ps_prior,
-             fwd.Ks, fwd.S_inv, fwd.nu, rank_tol, out, eta, I3,
-             (np.zeros(n), np.zeros((n, n)), np.zeros(sB.size), np.zeros((n, sB.size)),
-              np.zeros((sB.size, sB.size))))
-    combine = (args[9], a, model.il, im, rows, z, r, fwd.xs_prior, fwd.Ps_prior, rank_tol, out)
+    sweep, combine, out, eta, I3 = _sweep_args(model, steps, refs, fwd, rank_tol, fwd.nu)
+    sB = sweep[9]
     first = np.flatnonzero(np.r_[True, refs.step[1:] != refs.step[:-1]]) if m else \
         np.zeros(0, dtype=np.int64)
     if threads is None:
@@ -136,6 +125,44 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
         raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
                         f"t = {steps.t[bad]:.3f} s")
     return Ins3dBackward(refs.t, *out[:7], eta, I3, *out[7:], sB, first, stats)
+
+
+def _sweep_args(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+                rank_tol: float, nu: np.ndarray) -> tuple:
+    """The backward sweep's arguments (``backward_sweep``: up to ``state``) on the innovations
+    ``nu`` (M, rows), the combination's (``combine_kept``) and the output buffers (the
+    combination's ``out``, eta, I3)."""
+    n, rows, m = model.n, model.rows, refs.t.size
+    args = kernel_args(model, steps, refs)
+    sB = args[10]
+    out = (*(np.empty((m, n)) for _ in range(3)), np.empty((m, n), dtype=np.int64),
+           *(np.empty((m, n)) for _ in range(3)), np.empty((m, rows)), np.empty((m, rows, rows)))
+    eta, I3 = np.empty((m, sB.size)), np.zeros((m, 3, 6, 6))
+    z, r, a = np.ascontiguousarray(refs.z), white_variance(model, refs.r), \
+        np.ascontiguousarray(refs.a)
+    im = model.im if model.n_markov else 0
+    sweep = (*args[:8], *args[9:], z, r, a, model.il, im, rows, fwd.xs_prior, fwd.Ps_prior,
+             fwd.Ks, fwd.S_inv, np.ascontiguousarray(nu), rank_tol, out, eta, I3,
+             (np.zeros(n), np.zeros((n, n)), np.zeros(sB.size), np.zeros((n, sB.size)),
+              np.zeros((sB.size, sB.size))))
+    combine = (args[9], a, model.il, im, rows, z, r, fwd.xs_prior, fwd.Ps_prior, rank_tol, out)
+    return sweep, combine, out, eta, I3
+
+
+def fault_information(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+                      nu: np.ndarray) -> np.ndarray:
+    """The backward sweep's fault information vector eta (M, pB) with the innovations replaced
+    by ``nu`` (M, rows): eta is linear in the innovations, so with ``nu`` = the signature rho_g
+    of another fault g (``signature``) tau' eta at an onset is the cross information
+    sum_j rho_h' S^-1 rho_g of hypothesis h (direction tau, that onset) with g -- for every
+    onset and hypothesis in one sweep (``fwd``: the pass the curves judged, ``fused_forward``;
+    the fault blocks only)."""
+    sweep, _, _, eta, _ = _sweep_args(model, steps, refs, fwd, 0.0, nu)
+    bad = backward_sweep(*sweep, len(steps), refs.t.size, 2, *_kept(0, model.n))[3]
+    if bad >= 0:
+        raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
+                        f"t = {steps.t[bad]:.3f} s")
+    return eta
 
 
 def _kept(size: int, n: int) -> tuple:
@@ -184,11 +211,15 @@ def seed_method(model: Ins3dModel, bwd: Ins3dBackward, config: DiagnosisConfig
                                                           localization=loc), config)
 
 
-def glr_curves(model: Ins3dModel, steps: NavSteps, bwd: Ins3dBackward) -> dict[str, GlrCurve]:
+def glr_curves(model: Ins3dModel, steps: NavSteps, bwd: Ins3dBackward,
+               eta: np.ndarray | None = None, I3: np.ndarray | None = None
+               ) -> dict[str, GlrCurve]:
+    """The GLR curves of every hypothesis over the onsets; ``eta``, ``I3`` (at the onsets):
+    other information than the sweep's (``turn_on``: conditional on faults taken as present)."""
     at = bwd.at_onsets
     return curves(hypotheses(model.rows), at(bwd.t), float(steps.t[0]),
-                  float(steps.t[-1] - steps.t[0]), at(bwd.eta), at(bwd.I3), bwd.sB, bwd.t,
-                  bwd.oe, bwd.oI)
+                  float(steps.t[-1] - steps.t[0]), at(bwd.eta) if eta is None else eta,
+                  at(bwd.I3) if I3 is None else I3, bwd.sB, bwd.t, bwd.oe, bwd.oI)
 
 
 def direction(model: Ins3dModel, cv: GlrCurve, t_start: float, duration: float) -> np.ndarray:
@@ -228,12 +259,15 @@ def data_up_to(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForw
 
 
 def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
-            cv: dict[str, GlrCurve], iso: Isolation, signature_error: float | None = None
-            ) -> None:
+            cv: dict[str, GlrCurve], iso: Isolation, signature_error: float | None = None,
+            given=None) -> None:
     """For an IMU/jump isolation with a rival: the two fitted together (their signatures
     through the forward filter; ``glr3d.settle`` with the model's relative
     ``signature_error``, default the grade's: ``grade_file.signature_error_of``, may make a
-    single one ``ambiguous``), then ``iso.gap`` and, for a single one, ``iso.ambiguity_resolved_s``."""
+    single one ``ambiguous``), then ``iso.gap`` and, for a single one, ``iso.ambiguity_resolved_s``.
+    ``given`` (``turn_on.Given``): the pair fitted together with faults taken as present (the
+    turn-on biases; ``cv`` then holds the curves conditional on them), the same test on the
+    statistics with those faults profiled out, at every update (the gap)."""
     if iso.isolation == "none" or iso.rival is None or cv[iso.best].hypothesis.kind == \
             "outliers":
         return
@@ -244,13 +278,22 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
         rival = pool.submit(signature, model, steps, refs, fwd, cv[iso.rival])
         e_b, d_b, rho_b = signature(model, steps, refs, fwd, cv[iso.best])
         e_r, d_r, rho_r = rival.result()
-    x = float(np.einsum("mi,mij,mj->", rho_b, fwd.S_inv, rho_r))
-    settle(iso, np.array([e_b[-1], e_r[-1]]), np.array([[d_b[-1], x], [x, d_r[-1]]]),
-           signature_error, AMBIGUITY_MARGIN)
-    iso.gap = _glr(e_b, d_b) - _glr(e_r, d_r)
+    if given is None:
+        x = float(np.einsum("mi,mij,mj->", rho_b, fwd.S_inv, rho_r))
+        e, D = np.array([e_b[-1], e_r[-1]]), np.array([[d_b[-1], x], [x, d_r[-1]]])
+        gap = _glr(e_b, d_b) - _glr(e_r, d_r)
+    else:
+        x = np.cumsum(np.einsum("mi,mij,mj->m", rho_b, fwd.S_inv, rho_r))
+        es, Ds = given.condition(np.stack([e_b, e_r], axis=1),
+                                 np.stack([np.stack([d_b, x], 1), np.stack([x, d_r], 1)], 1),
+                                 np.stack([rho_b, rho_r]))
+        e, D = es[-1], Ds[-1]
+        gap = _glr(es[:, 0], Ds[:, 0, 0]) - _glr(es[:, 1], Ds[:, 1, 1])
+    settle(iso, e, D, signature_error, AMBIGUITY_MARGIN)
+    iso.gap = gap
     if iso.isolation == "single":
         iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
 
 
-__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_scales", "fused_forward",
-           "glr_curves", "kernel_args", "resolve", "run_backward", "seed_method", "signature"]
+__all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_information", "fault_scales",
+           "fused_forward", "glr_curves", "kernel_args", "resolve", "run_backward", "seed_method", "signature"]

@@ -5,12 +5,19 @@ and headline), plus ``ambiguity_resolved_s``.
 Verdict: a single step / ramp / jump -> ``failure`` with ``fault``; outliers only -> ``glitch``;
 ambiguous -> ``ambiguous`` with both ``candidates`` and ``fault`` null; no GLR detection -> the
 seed method's verdict (as the single-axis analysis), no sensor named.
+
+Turn-on biases (``turn_on``: a bias step best at the flight's first update, not an in-flight
+event) are the added ``turn_on_bias`` list and part of the headline; the verdict, ``fault`` and
+``glr`` are then the in-flight decision given them (``glr.given_turn_on``). A turn-on bias alone
+keeps the seed method's verdict (normally ``no_fault``: "no in-flight fault; accelerometer y
+turn-on bias of ...").
 """
 from __future__ import annotations
 
 from ..diagnosis import SeedDiagnosis
 from ..result import ENGINEERING, _num, describe
 from .glr3d import GlrCurve, Isolation
+from .turn_on import describe_turn_on
 
 
 def _rel(x: float | None, t0: float) -> float | None:
@@ -176,9 +183,16 @@ def _disagreement(seed: SeedDiagnosis, glr_element: str | None, top: GlrCurve,
 
 
 def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
-                thresholds: dict[str, float], t0: float = 0.0) -> dict:
-    """The ``post_flight`` dict (times relative to ``t0``)."""
+                thresholds: dict[str, float], t0: float = 0.0,
+                turn_on: list[dict] | None = None) -> dict:
+    """The ``post_flight`` dict (times relative to ``t0``); ``turn_on``: the turn-on biases
+    (``turn_on.TurnOn.records``; ``cv`` and ``iso`` then the decision given them), added as
+    ``turn_on_bias`` and to the headline (no in-flight fault: "no in-flight fault; ...")."""
     dec = _decision(cv, iso, seed, thresholds, t0)
+    if turn_on:
+        told = "; ".join(describe_turn_on(r) for r in turn_on)
+        dec["headline"] = (f"no in-flight fault; {told}" if dec["verdict"] == "no_fault" else
+                           f"{dec['headline']}; {told}")
     top = cv[_top(cv, iso)]
     glr_elem = top.hypothesis.element if iso.isolation == "single" else None
     interval = onset_interval(top, cv)
@@ -190,6 +204,7 @@ def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
         "methods_agree": bool(seed.element == glr_elem),
         "disagreement": _disagreement(seed, glr_elem, top, thresholds[top.hypothesis.kind]),
         "ambiguity_resolved_s": _rel(iso.ambiguity_resolved_s, t0),
+        "turn_on_bias": list(turn_on or []),
         "seed_method": {
             "verdict": seed.verdict, "element": seed.element,
             "onset_s": _rel(seed.onset_t, t0),
@@ -212,6 +227,7 @@ def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
             "statistics": {n: float(c.statistic) for n, c in cv.items()},
             "thresholds": {k_: float(v) for k_, v in thresholds.items()},
             "outliers_above_threshold": int(iso.outliers),
+            "given_turn_on": [r["hypothesis"] for r in turn_on or []],
             "ambiguity_resolved_s": _rel(iso.ambiguity_resolved_s, t0)},
     }
 
