@@ -191,6 +191,10 @@ def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
     dec = _decision(cv, iso, seed, thresholds, t0)
     if turn_on:
         told = "; ".join(describe_turn_on(r) for r in turn_on)
+        if iso.isolation == "none" and dec["verdict"] not in ("no_fault", "insufficient_data"):
+            dec["headline"] = (f"{dec['verdict']} in the seed method (element {seed.element}); "
+                               "GLR finds no in-flight fault above its threshold given the "
+                               "turn-on bias, so no in-flight sensor is named")
         dec["headline"] = (f"no in-flight fault; {told}" if dec["verdict"] == "no_fault" else
                            f"{dec['headline']}; {told}")
     top = cv[_top(cv, iso)]
