@@ -173,3 +173,29 @@ def test_model_error_allowance_on_the_excerpt(rec, cal):
     out = R.record(R.analyze(y.apply(rec), bg, ba))
     assert R.judge(out, y) == "right" and out["similarity"] < 0.8
     assert out["pair"] >= out["best_statistic"] - 1e-6
+
+
+def test_turn_on_bias_beside_an_in_flight_step(rec, cal):
+    """An accelerometer x bias of 0.8 m/s^2 from the start (1.6 prior sigmas, beyond the aligned
+    prior: the contract's attitude is the ground truth's, not levelled on the biased
+    accelerometer) and an accelerometer y step of 0.6 m/s^2 at 6 s. The step at the first update
+    beats the in-flight one, so the decision before named accelerometer x at 0.5 s with
+    confidence; now accelerometer y is the fault and the x bias is the turn-on finding, its
+    size the injected one plus the unit's own residual (the nominal run's x step at the first
+    update) within 2 sd."""
+    from flight_fdi.core.ins3d.glr3d import isolate
+    x0, y6 = R.Fault("accelerometer", "x", 0.8, 0.0), R.Fault("accelerometer", "y", 0.6, 6.0)
+    an = R.analyze(y6.apply(x0.apply(rec)), *cal)
+    old = isolate(an.glr, an.thresholds)
+    assert (old.isolation, old.best) == ("single", "accelerometer_x_step")
+    assert an.glr["accelerometer_x_step"].best == 0
+    out = R.record(an)
+    assert R.judge(out, y6) == "right" and abs(out["onset_s"] - 6.0) <= 1.0
+    (t,) = an.post_flight_dict(t0=float(an.steps.t[0]))["turn_on_bias"]
+    assert (t["sensor"], t["axis"], t["onset_s"]) == ("accelerometer", "x", pytest.approx(0.5))
+    own = float(R.analyze(rec, *cal).glr["accelerometer_x_step"].mag[0])
+    assert abs(t["magnitude"] - own - 0.8) < 2.0 * t["magnitude_std"]
+    assert t["prior_sigmas"] == pytest.approx(abs(t["magnitude"]) / 0.5, rel=1e-3)
+    alone = R.record(R.analyze(x0.apply(rec), *cal))
+    assert alone["sensor"] is None and alone["candidates"] == []
+    assert [(u["sensor"], u["axis"]) for u in alone["turn_on"]] == [("accelerometer", "x")]

@@ -176,7 +176,8 @@ class TurnOn:
 def describe_turn_on(r: dict) -> str:
     """"accelerometer y turn-on bias of +52.1 mg (0.511 m/s^2) +- 4.2, 1.0 prior sigmas, from
     the start"."""
-    alike = f" (or {', '.join(a.replace('_', ' ') for a in r['alike'])})" if r["alike"] else ""
+    alike = " (or " + ", ".join(a.removesuffix("_step").replace("_", " ") for a in r["alike"]) \
+        + ")" if r["alike"] else ""
     sd = r["magnitude_std"] * r["magnitude_eng"] / r["magnitude"] if r["magnitude"] else 0.0
     return (f"{r['sensor']} {r['axis']}{alike} turn-on bias of {r['magnitude_eng']:+.3g} "
             f"{r['unit_eng']} ({r['magnitude']:.3g} {r['unit']}) +- {abs(sd):.2g}, "
