@@ -49,6 +49,8 @@ SETTINGS = {
           {"arw_deg_rt_h": 60.0, "vrw": 0.05}, True),
     "f": ("(d) with the decision before: no model-error allowance (signature error = the "
           "grade's misalignment, the gap rule alone)", {"signature_error": None}, True),
+    "g": ("(d) with an initial covariance of independent states (not a levelled INS's: the "
+          "attitude is the ground truth's)", {"aligned_prior": False}, True),
 }
 #: the recordings the model-error allowance was calibrated on (Settings.signature_error) and
 #: the day held out from it
@@ -211,8 +213,8 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=Path, default=R.default_data_dir())
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--units", default="1,2,3,4")
-    p.add_argument("--settings", default="abcdef",
-                   help="which SETTINGS (letters a-f, default all)")
+    p.add_argument("--settings", default="abcdefg",
+                   help="which SETTINGS (letters a-g, default all)")
     p.add_argument("--no-faults", action="store_true")
     p.add_argument("--out", type=Path)
     p.add_argument("--records", type=Path,

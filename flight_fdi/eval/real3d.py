@@ -357,6 +357,10 @@ class Settings:
     #: the data beyond noise (``real3d_error.model_error_angle``; tools/ins3d_real_eval.py, seed 1: q95
     #: 0.333 of 307 runs). None: the grade's misalignment (the decision before).
     signature_error: float | None = 0.33
+    #: the initial covariance of a levelled INS (``Ins3dModel.p0_aligned``: the tilt cancels
+    #: the horizontal accelerometer bias); False: independent states (the contract's attitude
+    #: is the ground truth's, not levelled on the unit's accelerometer)
+    aligned_prior: bool = True
 
     def grade(self) -> ImuGrade:
         return xsens_grade(self.gyro_bias_deg_h * DEG_H, self.accel_bias,
@@ -372,7 +376,8 @@ def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings =
                          vertical=settings.vertical, latency=settings.latency, ref_markov=None,
                          diagnosis=DiagnosisConfig(fisher_window=settings.fisher_window,
                                                    min_valid_steps=settings.min_valid_steps),
-                         signature_error=settings.signature_error)
+                         signature_error=settings.signature_error,
+                         aligned_prior=settings.aligned_prior)
 
 
 def record(analysis, t0: float = 0.0) -> dict:
