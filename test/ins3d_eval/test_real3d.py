@@ -199,3 +199,26 @@ def test_turn_on_bias_beside_an_in_flight_step(rec, cal):
     alone = R.record(R.analyze(x0.apply(rec), *cal))
     assert alone["sensor"] is None and alone["candidates"] == []
     assert [(u["sensor"], u["axis"]) for u in alone["turn_on"]] == [("accelerometer", "x")]
+
+
+def test_reference_offset_from_the_start(rec, cal, monkeypatch):
+    """The reference reading 0.5 m/s too much east on every update: a reference jump best at
+    the first update, reported as an offset from the start (no in-flight fault, no prior)."""
+    from dataclasses import replace
+
+    from flight_fdi.core.ins3d.data import RefRows
+    build = R.build_contract
+
+    def offset(*args, **kw):
+        inp = build(*args, **kw)
+        z = inp.refs.z.copy()
+        z[:, 0] -= 0.5                          # z = v_INS - v_ref
+        return replace(inp, refs=RefRows(inp.refs.t, z, inp.refs.r, inp.refs.step,
+                                         inp.refs.a))
+    monkeypatch.setattr(R, "build_contract", offset)
+    pf = R.analyze(rec, *cal).post_flight_dict()
+    assert (pf["verdict"], pf["fault"], pf["candidates"]) == ("no_fault", None, [])
+    (t,) = pf["turn_on_bias"]
+    assert (t["sensor"], t["axis"], t["prior_sigmas"]) == ("reference", "east", None)
+    assert abs(t["magnitude"] - 0.5) < 2.0 * t["magnitude_std"] and t["unit"] == "m/s"
+    assert pf["headline"].startswith("no in-flight fault; reference east offset of +0.")

@@ -103,11 +103,11 @@ class Given:
 
 def candidates(cv: dict[str, GlrCurve], thresholds: dict[str, float],
                exclude: tuple = ()) -> list[str]:
-    """The IMU step hypotheses whose best onset is the first update and whose GLR is above
-    the step threshold, largest first (``exclude``: (sensor, axis) pairs left out)."""
-    out = [c for c in cv.values() if c.hypothesis.kind == "step" and
-           c.hypothesis.sensor != "reference" and c.best == 0 and
-           c.statistic > thresholds["step"] and
+    """The IMU step and reference jump hypotheses whose best onset is the first update and
+    whose GLR is above their kind's threshold, largest first (``exclude``: (sensor, axis)
+    pairs left out)."""
+    out = [c for c in cv.values() if c.hypothesis.kind in ("step", "jump") and c.best == 0 and
+           c.statistic > thresholds[c.hypothesis.kind] and
            (c.hypothesis.sensor, c.hypothesis.axis) not in exclude]
     return [c.hypothesis.name for c in sorted(out, key=lambda c: -c.statistic)]
 
@@ -147,7 +147,7 @@ class TurnOn:
     isolation: Isolation               # the in-flight decision
     magnitude: np.ndarray              # (k,) SI, fitted jointly (with the in-flight fault)
     sd: np.ndarray                     # (k,) its sd
-    prior_sd: np.ndarray               # (k,) the grade's turn-on bias sd (SI)
+    prior_sd: np.ndarray               # (k,) the grade's turn-on bias sd (SI; reference: nan)
     statistic: np.ndarray              # (k,) GLR of each given all the others
     unconditional: dict[str, float] = field(default_factory=dict)   # GLR at the first onset
     alike: dict[str, list[str]] = field(default_factory=dict)   # other first-onset steps within
@@ -159,25 +159,29 @@ class TurnOn:
         out = []
         for i, name in enumerate(self.names):
             h = cv[name].hypothesis
-            unit_eng, factor = ENGINEERING[(h.sensor, "step")]
-            m, sd = float(self.magnitude[i]), float(self.sd[i])
+            unit_eng, factor = ENGINEERING[(h.sensor, h.kind)]
+            sign = -1.0 if h.sensor == "reference" else 1.0     # the reference's error
+            m, sd = sign * float(self.magnitude[i]), float(self.sd[i])
             out.append({
                 "sensor": h.sensor, "axis": h.axis, "hypothesis": name,
                 "onset_s": _num(self.onset - t0), "magnitude": _num(m), "unit": h.unit,
                 "magnitude_eng": _num(m * factor), "unit_eng": unit_eng,
                 "magnitude_std": _num(sd), "prior_std": _num(self.prior_sd[i]),
-                "prior_sigmas": _num(abs(m) / self.prior_sd[i]),
+                "prior_sigmas": _num(abs(m) / self.prior_sd[i]),   # reference: None
                 "statistic": _num(self.unconditional[name]),
                 "statistic_given_others": _num(self.statistic[i]),
-                "threshold": float(thresholds["step"]), "alike": self.alike.get(name, [])})
+                "threshold": float(thresholds[h.kind]), "alike": self.alike.get(name, [])})
         return out
 
 
 def describe_turn_on(r: dict) -> str:
     """"accelerometer y turn-on bias of +52.1 mg (0.511 m/s^2) +- 4.2, 1.0 prior sigmas, from
     the start"."""
-    alike = " (or " + ", ".join(a.removesuffix("_step").replace("_", " ") for a in r["alike"]) \
+    alike = " (or " + ", ".join(a.rsplit("_", 1)[0].replace("_", " ") for a in r["alike"]) \
         + ")" if r["alike"] else ""
+    if r["sensor"] == "reference":
+        return (f"{r['sensor']} {r['axis']}{alike} offset of {r['magnitude']:+.3g} {r['unit']} "
+                f"+- {r['magnitude_std']:.2g}, from the start")
     sd = r["magnitude_std"] * r["magnitude_eng"] / r["magnitude"] if r["magnitude"] else 0.0
     return (f"{r['sensor']} {r['axis']}{alike} turn-on bias of {r['magnitude_eng']:+.3g} "
             f"{r['unit_eng']} ({r['magnitude']:.3g} {r['unit']}) +- {abs(sd):.2g}, "
@@ -217,7 +221,8 @@ def decide(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
     beside = Given.of(names + [top], sigs + _signatures(model, steps, refs, fwd, ccv, [top]),
                       fwd.S_inv)
     if unconditional.best not in first and \
-            np.any(beside.fit()[2][:len(names)] <= thresholds["step"]):
+            np.any(beside.fit()[2][:len(names)] <= [thresholds[cv[n].hypothesis.kind]
+                                                     for n in names]):
         return None                     # an in-flight fault seen through a first-onset step
     fit = beside if iso.isolation == "single" and top == iso.best else given
     resolve(model, steps, refs, fwd, ccv, iso, signature_error, given)
@@ -227,7 +232,9 @@ def decide(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
     unc = {n: float(cv[n].stat[0]) for n in names}
     alike = {n: [a for a in first if a not in names and
                  cv[a].statistic > cv[n].statistic - AMBIGUITY_MARGIN] for n in names[:1]}
-    return TurnOn(names, ccv, iso, b[:k] * scale, np.sqrt(np.diag(P)[:k]) * scale, scale,
+    prior = np.array([np.nan if cv[n].hypothesis.sensor == "reference" else scale[i]
+                      for i, n in enumerate(names)])
+    return TurnOn(names, ccv, iso, b[:k] * scale, np.sqrt(np.diag(P)[:k]) * scale, prior,
                   stat[:k], unc, alike, float(cv[names[0]].t[0]))
 
 
