@@ -13,7 +13,9 @@ REQUIRED_FIELDS = {
     "FaultLocalization": ["verdict", "element", "onset_s", "end_s", "magnitude", "j_peak", "gamma2",
                           "f_peak", "eta2", "exceed_fraction", "dof", "glr_hypothesis",
                           "glr_onset_s", "glr_magnitude", "glr_statistic", "glr_threshold",
-                          "headline", "isolation", "sensor", "axis", "kind", "unit"],
+                          "headline", "isolation", "sensor", "axis", "kind", "unit",
+                          "turn_on_sensor", "turn_on_axis", "turn_on_magnitude",
+                          "turn_on_magnitude_eng", "turn_on_unit_eng", "turn_on_prior_sigmas"],
     "SmoothedState": ["x_smoothed", "v", "v_tilde", "delta_d", "j", "j_terms", "f"],
     "VoteStatus": ["epsilon", "epsilon_sum", "isolated_imu", "selected_imu"],
 }

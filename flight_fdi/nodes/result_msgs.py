@@ -83,7 +83,31 @@ def fault_localization_msg(result: Mapping[str, Any], stamp: Any, flight_start_s
         glr_magnitude=_num(glr["magnitude"]),
         glr_statistic=_num(glr["statistic"]),
         glr_threshold=_num(glr["threshold"]),
+        **_turn_on_fields(post.get("turn_on_bias") or []),
     )
+
+
+#: post_flight.turn_on_bias keys carried as FaultLocalization turn_on_<key> arrays (text or number,
+#: NaN for None)
+_TURN_ON = ("sensor", "axis", "magnitude", "magnitude_std", "magnitude_eng", "unit_eng",
+            "prior_sigmas")
+_TURN_ON_TEXT = ("sensor", "axis", "unit_eng")
+
+
+def _turn_on_value(key: str, value: Any, to_msg: bool):
+    if key in _TURN_ON_TEXT:
+        return str(value)
+    return _num(value) if to_msg else _opt(value)
+
+
+def _turn_on_fields(biases: Sequence[Mapping[str, Any]]) -> dict:
+    return {f"turn_on_{k}": [_turn_on_value(k, b[k], True) for b in biases] for k in _TURN_ON}
+
+
+def _turn_on_from_msg(msg: Any) -> list[dict]:
+    cols = [list(getattr(msg, f"turn_on_{k}")) for k in _TURN_ON]
+    return [{k: _turn_on_value(k, col[i], False) for k, col in zip(_TURN_ON, cols)}
+            for i in range(len(cols[0]))]
 
 
 def post_flight_from_msg(msg: Any) -> dict:
@@ -111,6 +135,7 @@ def post_flight_from_msg(msg: Any) -> dict:
         "glr": {"hypothesis": str(msg.glr_hypothesis), "onset_s": _opt(msg.glr_onset_s),
                 "magnitude": _opt(msg.glr_magnitude), "statistic": float(msg.glr_statistic),
                 "threshold": _opt(msg.glr_threshold)},
+        "turn_on_bias": _turn_on_from_msg(msg),
     }
 
 
