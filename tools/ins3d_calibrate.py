@@ -56,6 +56,9 @@ def main() -> None:
         print(f"{r['profile']} seed {r['seed']}: "
               + ", ".join(f"{k} {r['max'][k]:.1f} ({r['argmax'][k]})" for k in KINDS)
               + f" -> {r['verdict']}  [{time.time() - t0:.0f} s]", flush=True)
+        if a.out:      # each flight's row as it arrives (a stopped run keeps what it made)
+            with open(a.out + "l", "a") as f:
+                f.write(json.dumps(r) + "\n")
 
     rows = run_flights(items, a.jobs, on_result=arrived)
     print(f"{len(rows)} flights in {time.time() - t0:.0f} s")

@@ -95,7 +95,8 @@ def plan(grade: ImuGrade, flights: int, seed: int, profiles: tuple[str, ...] = P
 
 
 def nominal_flight(f: NominalFlight) -> dict:
-    """The largest GLR per hypothesis kind (and its hypothesis) of one nominal flight, its
+    """The largest GLR per hypothesis kind (and its hypothesis) and per hypothesis
+    (``max_by_hypothesis``) of one nominal flight, its
     verdict, and per check the isolation its thresholds give (``glr3d.isolate``)."""
     from flight_fdi.bagio.ins3d_input import from_flight
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
@@ -118,6 +119,7 @@ def nominal_flight(f: NominalFlight) -> dict:
             "duration_s": f.duration_s,
             "max": {k: float(v[0]) for k, v in best.items()},
             "argmax": {k: v[1] for k, v in best.items()},
+            "max_by_hypothesis": {n: float(c.statistic) for n, c in a.glr.items()},
             "verdict": a.post_flight_dict()["verdict"], "checks": checks,
             "seed_x": seed_statistic(a.seed), "seed_verdict": a.seed.verdict}
 
@@ -208,6 +210,73 @@ def calibrate(rows: list[dict], target: float) -> dict[str, float]:
     p = target / len(KINDS)
     return {k: round(tail_threshold(np.array([r["max"][k] for r in rows]), p) + shift[k], 2)
             for k in KINDS}
+
+
+#: the share of the false-isolation target the outliers keep (their kind's threshold, as the
+#: per-kind calibration gives it); the rest is split equally over ``glr3d.PER_HYPOTHESIS``
+OUTLIER_SHARE = 0.25
+
+
+def hypothesis_growth(short: list[dict], long: list[dict]) -> dict[str, float]:
+    """Per hypothesis of ``glr3d.PER_HYPOTHESIS`` the growth c of its nominal maximum with the
+    flight length, measured: (median over the long flights - median over the short ones) /
+    ln(T_long / T_short), at least 0 (a threshold is never lowered for a longer flight). Rows
+    of ``nominal_flight`` (``max_by_hypothesis``), each set of one length."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+
+    ts, tl = (_one_length(r) for r in (short, long))
+    if not tl > ts:
+        raise EvalError("hypothesis growth: the long flights must be longer than the short ones")
+    out = {}
+    for h in PER_HYPOTHESIS:
+        med = [float(np.median([r["max_by_hypothesis"][h] for r in rows]))
+               for rows in (short, long)]
+        out[h] = max(0.0, (med[1] - med[0]) / math.log(tl / ts))
+    return out
+
+
+def _one_length(rows: list[dict]) -> float:
+    lengths = {r["duration_s"] for r in rows}
+    if len(lengths) != 1:
+        raise EvalError("calibration: the flights of a set must all have one length")
+    return float(lengths.pop())
+
+
+def calibrate_hypotheses(rows: list[dict], target: float,
+                         growth: dict[str, float] | None = None) -> dict[str, float]:
+    """Per hypothesis of ``glr3d.PER_HYPOTHESIS`` the threshold (for a flight of
+    ``CALIBRATED_LENGTH_S``) its nominal maximum exceeds with probability
+    (1 - ``OUTLIER_SHARE``) x ``target`` / (number of hypotheses): an equal share of the
+    isolator's budget per hypothesis (the union bound; the outliers keep their kind's share).
+    ``rows`` may mix flight lengths: each flight's maxima are first moved to the stated length
+    by - c ln(T / 1800 s), c = ``growth[h]`` (default ``glr3d.growth_of``), then pooled and cut
+    with :func:`tail_threshold`."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS, growth_of
+
+    if not 0.0 < target < 1.0:
+        raise EvalError(f"false-isolation target must be within (0, 1), got {target!r}")
+    p = (1.0 - OUTLIER_SHARE) * target / len(PER_HYPOTHESIS)
+    out = {}
+    for h in PER_HYPOTHESIS:
+        c = growth_of(h) if growth is None or h not in growth else growth[h]
+        m = np.array([r["max_by_hypothesis"][h]
+                      - c * math.log(r["duration_s"] / CALIBRATED_LENGTH_S) for r in rows])
+        out[h] = round(tail_threshold(m, p), 2)
+    return out
+
+
+def exceeded_hypotheses(rows: list[dict], thresholds: dict[str, float]) -> int:
+    """Flights whose maximum of some hypothesis exceeds its threshold (``glr3d.threshold_of``
+    of ``thresholds`` -- per kind and per hypothesis, for a 30-min flight -- raised for the
+    flight's length as the analysis does): an upper bound of the flights' false isolations."""
+    from flight_fdi.core.ins3d.glr3d import hypotheses, threshold_of
+
+    hyps = {h.name: h for h in hypotheses(3)}
+    n = 0
+    for r in rows:
+        thr = at_length(thresholds, r["duration_s"])
+        n += any(v > threshold_of(thr, hyps[k]) for k, v in r["max_by_hypothesis"].items())
+    return n
 
 
 def bootstrap_spread(rows: list[dict], target: float, draws: int = 200,
@@ -312,7 +381,8 @@ def run_calibration(grade: ImuGrade, flights: int, seed: int, target: float,
 
 
 __all__ = ["Calibration", "DEFAULT_EPISODE_PROBABILITY", "MIN_FLIGHTS", "NominalFlight",
-           "PROFILES", "bootstrap_spread", "calibrate", "calibrate_seed", "check_rates",
-           "exceeded", "length_shift", "nominal_flight", "plan",
+           "OUTLIER_SHARE", "PROFILES", "bootstrap_spread", "calibrate",
+           "calibrate_hypotheses", "calibrate_seed", "check_rates", "exceeded",
+           "exceeded_hypotheses", "hypothesis_growth", "length_shift", "nominal_flight", "plan",
            "rate", "run_calibration", "run_flights", "seed_declared", "seed_statistic", "summary",
            "tail_threshold"]

@@ -78,23 +78,56 @@ THRESHOLDS = THRESHOLDS_BY_GRADE["navigation"]
 CALIBRATED_LENGTH_S = 1800.0
 LENGTH_GROWTH = {"step": 1.0, "ramp": 0.0, "jump": 2.0, "outliers": 2.0}
 
+#: the hypotheses a threshold of its own can be given to (outliers keep their kind's: their
+#: statistic is per reference update, one threshold for every row)
+PER_HYPOTHESIS = tuple(f"{s}_{a}_{k}" for s in ("accelerometer", "gyro") for a in IMU_AXES
+                       for k in ("step", "ramp")) + tuple(f"reference_{a}_jump" for a in REF_AXES)
+#: thresholds per hypothesis (for a flight of CALIBRATED_LENGTH_S) per IMU grade, where
+#: calibrated (docs/ins3d.md, "Thresholds"): each hypothesis' maximum over its onsets on nominal
+#: simulated flights, an equal share of the grade's false-isolation budget per hypothesis
+#: (``eval.calibrate3d.calibrate_hypotheses``). A hypothesis without one uses its kind's.
+HYPOTHESIS_THRESHOLDS_BY_GRADE: dict[str, dict[str, float]] = {}
+#: per hypothesis how its nominal maximum grows with the flight length (c of c ln(T / 1800 s),
+#: measured: the median of the maxima on 30-min and 2-h flights); else its kind's
+HYPOTHESIS_LENGTH_GROWTH: dict[str, float] = {}
+
 
 def thresholds_for(grade: str, duration_s: float | None = None) -> dict[str, float]:
-    """The calibrated thresholds of a grade (tactical's for grades not calibrated); for a flight
-    longer than ``CALIBRATED_LENGTH_S``, each raised by ``LENGTH_GROWTH`` x ln(duration / it)
-    (the same false-alarm rate per flight on longer flights; shorter flights keep them)."""
+    """The calibrated thresholds of a grade (tactical's for grades not calibrated): per kind,
+    and per hypothesis where the grade has them (``HYPOTHESIS_THRESHOLDS_BY_GRADE``; looked up
+    with :func:`threshold_of`); for a flight longer than ``CALIBRATED_LENGTH_S``, each raised by
+    its growth x ln(duration / it) (:func:`length_growth`: the same false-alarm rate per flight
+    on longer flights; shorter flights keep them)."""
     thr = dict(THRESHOLDS_BY_GRADE.get(grade, THRESHOLDS_BY_GRADE["tactical"]))
-    for k, g in length_growth(duration_s).items():
-        thr[k] += g
-    return thr
+    thr.update(HYPOTHESIS_THRESHOLDS_BY_GRADE.get(grade, {}))
+    growth = length_growth(duration_s)
+    return {k: v + growth.get(k, 0.0) for k, v in thr.items()}
+
+
+def growth_of(key: str) -> float:
+    """c of the length rule of a threshold key: a kind's (``LENGTH_GROWTH``) or a hypothesis'
+    (``HYPOTHESIS_LENGTH_GROWTH``, else its kind's: the name's last part)."""
+    if key in LENGTH_GROWTH:
+        return LENGTH_GROWTH[key]
+    return HYPOTHESIS_LENGTH_GROWTH.get(key, LENGTH_GROWTH.get(key.rsplit("_", 1)[-1], 0.0))
 
 
 def length_growth(duration_s: float | None) -> dict[str, float]:
-    """What a flight of ``duration_s`` adds to each kind's threshold: ``LENGTH_GROWTH`` x
-    ln(duration / ``CALIBRATED_LENGTH_S``) when longer, nothing otherwise (None: nothing)."""
+    """What a flight of ``duration_s`` adds to each threshold (per kind and per hypothesis of
+    ``PER_HYPOTHESIS``): :func:`growth_of` x ln(duration / ``CALIBRATED_LENGTH_S``) when
+    longer, nothing otherwise (None: nothing)."""
     if duration_s is None or duration_s <= CALIBRATED_LENGTH_S:
         return {}
-    return {k: c * math.log(duration_s / CALIBRATED_LENGTH_S) for k, c in LENGTH_GROWTH.items()}
+    ln = math.log(duration_s / CALIBRATED_LENGTH_S)
+    return {k: growth_of(k) * ln for k in (*LENGTH_GROWTH, *PER_HYPOTHESIS)}
+
+
+def threshold_of(thresholds: dict[str, float], h: "Hypothesis") -> float:
+    """A hypothesis' threshold in a thresholds dict: its own (key ``h.name``) if given, else
+    its kind's (outliers: always the kind's)."""
+    if h.kind != "outliers" and h.name in thresholds:
+        return float(thresholds[h.name])
+    return float(thresholds[h.kind])
 
 
 @dataclass(frozen=True)
@@ -295,23 +328,33 @@ class Isolation:
 
 def isolate(cv: dict[str, GlrCurve], thresholds: dict[str, float],
             margin: float = AMBIGUITY_MARGIN) -> Isolation:
+    """The decision (module docstring, "Decision"). Every step / ramp / jump is judged by its
+    *excess* over its own threshold (:func:`threshold_of`), L - c: the best is the largest
+    excess, its rival the largest excess of another (sensor, axis), ambiguous when the two
+    excesses are closer than ``margin``. With one threshold for all (one kind) this is the raw
+    comparison; with unequal ones it compares each hypothesis' evidence beyond what its own
+    search over the onsets reaches on nominal flights (docs/ins3d.md, "Thresholds"). The
+    outlier rule compares raw statistics, as before."""
     main = [c for c in cv.values() if c.hypothesis.kind != "outliers"]
     outl = [c for c in cv.values() if c.hypothesis.kind == "outliers"]
     n_out = int(sum(np.sum(c.stat > thresholds["outliers"]) for c in outl))
-    det = [c for c in main if c.statistic > thresholds[c.hypothesis.kind]]
+    excess = {c.hypothesis.name: c.statistic - threshold_of(thresholds, c.hypothesis)
+              for c in main}
+    det = [c for c in main if excess[c.hypothesis.name] > 0.0]
     top = max(outl, key=lambda c: c.statistic) if outl else None
     if n_out and (not det or top.statistic >= max(c.statistic for c in det)):
         return Isolation("single", top.hypothesis.name, None, n_out)   # spikes explain best
     if not det:
         return Isolation("none", None, None, n_out)
-    best = max(det, key=lambda c: c.statistic)
+    best = max(det, key=lambda c: excess[c.hypothesis.name])
     hb = best.hypothesis
     step = cv.get(hb.name.replace("_ramp", "_step")) if hb.kind == "ramp" else None
-    if step is not None and step in det and step.statistic > best.statistic - margin:
+    if step is not None and step in det and \
+            excess[step.hypothesis.name] > excess[hb.name] - margin:
         best, hb = step, step.hypothesis        # the simpler shape unless the ramp is clear
     others = [c for c in main if (c.hypothesis.sensor, c.hypothesis.axis) != (hb.sensor, hb.axis)]
-    rival = max(others, key=lambda c: c.statistic) if others else None
-    if rival is not None and best.statistic - rival.statistic < margin:
+    rival = max(others, key=lambda c: excess[c.hypothesis.name]) if others else None
+    if rival is not None and excess[hb.name] - excess[rival.hypothesis.name] < margin:
         return Isolation("ambiguous", hb.name, rival.hypothesis.name, n_out, reason="margin")
     return Isolation("single", hb.name, None if rival is None else rival.hypothesis.name, n_out)
 
@@ -358,6 +401,8 @@ def resolved_time(t_upd: np.ndarray, gap: np.ndarray, margin: float = AMBIGUITY_
     return float(t_upd[below[-1] + 1])
 
 
-__all__ = ["AMBIGUITY_MARGIN", "GlrCurve", "Hypothesis", "IMU_AXES", "Isolation", "REF_AXES",
-           "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves", "hypotheses", "isolate", "joint",
-           "length_growth", "pair_glr", "resolved_time", "settle", "thresholds_for"]
+__all__ = ["AMBIGUITY_MARGIN", "GlrCurve", "HYPOTHESIS_LENGTH_GROWTH",
+           "HYPOTHESIS_THRESHOLDS_BY_GRADE", "Hypothesis", "IMU_AXES", "Isolation",
+           "PER_HYPOTHESIS", "REF_AXES", "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves",
+           "growth_of", "hypotheses", "isolate", "joint", "length_growth", "pair_glr",
+           "resolved_time", "settle", "threshold_of", "thresholds_for"]

@@ -5,7 +5,10 @@ A file names the grade and a ``base`` preset (``grades.GRADES``); every value it
 and the GLR thresholds come from the base. Values are in engineering units, the unit in the key
 (``KEYS``: key -> ImuGrade field, factor to SI). ``thresholds`` (optional): per hypothesis kind
 (step, ramp, jump, outliers) the threshold of the maximum GLR for a flight of
-``glr3d.CALIBRATED_LENGTH_S``; longer flights raise it as the presets' (``glr3d.thresholds_for``).
+``glr3d.CALIBRATED_LENGTH_S``, and optionally per hypothesis (``glr3d.PER_HYPOTHESIS``, e.g.
+``gyro_z_step``: its own threshold; the others use their kind's); longer flights raise them as
+the presets' (``glr3d.thresholds_for``). A grade file never inherits its base preset's
+per-hypothesis thresholds (its noise is its own): it states its own or uses the kinds'.
 ``signature_error_rad`` (optional): how far (an angle) the model's fault signatures may be off on
 this IMU and platform; a confident isolation must leave room for it against its rival
 (``glr3d.settle``; default the grade's axis misalignment, which leaves the gap rule as it is).
@@ -33,7 +36,7 @@ from typing import Any
 
 from ..diagnosis import DiagnosisConfig
 from ..errors import CoreError
-from .glr3d import length_growth, thresholds_for
+from .glr3d import PER_HYPOTHESIS, length_growth, thresholds_for
 from .grades import DEG_H, DEG_RTH, GRADES, MPS_RTH, UG, ImuGrade
 
 #: the numeric keys of a grade file: key -> (ImuGrade field, SI per unit of the key)
@@ -66,7 +69,8 @@ _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 @dataclass(frozen=True)
 class CustomGrade(ImuGrade):
     """A grade that is not a preset: its own GLR thresholds per kind (``KINDS``, for a flight of
-    ``glr3d.CALIBRATED_LENGTH_S``) as (kind, value) pairs."""
+    ``glr3d.CALIBRATED_LENGTH_S``) as (kind, value) pairs, then any per hypothesis
+    (``glr3d.PER_HYPOTHESIS``) as (name, value) pairs."""
 
     thresholds: tuple[tuple[str, float], ...] = ()
     signature_error: float | None = None    # rad; None: the grade's axis misalignment
@@ -91,7 +95,9 @@ class CustomGrade(ImuGrade):
     def from_numbers(cls, name: str, values: dict[str, float]) -> "CustomGrade":
         try:
             kw = {f.name: float(values[f.name]) for f in fields(ImuGrade) if f.name != "name"}
-            thr = tuple((k, float(values[f"threshold_{k}"])) for k in KINDS)
+            thr = tuple((k, float(values[f"threshold_{k}"])) for k in KINDS) + tuple(
+                (h, float(values[f"threshold_{h}"])) for h in PER_HYPOTHESIS
+                if f"threshold_{h}" in values)
         except KeyError as exc:
             raise CoreError(f"IMU grade {name!r}: value {exc.args[0]!r} missing") from None
         eps, p = values.get("signature_error"), values.get("episode_probability")
@@ -176,16 +182,18 @@ def signature_error_of(grade: ImuGrade) -> float:
 
 
 def _thresholds(path: str, base: str, given: Any) -> tuple[tuple[str, float], ...]:
+    """The kinds' thresholds (the base's where not given), then the hypotheses' given (a
+    hypothesis without one uses its kind's: ``glr3d.threshold_of``)."""
     if not isinstance(given, dict):
-        raise CoreError(f"grade file {path}: thresholds must be a mapping of kind to value "
-                        f"({', '.join(KINDS)})")
-    bad = sorted(set(given) - set(KINDS), key=str)
+        raise CoreError(f"grade file {path}: thresholds must be a mapping of kind (or "
+                        f"hypothesis) to value ({', '.join(KINDS)}, e.g. gyro_z_step)")
+    bad = sorted(set(given) - set(KINDS) - set(PER_HYPOTHESIS), key=str)
     if bad:
         raise CoreError(f"grade file {path}: unknown key 'thresholds.{bad[0]}' (allowed: "
-                        f"{', '.join(KINDS)})")
-    thr = thresholds_for(base)
+                        f"{', '.join(KINDS)}, or a hypothesis: {', '.join(PER_HYPOTHESIS)})")
+    thr = {k: v for k, v in thresholds_for(base).items() if k in KINDS}
     thr.update({k: _number(path, f"thresholds.{k}", v, True) for k, v in given.items()})
-    return tuple((k, float(thr[k])) for k in KINDS)
+    return tuple((k, float(thr[k])) for k in (*KINDS, *(h for h in PER_HYPOTHESIS if h in thr)))
 
 
 def load_grade(path: str | Path) -> CustomGrade:
@@ -269,7 +277,8 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict,
             f"# calibration target: false isolation {100 * c['target']:g} % per flight;",
             f"# calibration result: {c['exceeded']} of {c['flights']} flights above a threshold "
             f"({100 * c['rate']:.1f} %, 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)"]
-    thr = "{" + ", ".join(f"{k}: {float(thresholds[k]):.2f}" for k in KINDS) + "}"
+    keys = (*KINDS, *(h for h in PER_HYPOTHESIS if h in thresholds))
+    thr = "{" + ", ".join(f"{k}: {float(thresholds[k]):.2f}" for k in keys) + "}"
     seed = []
     if episode_probability is not None:
         sd = c.get("seed", {})
