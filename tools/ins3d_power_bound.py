@@ -207,6 +207,32 @@ def h0_line(recs: list[dict]) -> str:
             + ".")
 
 
+def rules_table(recs: list[dict]) -> str | None:
+    """The decision rules of ``power_bound.RULES`` on the same model-drawn draws: per sensor,
+    axis and level the rate of right isolations, and on the noise alone the false isolations
+    (a single isolation naming a sensor) per rule; records without them: None."""
+    from flight_fdi.eval.power_bound import RULES
+
+    if not all("h0_rules" in rec for rec in recs):
+        return None
+    names = list(RULES)
+    lines = ["decision rules on the same model-drawn data (thresholds per kind or per "
+             "hypothesis; best and rival by raw statistic or by excess over the own threshold): "
+             "rate of right isolations (draws)", "",
+             "| sensor | axis | level | " + " | ".join(names) + " |", "|---" * (3 + len(names))
+             + "|"]
+    for (sensor, axis, lev), rows in _groups(recs).items():
+        d = [x for _, r in rows for x in r["draws"]["rules"]]
+        lines.append(f"| {sensor} | {axis} | {lev:g} {UNITS[sensor]} | " + " | ".join(
+            f"{np.mean([x[n][2] for x in d]):.2f} ({len(d)})" for n in names) + " |")
+    h0 = [x for rec in recs for x in rec["h0_rules"]]
+    lines += ["", "nominal model-drawn data (no fault): single isolations / any declaration: "
+              + ", ".join(f"{n} {sum(x[n][1] == 'single' for x in h0)} / "
+                          f"{sum(x[n][1] != 'none' for x in h0)}" for n in names)
+              + f" of {len(h0)}."]
+    return "\n".join(lines)
+
+
 def render(args, out: pathlib.Path) -> str:
     from flight_fdi.eval.records import read_records
 
@@ -214,8 +240,8 @@ def render(args, out: pathlib.Path) -> str:
     if not p.exists():
         raise OSError(f"no records {p}")
     recs = read_records(p, key="key")[1]
-    text = "\n\n".join([bound_table(recs), h0_line(recs), onset_table(recs),
-                          smallest_table(recs)])
+    text = "\n\n".join(t for t in [bound_table(recs), h0_line(recs), onset_table(recs),
+                                    smallest_table(recs), rules_table(recs)] if t)
     (out / f"tables_{args.study}.md").write_text(text + "\n")
     return text
 

@@ -33,7 +33,9 @@ GLR curves of a noiseless sweep (nu := rho: each curve's statistic is then the s
 projection of the signature on that hypothesis), and draws data from the model itself: the
 sweep's fault information is linear in nu, so eta(noise + b rho) = eta(noise) + b eta(rho)
 and one sweep per noise draw and per (column, onset) gives the GLR's exact decision at every
-size (``decide``).
+size (``decide``). ``RULES``: the decision rules compared on the same draws (``decide_rules``):
+the thresholds per kind only or per hypothesis too, best and rival by their raw statistics or
+by their excess over their own thresholds (``glr3d.isolate``'s ``compare``).
 """
 from __future__ import annotations
 
@@ -45,6 +47,7 @@ from scipy.stats import ncx2, norm
 
 from flight_fdi.core.diagnosis import DiagnosisConfig
 from flight_fdi.core.ins3d.glr3d import AMBIGUITY_MARGIN, GlrCurve, isolate
+from flight_fdi.core.ins3d.grade_file import KINDS
 from flight_fdi.core.ins3d.postflight import glr_curves, run_backward
 
 from .errors import EvalError
@@ -52,6 +55,10 @@ from .onset_bound import Signatures
 
 #: the issue's per-flight false-isolation budget: the false-alarm level of the bounds
 ALPHA = 0.01
+#: decision rules compared on model-drawn data: name -> (per-hypothesis thresholds too, the
+#: comparison of best and rival); "kinds_raw" is the isolator before per-hypothesis thresholds
+RULES = {"kinds_raw": (False, "raw"), "kinds_excess": (False, "excess"),
+         "hyp_raw": (True, "raw"), "hyp_excess": (True, "excess")}
 #: the k of the mixture bound P_1(L > k) + k alpha (a fixed grid: a minimum over noisy
 #: estimates at many k would be biased low)
 K_GRID = tuple(float(k) for k in np.geomspace(0.1, 1.0 / ALPHA, 16))
@@ -196,6 +203,9 @@ class PowerFlight:
         self.rank_tol = DiagnosisConfig().rank_tol
         self.chol = np.linalg.cholesky(sig.fwd.S)
         self.thresholds = dict(self.an.thresholds)
+        kinds = {k: v for k, v in self.thresholds.items() if k in KINDS}
+        self.rules = {r: (self.thresholds if hyp else kinds, cmp)
+                      for r, (hyp, cmp) in RULES.items()}
 
     def sweep(self, nu: np.ndarray):
         """The backward sweep (``postflight.run_backward``) on innovations ``nu``."""
@@ -235,6 +245,18 @@ class PowerFlight:
         return {"named": iso.best, "isolation": iso.isolation, "right": bool(right),
                 "detected": iso.isolation != "none"}
 
+    def decide_rules(self, cv: dict[str, GlrCurve], sensor: str | None, axis: str | None
+                     ) -> dict[str, list]:
+        """Per rule of ``RULES``: [named (or None), isolation, right]."""
+        out = {}
+        for r, (thr, cmp) in self.rules.items():
+            iso = isolate(cv, thr, compare=cmp)
+            h = cv[iso.best].hypothesis if iso.best else None
+            out[r] = [iso.best, iso.isolation, bool(
+                iso.isolation == "single" and h is not None and (h.sensor, h.axis) ==
+                (sensor, axis))]
+        return out
+
 
 #: the levels of the bounds per sensor (the studies' scenario and unit: ``montecarlo3d.SCENARIOS``)
 LEVELS = {"gyro": ("gyro_step", (0.05, 0.1, 0.2)), "accelerometer": ("accel_step", (0.3,))}
@@ -245,13 +267,14 @@ def _draws(pf: PowerFlight, noise: list, signal, sensor: str, axis: str, b: floa
     """The GLR's decisions on the model-drawn data noise + b x signal, per noise draw, and the
     onset mixture's log likelihood ratio of each."""
     out: dict[str, list] = {"right": [], "detected": [], "named": [], "true_max": [],
-                            "log_lr": []}
+                            "log_lr": [], "rules": []}
     name = f"{sensor}_{axis}_step"
     for b0 in noise:
         cv = pf.curves(b0, signal, b)
         d = pf.decide(cv, sensor, axis)
         for k in ("right", "detected", "named"):
             out[k].append(d[k])
+        out["rules"].append(pf.decide_rules(cv, sensor, axis))
         out["true_max"].append(float(cv[name].statistic))
         out["log_lr"].append(log_mixture_lr(cv[name], b, window))
     return out
@@ -303,11 +326,13 @@ def flight_record(item: tuple) -> dict:
                                              "onset_s", "statistic")},
             "thresholds": pf.thresholds, "window": list(window),
             "h0_named": [pf.decide(pf.curves(b0), None, None)["named"] for b0 in noise],
+            "h0_rules": [pf.decide_rules(pf.curves(b0), None, None) for b0 in noise],
             "h0_max": [{k: float(c.statistic) for k, c in pf.curves(b0).items()}
                        for b0 in noise],
             "rows": rows}
 
 
-__all__ = ["ALPHA", "K_GRID", "LEVELS", "PowerFlight", "Rival", "Separation", "flight_record",
+__all__ = ["ALPHA", "K_GRID", "LEVELS", "PowerFlight", "RULES", "Rival", "Separation",
+           "flight_record",
            "glr_known_onsets", "glr_power", "log_mixture_lr", "main_curves", "mixture_achieved",
            "mixture_power_bound", "np_power", "separation", "separation_bound"]

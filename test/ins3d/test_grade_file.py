@@ -211,3 +211,29 @@ def test_a_recording_carries_the_seed_episode_probability(tmp_path):
     names, values = grade_params(g)
     back = recorded_grade(f"ins3d/{g.name}", dict(zip(names, values)))
     assert back == g and diagnosis_config_of(back).episode_probability == 1.51e-23
+
+
+def test_per_hypothesis_thresholds_load_round_trip_and_grow_with_the_length(tmp_path):
+    """A grade file may give a hypothesis its own threshold (glr3d.PER_HYPOTHESIS); a kind
+    given drops the base's hypotheses of that kind; a recording's numbers carry them."""
+    from flight_fdi.core.ins3d.glr3d import growth_of, hypotheses, threshold_of
+
+    g = load_grade(_write(tmp_path, "name: zed\nbase: tactical\n"
+                                    "thresholds: {step: 30, gyro_z_step: 18.5}\n"))
+    thr = dict(g.thresholds)
+    assert thr["gyro_z_step"] == 18.5 and thr["step"] == 30.0
+    hyps = {h.name: h for h in hypotheses(3)}
+    assert threshold_of(thr, hyps["gyro_z_step"]) == 18.5
+    assert threshold_of(thr, hyps["gyro_x_step"]) == 30.0
+    assert CustomGrade.from_numbers(g.name, g.numbers()) == g
+    long = grade_thresholds(g, 7200.0)
+    assert long["gyro_z_step"] == pytest.approx(18.5 + growth_of("gyro_z_step") * math.log(4))
+    # a kind given drops the base's hypotheses of that kind, the others are kept
+    nav = thresholds_for("navigation")
+    g2 = dict(load_grade(_write(tmp_path, "name: n2\nbase: navigation\n"
+                                          "thresholds: {step: 25}\n")).thresholds)
+    assert not any(k.endswith("_step") for k in g2)
+    assert all(g2[k] == v for k, v in nav.items() if not k.endswith(("_step", "step")))
+    with pytest.raises(CoreError, match="thresholds.gyro_w_step"):
+        load_grade(_write(tmp_path, "name: bad\nbase: tactical\n"
+                                    "thresholds: {gyro_w_step: 3}\n"))

@@ -302,3 +302,73 @@ def test_the_seed_statistic_is_where_the_seed_method_starts_declaring():
     assert verdicts[0] != "no_fault" and verdicts[1] == "no_fault"
     quiet = nominal_flight(plan(g, 1, 500, ("cruise_turns",), 180.0)[0])   # no episode
     assert quiet["seed_x"] == 0.0 and quiet["seed_verdict"] == "no_fault"
+
+
+def _hyp_rows(n: int, seed: int, scale: dict, duration: float = 1800.0,
+              shift: dict | None = None) -> list[dict]:
+    """Flights whose maximum per hypothesis is exponential with the given scale (tail
+    P(M > x) = exp(-x / scale): the quantile at p is scale ln(1 / p)), plus ``shift``."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+
+    rng = np.random.default_rng(seed)
+    shift = shift or {}
+    return [{"duration_s": duration, "seed": i,
+             "max_by_hypothesis": {h: float(rng.exponential(scale.get(h, 2.0)))
+                                   + shift.get(h, 0.0) for h in PER_HYPOTHESIS}}
+            for i in range(n)]
+
+
+def test_calibrate_hypotheses_gives_each_an_equal_share_of_the_budget():
+    """Exponential maxima (scale 2, gyro z 3): each threshold is the quantile at
+    p = 0.75 x 1 % / 15 (the outliers keep their kind's quarter), scale x ln(1 / p), within
+    the tail rule's sampling error; mixed lengths pooled after each hypothesis' own shift."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+    from flight_fdi.eval.calibrate3d import OUTLIER_SHARE, calibrate_hypotheses
+
+    p = (1 - OUTLIER_SHARE) * 0.01 / len(PER_HYPOTHESIS)
+    assert p == pytest.approx(5e-4)
+    scale = {"gyro_z_step": 3.0}
+    rows = _hyp_rows(3000, 4, scale)
+    thr = calibrate_hypotheses(rows, 0.01, growth={h: 0.0 for h in PER_HYPOTHESIS})
+    assert set(thr) == set(PER_HYPOTHESIS)
+    for h in PER_HYPOTHESIS:
+        truth = scale.get(h, 2.0) * math.log(1 / p)          # 15.2 (22.8 for gyro z)
+        assert abs(thr[h] - truth) < 0.1 * truth, (h, thr[h], truth)
+    # 2-h flights whose maxima are the 30-min ones + c ln 4 (c = 1.5 for gyro z, 0 else):
+    # moved back by their own growth, pooled, the same thresholds
+    ln4 = math.log(4.0)
+    long = _hyp_rows(3000, 5, scale, 4 * CALIBRATED_LENGTH_S, {"gyro_z_step": 1.5 * ln4})
+    growth = {h: 0.0 for h in PER_HYPOTHESIS} | {"gyro_z_step": 1.5}
+    pooled = calibrate_hypotheses(rows + long, 0.01, growth)
+    for h in PER_HYPOTHESIS:
+        assert abs(pooled[h] - thr[h]) < 0.08 * thr[h], (h, pooled[h], thr[h])
+    naive = calibrate_hypotheses(rows + long, 0.01, {h: 0.0 for h in PER_HYPOTHESIS})
+    assert naive["gyro_z_step"] > pooled["gyro_z_step"] + 1.0      # unshifted: too high
+
+
+def test_hypothesis_growth_is_the_median_growth_per_ln_length_never_below_zero():
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+    from flight_fdi.eval.calibrate3d import exceeded_hypotheses, hypothesis_growth
+
+    short = _hyp_rows(401, 6, {})
+    med = {h: float(np.median([r["max_by_hypothesis"][h] for r in short]))
+           for h in PER_HYPOTHESIS}
+    ln4 = math.log(4.0)
+    long = [{**r, "duration_s": 7200.0, "max_by_hypothesis": {
+        h: v + (1.5 * ln4 if h == "gyro_z_step" else -1.0 if h == "gyro_x_ramp" else 0.0)
+        for h, v in r["max_by_hypothesis"].items()}} for r in short]
+    c = hypothesis_growth(short, long)
+    assert c["gyro_z_step"] == pytest.approx(1.5)
+    assert c["gyro_x_ramp"] == 0.0                           # a fall is not a growth
+    assert c["gyro_x_step"] == pytest.approx(0.0, abs=1e-12)
+    assert med["gyro_z_step"] > 0
+    with pytest.raises(EvalError, match="longer"):
+        hypothesis_growth(long, short)
+    # flights above a threshold: the hypothesis' own, else its kind's, at the flight's length
+    thr = {"step": 100.0, "ramp": 100.0, "jump": 100.0, "outliers": 100.0, "gyro_z_step": 8.0}
+    z = np.array([r["max_by_hypothesis"]["gyro_z_step"] for r in short])
+    assert exceeded_hypotheses(short, thr) == int(np.sum(z > 8.0))
+    z_long = z + 1.5 * ln4
+    from flight_fdi.core.ins3d.glr3d import growth_of
+    assert exceeded_hypotheses(long, thr) == int(np.sum(
+        z_long > 8.0 + growth_of("gyro_z_step") * ln4))

@@ -15,15 +15,18 @@ the magnitude and its sd.
 
 ``joint``: the same for a step on all three axes of a sensor at once (3 dof), reported beside.
 
-Decision (``isolate``), per IMU grade and hypothesis kind a threshold (``THRESHOLDS_BY_GRADE``,
-calibrated on nominal simulated flights, docs/ins3d.md):
+Decision (``isolate``), per IMU grade a threshold per hypothesis kind (``THRESHOLDS_BY_GRADE``)
+and, where calibrated, per hypothesis (``HYPOTHESIS_THRESHOLDS_BY_GRADE``; ``threshold_of``),
+calibrated on nominal simulated flights (docs/ins3d.md, "Thresholds"). Each step / ramp / jump
+is judged by its *excess* L - c over its own threshold c (the evidence beyond what its own
+search over the onsets reaches on nominal flights; with equal thresholds the raw comparison):
 
 * outliers above their threshold whose largest statistic is at least that of every step / ramp /
   jump above its threshold (a spike explains the data better than a sustained fault starting
   at it) -> ``single`` outliers (a glitch); no step / ramp / jump above its threshold -> ``none``;
-* else the best one (a step rather than a ramp of the same sensor and axis unless the ramp's
-  statistic is larger by the margin: over a short span after the onset the two shapes are
-  alike); the best hypothesis naming *another* (sensor, axis) is its rival: closer
+* else the largest excess (a step rather than a ramp of the same sensor and axis unless the
+  ramp's excess is larger by the margin: over a short span after the onset the two shapes are
+  alike); the largest excess naming *another* (sensor, axis) is its rival: closer
   than ``margin`` (default 2 ln 100 = 9.21, a likelihood ratio of 100) -> ``ambiguous``, both
   named; else ``single``, with the time the ambiguity resolved: the first time t from which the
   GLR gap computed with the data up to t (``signature.signature_stats``, each at its own onset)
@@ -86,10 +89,41 @@ PER_HYPOTHESIS = tuple(f"{s}_{a}_{k}" for s in ("accelerometer", "gyro") for a i
 #: calibrated (docs/ins3d.md, "Thresholds"): each hypothesis' maximum over its onsets on nominal
 #: simulated flights, an equal share of the grade's false-isolation budget per hypothesis
 #: (``eval.calibrate3d.calibrate_hypotheses``). A hypothesis without one uses its kind's.
-HYPOTHESIS_THRESHOLDS_BY_GRADE: dict[str, dict[str, float]] = {}
+HYPOTHESIS_THRESHOLDS_BY_GRADE: dict[str, dict[str, float]] = {
+    "navigation": {
+        "accelerometer_x_step": 19.7,
+        "accelerometer_x_ramp": 17.1,
+        "accelerometer_y_step": 25.5,
+        "accelerometer_y_ramp": 20.5,
+        "accelerometer_z_step": 19.3,
+        "accelerometer_z_ramp": 16.8,
+        "gyro_x_step": 21.6,
+        "gyro_x_ramp": 21.6,
+        "gyro_y_step": 20.6,
+        "gyro_y_ramp": 16.8,
+        "gyro_z_step": 20.6,
+        "gyro_z_ramp": 22.0,
+        "reference_east_jump": 32.3,
+        "reference_north_jump": 30.3,
+        "reference_up_jump": 30.2}}
 #: per hypothesis how its nominal maximum grows with the flight length (c of c ln(T / 1800 s),
 #: measured: the median of the maxima on 30-min and 2-h flights); else its kind's
-HYPOTHESIS_LENGTH_GROWTH: dict[str, float] = {}
+HYPOTHESIS_LENGTH_GROWTH: dict[str, float] = {
+    "accelerometer_x_step": 0.71,
+    "accelerometer_x_ramp": 0.00,
+    "accelerometer_y_step": 0.31,
+    "accelerometer_y_ramp": 0.00,
+    "accelerometer_z_step": 1.20,
+    "accelerometer_z_ramp": 0.00,
+    "gyro_x_step": 0.30,
+    "gyro_x_ramp": 0.00,
+    "gyro_y_step": 0.16,
+    "gyro_y_ramp": 0.00,
+    "gyro_z_step": 0.03,
+    "gyro_z_ramp": 0.27,
+    "reference_east_jump": 2.42,
+    "reference_north_jump": 1.86,
+    "reference_up_jump": 0.00}
 
 
 def thresholds_for(grade: str, duration_s: float | None = None) -> dict[str, float]:
@@ -324,39 +358,52 @@ class Isolation:
     similarity: float | None = None  # |cos| of the angle between their signatures (0..1)
     reason: str | None = None        # ambiguous: "margin" (isolate) or "model" (settle)
     pair: float | None = None        # the GLR of the best and the rival fitted together
+    offset: float = 0.0              # threshold of the best - the rival's: the decision's gap
+                                     # is the raw gap minus it (isolate, compare="excess")
 
 
 def isolate(cv: dict[str, GlrCurve], thresholds: dict[str, float],
-            margin: float = AMBIGUITY_MARGIN) -> Isolation:
+            margin: float = AMBIGUITY_MARGIN, compare: str = "excess") -> Isolation:
     """The decision (module docstring, "Decision"). Every step / ramp / jump is judged by its
     *excess* over its own threshold (:func:`threshold_of`), L - c: the best is the largest
     excess, its rival the largest excess of another (sensor, axis), ambiguous when the two
     excesses are closer than ``margin``. With one threshold for all (one kind) this is the raw
     comparison; with unequal ones it compares each hypothesis' evidence beyond what its own
     search over the onsets reaches on nominal flights (docs/ins3d.md, "Thresholds"). The
-    outlier rule compares raw statistics, as before."""
+    outlier rule compares raw statistics, as before. ``compare="raw"``: best and rival by the
+    raw statistics (the rule before per-hypothesis thresholds; kept for comparisons,
+    ``eval.power_bound``)."""
+    if compare not in ("excess", "raw"):
+        raise ValueError(f"isolate: compare must be 'excess' or 'raw', got {compare!r}")
     main = [c for c in cv.values() if c.hypothesis.kind != "outliers"]
     outl = [c for c in cv.values() if c.hypothesis.kind == "outliers"]
     n_out = int(sum(np.sum(c.stat > thresholds["outliers"]) for c in outl))
-    excess = {c.hypothesis.name: c.statistic - threshold_of(thresholds, c.hypothesis)
-              for c in main}
-    det = [c for c in main if excess[c.hypothesis.name] > 0.0]
+    score = {c.hypothesis.name: c.statistic - threshold_of(thresholds, c.hypothesis)
+             for c in main}                      # the excess over the own threshold
+    det = [c for c in main if score[c.hypothesis.name] > 0.0]
+    if compare == "raw":
+        score = {c.hypothesis.name: c.statistic for c in main}
     top = max(outl, key=lambda c: c.statistic) if outl else None
     if n_out and (not det or top.statistic >= max(c.statistic for c in det)):
         return Isolation("single", top.hypothesis.name, None, n_out)   # spikes explain best
     if not det:
         return Isolation("none", None, None, n_out)
-    best = max(det, key=lambda c: excess[c.hypothesis.name])
+    best = max(det, key=lambda c: score[c.hypothesis.name])
     hb = best.hypothesis
     step = cv.get(hb.name.replace("_ramp", "_step")) if hb.kind == "ramp" else None
     if step is not None and step in det and \
-            excess[step.hypothesis.name] > excess[hb.name] - margin:
+            score[step.hypothesis.name] > score[hb.name] - margin:
         best, hb = step, step.hypothesis        # the simpler shape unless the ramp is clear
     others = [c for c in main if (c.hypothesis.sensor, c.hypothesis.axis) != (hb.sensor, hb.axis)]
-    rival = max(others, key=lambda c: excess[c.hypothesis.name]) if others else None
-    if rival is not None and excess[hb.name] - excess[rival.hypothesis.name] < margin:
-        return Isolation("ambiguous", hb.name, rival.hypothesis.name, n_out, reason="margin")
-    return Isolation("single", hb.name, None if rival is None else rival.hypothesis.name, n_out)
+    rival = max(others, key=lambda c: score[c.hypothesis.name]) if others else None
+    if rival is None:
+        return Isolation("single", hb.name, None, n_out)
+    off = 0.0 if compare == "raw" else (threshold_of(thresholds, hb)
+                                        - threshold_of(thresholds, rival.hypothesis))
+    if score[hb.name] - score[rival.hypothesis.name] < margin:
+        return Isolation("ambiguous", hb.name, rival.hypothesis.name, n_out, reason="margin",
+                         offset=off)
+    return Isolation("single", hb.name, rival.hypothesis.name, n_out, offset=off)
 
 
 def pair_glr(e: np.ndarray, D: np.ndarray) -> float:

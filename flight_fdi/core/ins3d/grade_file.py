@@ -7,8 +7,9 @@ and the GLR thresholds come from the base. Values are in engineering units, the 
 (step, ramp, jump, outliers) the threshold of the maximum GLR for a flight of
 ``glr3d.CALIBRATED_LENGTH_S``, and optionally per hypothesis (``glr3d.PER_HYPOTHESIS``, e.g.
 ``gyro_z_step``: its own threshold; the others use their kind's); longer flights raise them as
-the presets' (``glr3d.thresholds_for``). A grade file never inherits its base preset's
-per-hypothesis thresholds (its noise is its own): it states its own or uses the kinds'.
+the presets' (``glr3d.thresholds_for``). What the file does not give comes from the base, its
+per-hypothesis thresholds included -- except those of a kind the file gives (its value then
+holds for every hypothesis of that kind not given by name).
 ``signature_error_rad`` (optional): how far (an angle) the model's fault signatures may be off on
 this IMU and platform; a confident isolation must leave room for it against its rival
 (``glr3d.settle``; default the grade's axis misalignment, which leaves the gap rule as it is).
@@ -182,8 +183,8 @@ def signature_error_of(grade: ImuGrade) -> float:
 
 
 def _thresholds(path: str, base: str, given: Any) -> tuple[tuple[str, float], ...]:
-    """The kinds' thresholds (the base's where not given), then the hypotheses' given (a
-    hypothesis without one uses its kind's: ``glr3d.threshold_of``)."""
+    """The kinds' thresholds, then the hypotheses' (module docstring: the base's where not
+    given; a hypothesis without one uses its kind's, ``glr3d.threshold_of``)."""
     if not isinstance(given, dict):
         raise CoreError(f"grade file {path}: thresholds must be a mapping of kind (or "
                         f"hypothesis) to value ({', '.join(KINDS)}, e.g. gyro_z_step)")
@@ -191,7 +192,8 @@ def _thresholds(path: str, base: str, given: Any) -> tuple[tuple[str, float], ..
     if bad:
         raise CoreError(f"grade file {path}: unknown key 'thresholds.{bad[0]}' (allowed: "
                         f"{', '.join(KINDS)}, or a hypothesis: {', '.join(PER_HYPOTHESIS)})")
-    thr = {k: v for k, v in thresholds_for(base).items() if k in KINDS}
+    thr = {k: v for k, v in thresholds_for(base).items()     # a kind given: the base's
+           if k in KINDS or k.rsplit("_", 1)[-1] not in given}   # hypotheses of it dropped
     thr.update({k: _number(path, f"thresholds.{k}", v, True) for k, v in given.items()})
     return tuple((k, float(thr[k])) for k in (*KINDS, *(h for h in PER_HYPOTHESIS if h in thr)))
 
