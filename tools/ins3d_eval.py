@@ -290,14 +290,17 @@ def run_detectable_long(args, out: pathlib.Path) -> None:
 def section_nominal_long(out: pathlib.Path, name: str = "nominal_long") -> str | None:
     from flight_fdi.core.ins3d.glr3d import thresholds_for
     from flight_fdi.eval.long3d import (format_nominal, format_nominal_maxima, nominal_maxima,
-                                        read_study)
+                                        nominal_maxima_by_hypothesis, read_study)
 
     doc, recs, note, dur = read_study(out, name)
     if not recs:
         return None
     head = note + (_settings(doc) if doc else "")
+    thr = thresholds_for("navigation", dur)
+    per = nominal_maxima_by_hypothesis(recs, thr)
     return "\n".join([head, "", format_nominal(recs), "", format_nominal_maxima(
-        nominal_maxima(recs, thresholds_for("navigation", dur)))])
+        nominal_maxima(recs, thr))] + (["", format_nominal_maxima(per, "hypothesis")]
+                                        if per else []))
 
 
 def section_faults_long(out: pathlib.Path, name: str = "faults_long") -> str | None:

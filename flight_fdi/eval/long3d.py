@@ -11,6 +11,7 @@ what the longer flights add:
 * :func:`merge_records`: the records of several studies as one set (indices renumbered);
 * :func:`nominal_maxima`: per hypothesis kind, the nominal flights' largest GLR against the
   threshold (how close to a false alarm the flights came: the margin on long flights);
+  :func:`nominal_maxima_by_hypothesis`: the same per hypothesis, against its own threshold;
 * :func:`by_onset`: the right-isolation rate per scenario, axis and onset bin (where in the
   flight a fault is isolated in 95 %);
 * :func:`detectable_steps`: from one analysed flight, the step size whose expected GLR equals
@@ -92,6 +93,28 @@ def nominal_maxima(records: Sequence[dict], thresholds: dict[str, float],
                   "max": float(m.max()) if m.size else None,
                   "median": float(np.median(m)) if m.size else None,
                   "above": int(np.sum(m > thr))}
+    return out
+
+
+def nominal_maxima_by_hypothesis(records: Sequence[dict], thresholds: dict[str, float],
+                                 model: str = "ins3d") -> dict[str, dict]:
+    """:func:`nominal_maxima` per hypothesis (step / ramp / jump) from the records'
+    ``glr_statistics`` (every hypothesis' largest GLR), against each one's own threshold
+    (``glr3d.threshold_of``: its own where the grade has one, else its kind's); records
+    without them: {}."""
+    from flight_fdi.core.ins3d.glr3d import hypotheses, threshold_of
+
+    nom = [r[model].get("glr_statistics") for r in records if r["scenario"] == "nominal"]
+    if not nom or not all(nom):
+        return {}
+    out = {}
+    for h in hypotheses(3):
+        if h.kind == "outliers" or h.name not in nom[0]:
+            continue
+        m = np.array([g[h.name] for g in nom], dtype=float)
+        thr = threshold_of(thresholds, h)
+        out[h.name] = {"n": int(m.size), "threshold": thr, "max": float(m.max()),
+                       "median": float(np.median(m)), "above": int(np.sum(m > thr))}
     return out
 
 
@@ -180,11 +203,13 @@ def detectable_steps(analysis, onsets_s: Sequence[float], names: Sequence[tuple[
     return rows
 
 
-def format_nominal_maxima(maxima: dict[str, dict]) -> str:
-    """The table of :func:`nominal_maxima`."""
-    lines = ["largest GLR per hypothesis kind over the nominal flights (3-D model), against the "
-             "threshold of the flight's length:", "",
-             "| kind | flights | median of the flights' maxima | largest | threshold | "
+def format_nominal_maxima(maxima: dict[str, dict], what: str = "kind") -> str:
+    """The table of :func:`nominal_maxima` (``what``: "hypothesis" for
+    :func:`nominal_maxima_by_hypothesis`'s)."""
+    lines = [f"largest GLR per {'hypothesis kind' if what == 'kind' else what} over the nominal "
+             "flights (3-D model), against the threshold of the flight's length"
+             + ("" if what == "kind" else " (its own)") + ":", "",
+             f"| {what} | flights | median of the flights' maxima | largest | threshold | "
              "flights above |", "|---|---|---|---|---|---|"]
     for k, v in maxima.items():
         if v["n"]:

@@ -79,6 +79,8 @@ class Study3DConfig:
     onset_window: onset uniform in [a, b] x duration_s. gnss_latency_s: the receiver's latency
     (default the simulator's 20 ms; Markov noise as the simulator's defaults).
     single_axis: also run the single-axis model on the east and north channels.
+    axes: run only the fault flights on these axes (empty: all); the plan and every flight's
+    seeds are those of the whole study (a subset of it, re-run).
     """
 
     nominal: int = 200
@@ -95,6 +97,7 @@ class Study3DConfig:
     single_axis: bool = True
     analysis: Any = None     # core.analysis.AnalysisConfig of the single-axis model (None:
                              # its defaults); its gate is also the 3-D forward filter's
+    axes: tuple = ()
 
     def __post_init__(self) -> None:
         _check_int("nominal", self.nominal, 0)
@@ -137,6 +140,11 @@ class Study3DConfig:
             object.__setattr__(self, "analysis", AnalysisConfig())
         if not isinstance(self.analysis, AnalysisConfig):
             raise EvalError("Study3DConfig.analysis must be an AnalysisConfig")
+        object.__setattr__(self, "axes", tuple(self.axes))
+        known = {a for s in scen for a in SCENARIOS[s][4]}
+        if any(a not in known for a in self.axes):
+            raise EvalError(f"Study3DConfig.axes must be axes of the scenarios "
+                            f"({', '.join(sorted(known))}), got {self.axes}")
         if self.rows not in (2, 3):
             raise EvalError(f"Study3DConfig.rows must be 2 or 3, got {self.rows!r}")
 
@@ -236,12 +244,16 @@ def plan_study(config: Study3DConfig) -> list[Case3D]:
     cases: list[Case3D] = []
     for _ in range(config.nominal):
         cases.append(Case3D(len(cases), "nominal", _seed(rng), _seed(rng)))
+    index = len(cases)
     for s in config.scenarios:
         axes, levels = SCENARIOS[s][4], config.levels[s]
         for j in range(config.per_scenario):
             axis = axes[j % len(axes)]
             level = levels[(j // len(axes)) % len(levels)]
-            cases.append(fault_case(len(cases), s, axis, level, rng, config))
+            case = fault_case(index, s, axis, level, rng, config)
+            index += 1
+            if not config.axes or axis in config.axes:     # (config.axes: a subset, re-run)
+                cases.append(case)
     return cases
 
 
@@ -371,7 +383,8 @@ def run_case(case: Case3D, config: Study3DConfig) -> dict:
            "unit": None if case.sensor is None else SCENARIOS[case.scenario][5],
            "magnitude": case.magnitude, "onset_s": case.onset_s,
            "onset_in_turn": in_turn, "next_turn_s": next_turn,
-           "ins3d": {**decision(post), **extra}}
+           "ins3d": {**decision(post), **extra,   # every hypothesis' largest GLR (re-deciding)
+                     "glr_statistics": dict((post.get("glr") or {}).get("statistics") or {})}}
     if config.single_axis:
         chans = {k: decision(v) for k, v in single_axis_channels(flight, config).items()}
         rec["single_axis"] = {**combine_channels(chans), "channels": chans}
