@@ -342,6 +342,20 @@ def section_calibration_long(out: pathlib.Path) -> str | None:
                              thresholds_for("navigation", long[0]["duration_s"]), LENGTH_GROWTH)
 
 
+def section_calibration_hypotheses(out: pathlib.Path) -> str | None:
+    """The per-hypothesis thresholds' calibration table, from the same rows as
+    ``section_calibration_long`` (with ``max_by_hypothesis``: tools/ins3d_calibrate.py of
+    this code)."""
+    from flight_fdi.core.ins3d.glr3d import THRESHOLDS_BY_GRADE
+    from flight_fdi.eval.long3d import hypothesis_calibration_table
+
+    short = _load(out, "calibrate_30min")
+    long = [r for p in sorted(out.glob("calibrate_long*.json")) for r in json.loads(p.read_text())]
+    if short is None or not long or not all("max_by_hypothesis" in r for r in short + long):
+        return None
+    return hypothesis_calibration_table(short, long, THRESHOLDS_BY_GRADE["navigation"])
+
+
 def section_onset_calibration(out: pathlib.Path) -> str | None:
     """The onset-interval calibration tables from ``onset_*.json`` (tools/ins3d_onset_calibrate.py
     --out) in ``out``: one table per file."""
@@ -456,6 +470,7 @@ def sections() -> list[tuple]:
            ("latency", section_latency), ("detectable", section_detectable),
            ("nominal_long", section_nominal_long), ("faults_long", section_faults_long),
            ("calibration_long", section_calibration_long),
+           ("calibration_hypotheses", section_calibration_hypotheses),
            ("onset_calibration", section_onset_calibration),
            ("detectable_long", section_detectable_long)]
     for prof in PROFILES:

@@ -277,6 +277,39 @@ def calibration_table(short: Sequence[dict], long: Sequence[dict], base: dict[st
     return "\n".join(lines)
 
 
+def hypothesis_calibration_table(short: Sequence[dict], long: Sequence[dict],
+                                 kinds: dict[str, float]) -> str:
+    """The per-hypothesis calibration (``calibrate3d.calibrate_hypotheses`` on
+    ``tools/ins3d_calibrate.py`` rows with ``max_by_hypothesis``): per hypothesis the maxima on
+    the short and long flights, the measured growth and the grade's thresholds (its own at
+    30 min and at the long flights' length, against its kind's: ``kinds``, the grade's
+    per-kind thresholds at 30 min) and the long flights above each."""
+    from flight_fdi.core.ins3d.glr3d import (PER_HYPOTHESIS, growth_of, hypotheses,
+                                             threshold_of, thresholds_for)
+    from flight_fdi.core.ins3d.grade_file import at_length
+
+    ts, tl = short[0]["duration_s"], long[0]["duration_s"]
+    hyps = {h.name: h for h in hypotheses(3)}
+    own, own_l = thresholds_for("navigation"), thresholds_for("navigation", tl)
+    kind_l = at_length(kinds, tl)
+    lines = [f"| hypothesis | {ts / 60:g} min, {len(short)} flights: median / 90 % / largest | "
+             f"{tl / 60:g} min, {len(long)} flights: median / 90 % / largest | growth c "
+             f"(kind's) | threshold {ts / 60:g} min (kind's) | threshold {tl / 60:g} min "
+             f"(kind's) | {tl / 60:g}-min flights above: own (kind's) |", "|---" * 7 + "|"]
+    for name in PER_HYPOTHESIS:
+        h = hyps[name]
+        q = [np.quantile([r["max_by_hypothesis"][name] for r in rows], (0.5, 0.9, 1.0))
+             for rows in (short, long)]
+        m = np.array([r["max_by_hypothesis"][name] for r in long])
+        lines.append(
+            f"| {name} | {' / '.join(f'{v:.1f}' for v in q[0])} | "
+            f"{' / '.join(f'{v:.1f}' for v in q[1])} | {growth_of(name):.2f} "
+            f"({growth_of(h.kind):g}) | {threshold_of(own, h):.1f} ({kinds[h.kind]:.1f}) | "
+            f"{threshold_of(own_l, h):.1f} ({kind_l[h.kind]:.1f}) | "
+            f"{int(np.sum(m > threshold_of(own_l, h)))} ({int(np.sum(m > kind_l[h.kind]))}) |")
+    return "\n".join(lines)
+
+
 def format_detectable(doc: dict, intro: str) -> str:
     """The detectable-step table of ``tools/ins3d_eval.py``'s ``detectable*.json``: per flight /
     model and step the sizes per onset, then the turns and first-excited times."""
