@@ -286,3 +286,46 @@ def test_load_sampler_reports_the_range_of_its_samples():
     lo, hi = sampler.stop()            # the thread's first sample, then the last one at stop
     assert len(sampler.samples) == 2 and [lo, hi] == [min(sampler.samples), max(sampler.samples)]
     assert 0.0 <= lo <= hi
+
+
+def test_nominal_maxima_per_hypothesis_against_its_own_threshold():
+    from flight_fdi.eval.long3d import nominal_maxima_by_hypothesis
+
+    thr = {"step": 21.4, "ramp": 20.0, "jump": 32.8, "outliers": 34.8, "gyro_z_step": 16.0}
+    stats = [{"gyro_z_step": z, "gyro_x_step": x, "reference_east_jump": j,
+              "reference_east_outliers": 40.0} for z, x, j in
+             ((3.0, 5.0, 20.0), (17.0, 22.0, 30.0), (9.0, 4.0, 33.0))]
+    recs = [{**_rec(i, "nominal", right=False), "ins3d": {"glr_statistics": s}}
+            for i, s in enumerate(stats)]
+    recs.append(_rec(3))                                          # a faulty flight: ignored
+    m = nominal_maxima_by_hypothesis(recs, thr)
+    assert "reference_east_outliers" not in m                     # outliers: per kind
+    assert m["gyro_z_step"] == {"n": 3, "threshold": 16.0, "max": 17.0, "median": 9.0,
+                                "above": 1}
+    assert m["gyro_x_step"]["threshold"] == 21.4 and m["gyro_x_step"]["above"] == 1
+    assert m["reference_east_jump"]["above"] == 1
+    text = format_nominal_maxima(m, "hypothesis")
+    assert "| gyro_z_step | 3 | 9.0 | 17.0 | 16.0 | 1 |" in text and "(its own)" in text
+    assert nominal_maxima_by_hypothesis([_rec(0, "nominal", right=False)], thr) == {}
+
+
+def test_hypothesis_calibration_table_counts_the_long_flights_above_own_and_kind():
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS, threshold_of, thresholds_for
+    from flight_fdi.core.ins3d.glr3d import hypotheses
+    from flight_fdi.eval.long3d import hypothesis_calibration_table
+
+    def row(dur, z):
+        return {"duration_s": dur, "max_by_hypothesis": {
+            h: (z if h == "gyro_z_step" else 1.0) for h in PER_HYPOTHESIS}}
+
+    short = [row(1800.0, z) for z in (2.0, 3.0, 4.0)]
+    long = [row(7200.0, z) for z in (3.0, 20.9, 30.0)]
+    kinds = {"step": 20.0, "ramp": 20.0, "jump": 30.0, "outliers": 32.0}
+    text = hypothesis_calibration_table(short, long, kinds)
+    gz = next(h for h in hypotheses(3) if h.name == "gyro_z_step")
+    own = threshold_of(thresholds_for("navigation", 7200.0), gz)
+    above = sum(z > own for z in (3.0, 20.9, 30.0))
+    line = next(x for x in text.splitlines() if x.startswith("| gyro_z_step |"))
+    assert "| 3.0 / 3.8 / 4.0 | 20.9 / 28.2 / 30.0 |" in line   # median / 90 % / largest
+    assert above == 2 and line.endswith("| 2 (1) |")   # own 20.6: 20.9 and 30; kind's 21.39: 30
+    assert len(text.splitlines()) == 2 + len(PER_HYPOTHESIS)

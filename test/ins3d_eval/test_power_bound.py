@@ -217,3 +217,27 @@ def test_the_tool_fails_with_one_line_on_bad_arguments(tmp_path):
                         "--render-only", "--out", str(tmp_path)], capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 2 and "no records" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_the_decision_rules_on_the_same_draws(pf):
+    """``decide_rules``: "hyp_excess" is the isolator the analysis uses (``decide``),
+    "kinds_raw" the rule before per-hypothesis thresholds (per-kind thresholds, raw
+    statistics); a 600-s flight's gyro z step far above every threshold is right by all four."""
+    from flight_fdi.core.ins3d.glr3d import isolate
+    from flight_fdi.eval.power_bound import RULES
+
+    rng = np.random.default_rng(4)
+    noise = pf.noise(rng)
+    signal = pf.noiseless("gyro", "z", 200.0)
+    kinds = {k: v for k, v in pf.thresholds.items() if k in ("step", "ramp", "jump", "outliers")}
+    for b in (0.0, 3.0 * DEG_H, 300.0 * DEG_H):
+        cv = pf.curves(noise, signal, b)
+        d = pf.decide_rules(cv, "gyro", "z")
+        assert set(d) == set(RULES)
+        own = pf.decide(cv, "gyro", "z")
+        assert d["hyp_excess"] == [own["named"], own["isolation"], own["right"]]
+        old = isolate(cv, kinds, compare="raw")
+        assert d["kinds_raw"][:2] == [old.best, old.isolation]
+    assert all(v[2] for v in d.values())
+    with pytest.raises(ValueError, match="compare"):
+        isolate(cv, kinds, compare="rank")

@@ -100,3 +100,17 @@ def test_ladder_climbs_down_while_it_passes_and_up_while_it_fails(monkeypatch):
     text = ladder3d.format_ladder(lad)
     assert "| navigation | gyro_step | z | not reached (> 1.6 deg/h) |" in text
     assert "| navigation | accel_step | y | 0.25 mg |" in text
+
+
+def test_axes_re_run_a_subset_of_the_same_flights():
+    """Study3DConfig.axes keeps the whole plan's flights on those axes: same index, seeds,
+    level, onset and sign (a study re-run on one axis is the same flights)."""
+    cfg = Study3DConfig(nominal=2, per_scenario=18, scenarios=("gyro_step", "accel_step"),
+                        duration_s=600.0, seed=7)
+    full = plan_study(cfg)
+    sub = plan_study(Study3DConfig(**{**cfg.__dict__, "axes": ("z",)}))
+    assert sub == [c for c in full if c.scenario == "nominal" or c.axis == "z"]
+    assert {c.axis for c in sub if c.scenario != "nominal"} == {"z"}
+    assert len([c for c in sub if c.scenario != "nominal"]) == 12
+    with pytest.raises(EvalError, match="axes"):
+        Study3DConfig(**{**cfg.__dict__, "axes": ("east",)})
