@@ -42,7 +42,12 @@ accel_scale_ppm: 50
 accel_misalign_mrad: 0.02
 accel_quantum_mps: 1e-4   # no dot: PyYAML reads a string, taken as the number
 heading_sigma_deg: 0
-thresholds: {step: 20, ramp: 20, jump: 30, outliers: 32}
+thresholds: {step: 20, ramp: 20, jump: 30, outliers: 32,
+  accelerometer_x_step: 19.7, accelerometer_x_ramp: 17.1, accelerometer_y_step: 25.5,
+  accelerometer_y_ramp: 20.5, accelerometer_z_step: 19.3, accelerometer_z_ramp: 16.8,
+  gyro_x_step: 21.6, gyro_x_ramp: 21.6, gyro_y_step: 20.6, gyro_y_ramp: 16.8,
+  gyro_z_step: 20.6, gyro_z_ramp: 22.0, reference_east_jump: 32.3,
+  reference_north_jump: 30.3, reference_up_jump: 30.2}
 """
 
 
