@@ -69,14 +69,21 @@ def _f(x: float, spec: str = ".2f") -> str:
 
 
 def row_bounds(r: dict, thr: dict, scale: float = 1.0) -> dict:
-    """The bounds of one (flight, onset, column, level) row (the fault ``scale`` x its size)."""
+    """The bounds of one (flight, onset, column, level) row (the fault ``scale`` x its size).
+    The GLR told the onsets: the column's own threshold (``glr3d.threshold_of``: per kind in
+    records made before per-hypothesis thresholds), isolated when its excess beats the nearest
+    rival's by the margin (``glr3d.isolate``: the raw gap >= margin + c_own - c_rival)."""
+    from flight_fdi.core.ins3d.glr3d import AMBIGUITY_MARGIN, hypotheses, threshold_of
     from flight_fdi.eval.power_bound import (glr_known_onsets, np_power,
                                              separation_bound)
 
+    hyps = {h.name: h for h in hypotheses(3)}
     lam = (scale * r["b"]) ** 2 * r["info"]
     cos2 = r["rivals"][0]["cos2"] if r["rivals"] else 0.0
     d2 = lam * (1.0 - cos2)
-    det, iso = glr_known_onsets(lam, cos2, thr["step"])
+    own = threshold_of(thr, hyps[f"{r['sensor']}_{r['axis']}_step"])
+    rival = threshold_of(thr, hyps[r["rivals"][0]["name"]]) if r["rivals"] else own
+    det, iso = glr_known_onsets(lam, cos2, own, AMBIGUITY_MARGIN + own - rival)
     p_np, p_sep = float(np_power(lam)), float(separation_bound(d2))
     return {"lam": lam, "np": p_np, "sep": p_sep, "iso": min(p_np, p_sep), "glr_det": det,
             "glr_iso": iso, "rival": r["rivals"][0]["name"] if r["rivals"] else "-"}

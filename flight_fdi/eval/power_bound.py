@@ -87,7 +87,9 @@ def glr_known_onsets(lam: float, cos2: float, threshold: float,
                      margin: float = AMBIGUITY_MARGIN, n: int = 4001) -> tuple[float, float]:
     """(P(z1^2 > c), P(z1^2 > c and z1^2 - z2^2 >= margin)) for z1 = u'y ~ N(sqrt(lambda), 1) and
     z2 = v'y, v'u = sqrt(cos2): the GLR told the true onset and the rival's best one, against
-    its threshold and the ambiguity margin (integral over z1 of the normal z2 | z1)."""
+    its threshold and the ambiguity margin (integral over z1 of the normal z2 | z1). With
+    unequal thresholds (``glr3d.isolate`` by excess) the margin is 9.21 + c - c_rival, negative
+    when the rival's threshold is the higher by more than 9.21."""
     if not 0.0 <= cos2 <= 1.0 + 1e-9:
         raise EvalError(f"glr_known_onsets: cos2 must be in [0, 1], got {cos2!r}")
     m = math.sqrt(max(lam, 0.0))
