@@ -77,6 +77,10 @@ def test_a_z_step_above_its_own_lower_threshold_is_isolated():
     iso = isolate(cv, {**KIND_2H, "gyro_z_step": 16.0})
     assert (iso.isolation, iso.best, iso.rival) == ("single", "gyro_z_step",
                                                     "reference_east_jump")
+    # the decision's gap is the raw gap minus the thresholds' offset: (19 - 25) - (16 - 32.77)
+    assert iso.offset == pytest.approx(16.0 - 32.77)
+    assert (19.0 - 25.0) - iso.offset == pytest.approx(10.77)
+    assert isolate(cv, {**KIND_2H, "gyro_z_step": 16.0}, compare="raw").isolation == "ambiguous"
 
 
 def test_the_raw_margin_against_a_noise_jump_no_longer_makes_it_ambiguous():
