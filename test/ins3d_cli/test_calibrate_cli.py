@@ -103,8 +103,12 @@ def test_the_shipped_grade_files_are_valid():
     from flight_fdi.core.ins3d.grades import GRADES
 
     grades = Path(__file__).resolve().parents[2] / "config/grades"
-    for name in ("example_mems_custom", "example_nav_noisy", "navigation_as_file"):
+    for name in ("example_mems_custom", "example_nav_noisy"):     # kinds given: per kind
         assert set(dict(load_grade(grades / f"{name}.yaml").thresholds)) == set(KINDS)
+    # none given: the base's, the navigation preset's per-hypothesis thresholds included
+    from flight_fdi.core.ins3d.glr3d import thresholds_for
+    assert dict(load_grade(grades / "navigation_as_file.yaml").thresholds) == \
+        thresholds_for("navigation")
     g, nav = load_grade(grades / "navigation_as_file.yaml"), GRADES["navigation"]
     for f in fields(nav):
         if f.name != "name":
