@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from flight_fdi.core.ins3d.glr3d import threshold_of
 from flight_fdi.core.models import DEG_PER_HOUR, G0
 
 from .canvas import canvas, maxpool, save, stride
@@ -128,8 +129,8 @@ def gate_figure3d(analysis: Any, res: dict, path: Path) -> Path:
 
 def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
     """The two-filter chi-square J over time with its bound, and the GLR statistic of every
-    body-axis hypothesis over its onset time with the thresholds (the isolated one and its
-    runner-up drawn bold)."""
+    body-axis hypothesis over its onset time (the isolated one and its runner-up drawn bold,
+    each with its own threshold dashed in its colour)."""
     seed, curves = getattr(analysis, "seed", None), getattr(analysis, "glr", None)
     if seed is None or not curves:
         return None
@@ -149,11 +150,11 @@ def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
             continue
         t, y = maxpool(np.asarray(c.t, dtype=float), np.asarray(c.stat, dtype=float))
         strong = name in bold
-        a2.plot(t, y, lw=1.4 if strong else 0.5, alpha=1.0 if strong else 0.5,
-                label=name if strong else None)
-    for kind, thr in thresholds.items():
-        if kind != "outliers":
-            a2.axhline(float(thr), ls="--", lw=0.8, color="#c03030")
+        line, = a2.plot(t, y, lw=1.4 if strong else 0.5, alpha=1.0 if strong else 0.5,
+                        label=name if strong else None)
+        if strong and thresholds:       # its own threshold (per hypothesis, else its kind's)
+            a2.axhline(threshold_of(thresholds, c.hypothesis), ls="--", lw=0.8,
+                       color=line.get_color())
     a2.set_ylabel("GLR statistic over the onset")
     a2.set_xlabel("time [s] (GLR: onset time)")
     return _finish(fig, (a1, a2), res, path)
@@ -215,7 +216,8 @@ def write_report3d(res: dict, analysis: Any, out_dir: str | Path, truth: dict | 
     figs.append(("gate.png", "beta^2 against the gate, total and per reference row"))
     if post_flight_figure(analysis, res, out / "post_flight.png") is not None:
         figs.append(("post_flight.png", "After the flight: chi-square J with its bound; GLR "
-                     "statistic per body-axis hypothesis over the onset time, thresholds dashed"))
+                     "statistic per body-axis hypothesis over the onset time, the best one's "
+                     "and its runner-up's thresholds dashed"))
     notes = list(notes or [])
     if truth is None:
         notes.append("The bag has no /sim/truth: no true sensor errors are drawn.")

@@ -137,3 +137,50 @@ def test_equal_thresholds_give_the_raw_rule_and_the_outlier_rule_is_unchanged():
     # ... raw statistics, as before: 36 < 45 -> the step, the outliers counted
     iso = isolate(_curves(gyro_z_step=45.0, reference_north_outliers=36.0), thr)
     assert (iso.isolation, iso.best, iso.outliers) == ("single", "gyro_z_step", 1)
+
+
+def test_settle_judges_the_pair_by_the_same_excess_as_isolate():
+    """A z step isolated by its excess over a rival whose raw statistic is the larger one (the
+    rival's threshold 15.8 above the z step's). Signatures at 44 deg, the data between them in
+    their plane: L_b = 40, L_r = 44, the pair L2 = |y|^2 = 49. The raw pair test (L2 - L_r = 5
+    < 9.21) called it ambiguous even with an exact model; net of the same offset as isolate's
+    (5 + 15.8) it stays single at eps = 0, and a model error beyond what that gap leaves makes
+    it ambiguous."""
+    from flight_fdi.core.ins3d.glr3d import settle
+
+    thr = {**KIND_2H, "gyro_z_step": 20.0, "reference_east_jump": 35.8}
+
+    def decided():
+        iso = isolate(_curves(gyro_z_step=40.0, reference_east_jump=44.0), thr)
+        assert (iso.isolation, iso.best, iso.rival) == ("single", "gyro_z_step",
+                                                         "reference_east_jump")
+        return iso
+
+    assert decided().offset == pytest.approx(20.0 - 35.8)
+    c = math.cos(math.acos(math.sqrt(40.0) / 7.0) + math.acos(math.sqrt(44.0) / 7.0))
+    e, D = np.array([math.sqrt(40.0), math.sqrt(44.0)]), np.array([[1.0, c], [c, 1.0]])
+    assert glr3d.pair_glr(e, D) == pytest.approx(49.0)
+    assert settle(decided(), e, D, 0.0).isolation == "single"
+    eps = math.asin(math.sqrt((5.0 + 15.8 - AMBIGUITY_MARGIN) / 49.0))   # the room left
+    assert settle(decided(), e, D, eps - 0.01).isolation == "single"
+    iso = settle(decided(), e, D, eps + 0.01)
+    assert (iso.isolation, iso.reason) == ("ambiguous", "model")
+
+
+def test_a_flight_reports_the_isolated_hypothesis_own_threshold_and_the_decision_gap():
+    """On a simulated flight (420 s, an accelerometer x step at 150 s): the result's fault and
+    glr carry the hypothesis' own threshold (navigation: 19.7, its kind's 20), and the gap over
+    time whose end decides the isolation is the excess gap of isolate: at the last update
+    (L_b - c_b) - (L_r - c_r) of the curves (forward signatures = backward sweep)."""
+    from .test_turn_on import IN_FLIGHT, analysis
+
+    a = analysis(IN_FLIGHT)
+    pf, iso = a.post_flight_dict(), a.isolation
+    assert (iso.isolation, iso.best) == ("single", "accelerometer_x_step")
+    own = threshold_of(a.thresholds, HYPS["accelerometer_x_step"])
+    assert own == glr3d.HYPOTHESIS_THRESHOLDS_BY_GRADE["navigation"]["accelerometer_x_step"]
+    assert own != a.thresholds["step"]
+    assert pf["fault"]["threshold"] == pf["glr"]["threshold"] == own
+    b, r = a.glr[iso.best], a.glr[iso.rival]
+    excess_gap = (b.statistic - own) - (r.statistic - threshold_of(a.thresholds, r.hypothesis))
+    assert iso.gap[-1] == pytest.approx(excess_gap, rel=1e-6)

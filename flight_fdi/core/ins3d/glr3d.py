@@ -423,7 +423,10 @@ def settle(iso: Isolation, e: np.ndarray, D: np.ndarray, eps: float,
     by an angle ``eps`` (rad; the model's relative error on this kind of flight) leaves up to
     L2 sin^2(eps), noise 9.21 more (``margin``): L2 - L_r <= margin + L2 sin^2(eps) ->
     ``ambiguous``, reason ``model`` (the rival explains the data as well, up to the model's
-    error). With eps -> 0 this is the gap rule of ``isolate`` (L2 - L_r >= L_b - L_r).
+    error). With eps -> 0 this is the gap rule of ``isolate`` (L2 - L_r >= L_b - L_r); like
+    it, the gap is taken net of ``iso.offset`` (the two hypotheses' thresholds differ: each
+    one's evidence counts beyond what its own search over the onsets reaches on nominal
+    flights), so a pair that ``isolate`` separated by the margin stays separated at eps = 0.
     Records ``pair``, ``rival_gain`` = L2 - L_b (what the rival adds to the best) and
     ``similarity`` = |cos| of the angle between the signatures."""
     both = pair_glr(e, D)
@@ -432,7 +435,7 @@ def settle(iso: Isolation, e: np.ndarray, D: np.ndarray, eps: float,
     iso.similarity = float(min(abs(D[0, 1]) / math.sqrt(D[0, 0] * D[1, 1]), 1.0)) \
         if D[0, 0] > 0 and D[1, 1] > 0 else 0.0
     if iso.isolation == "single" and iso.rival is not None and \
-            both - alone[1] <= margin + both * math.sin(eps) ** 2:
+            both - alone[1] - iso.offset <= margin + both * math.sin(eps) ** 2:
         iso.isolation, iso.reason = "ambiguous", "model"
     return iso
 

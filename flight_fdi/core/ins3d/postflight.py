@@ -290,7 +290,7 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
         e, D = es[-1], Ds[-1]
         gap = _glr(es[:, 0], Ds[:, 0, 0]) - _glr(es[:, 1], Ds[:, 1, 1])
     settle(iso, e, D, signature_error, AMBIGUITY_MARGIN)
-    iso.gap = gap
+    iso.gap = gap - iso.offset           # the decision's gap (unequal thresholds: isolate)
     if iso.isolation == "single":
         iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
 

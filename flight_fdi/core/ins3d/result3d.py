@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from ..diagnosis import SeedDiagnosis
 from ..result import ENGINEERING, _num, describe
-from .glr3d import GlrCurve, Isolation
+from .glr3d import GlrCurve, Isolation, threshold_of
 from .turn_on import describe_turn_on
 
 
@@ -115,7 +115,7 @@ def fault_record(cv: dict[str, GlrCurve], name: str, thresholds: dict[str, float
         "magnitude": _num(mag), "unit": h.unit,
         "magnitude_eng": _num(mag * factor), "unit_eng": unit_eng,
         "magnitude_std": _num(c.sd[k]),
-        "statistic": float(c.statistic), "threshold": float(thresholds[h.kind]),
+        "statistic": float(c.statistic), "threshold": threshold_of(thresholds, h),
         "runner_up": None if runner_up is None else {
             "hypothesis": runner_up, "statistic": float(cv[runner_up].statistic)},
     }
@@ -206,7 +206,7 @@ def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
         "candidates": dec["candidates"], "isolation": iso.isolation,
         "element": dec["element"], "onset_s": dec["onset_s"], "magnitude": dec["magnitude"],
         "methods_agree": bool(seed.element == glr_elem),
-        "disagreement": _disagreement(seed, glr_elem, top, thresholds[top.hypothesis.kind]),
+        "disagreement": _disagreement(seed, glr_elem, top, threshold_of(thresholds, top.hypothesis)),
         "ambiguity_resolved_s": _rel(iso.ambiguity_resolved_s, t0),
         "turn_on_bias": list(turn_on or []),
         "seed_method": {
@@ -223,7 +223,7 @@ def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
                                                                _rel(interval[1], t0)],
             "magnitude": _num(top.mag[k]), "unit": top.hypothesis.unit,
             "statistic": float(top.statistic),
-            "threshold": float(thresholds[top.hypothesis.kind]),
+            "threshold": threshold_of(thresholds, top.hypothesis),
             "isolation": iso.isolation, "runner_up": iso.rival,
             "runner_up_statistic": float(cv[iso.rival].statistic) if iso.rival else 0.0,
             "runner_up_gain": _num(iso.rival_gain), "signature_similarity": _num(iso.similarity),

@@ -9,7 +9,7 @@ it must not hide the in-flight fault: on real MEMS recordings (docs/ins3d_real.m
 beat the injected in-flight fault on 8 of 1296 runs, and the pair test (``glr3d.settle``) never
 saw the right one, which was not the runner-up.
 
-``decide``: when IMU step hypotheses above the step threshold have their best onset at the
+``decide``: when IMU step hypotheses above their thresholds have their best onset at the
 first update (the turn-on candidates; the *best* onset, not the onset interval reaching it: an
 in-flight step with a wide interval stays an in-flight step -- it must not be hidden -- and a
 turn-on bias whose best onset is a later update is reported as an in-flight step with its
@@ -29,7 +29,7 @@ ones: a bias from the start does not change one update's outlier statistic), and
 (``postflight.resolve``) with S profiled out as well.
 
 When the unconditional decision names a hypothesis that is not a turn-on candidate (an
-in-flight fault), a turn-on bias must stay above the step threshold with the strongest
+in-flight fault), a turn-on bias must stay above its threshold with the strongest
 in-flight hypothesis given it (the conditional in-flight fault, or the top conditional curve
 when none is above its threshold) fitted beside it (its GLR given all the others); otherwise
 it was that in-flight fault seen through a step at the first update, and the unconditional
@@ -48,7 +48,7 @@ from ..result import ENGINEERING, _num
 from .backward import GROUP_SIZE, GROUP_START
 from .data import NavSteps, RefRows
 from .filter import Ins3dForward
-from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation, isolate
+from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation, isolate, threshold_of
 from .model import Ins3dModel
 from .postflight import (Ins3dBackward, fault_information, fused_forward, glr_curves, resolve,
                          signature)
@@ -104,10 +104,10 @@ class Given:
 def candidates(cv: dict[str, GlrCurve], thresholds: dict[str, float],
                exclude: tuple = ()) -> list[str]:
     """The IMU step and reference jump hypotheses whose best onset is the first update and
-    whose GLR is above their kind's threshold, largest first (``exclude``: (sensor, axis)
-    pairs left out)."""
+    whose GLR is above their own threshold (``glr3d.threshold_of``), largest first
+    (``exclude``: (sensor, axis) pairs left out)."""
     out = [c for c in cv.values() if c.hypothesis.kind in ("step", "jump") and c.best == 0 and
-           c.statistic > thresholds[c.hypothesis.kind] and
+           c.statistic > threshold_of(thresholds, c.hypothesis) and
            (c.hypothesis.sensor, c.hypothesis.axis) not in exclude]
     return [c.hypothesis.name for c in sorted(out, key=lambda c: -c.statistic)]
 
@@ -170,7 +170,7 @@ class TurnOn:
                 "prior_sigmas": _num(abs(m) / self.prior_sd[i]),   # reference: None
                 "statistic": _num(self.unconditional[name]),
                 "statistic_given_others": _num(self.statistic[i]),
-                "threshold": float(thresholds[h.kind]), "alike": self.alike.get(name, [])})
+                "threshold": threshold_of(thresholds, h), "alike": self.alike.get(name, [])})
         return out
 
 
@@ -221,7 +221,7 @@ def decide(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
     beside = Given.of(names + [top], sigs + _signatures(model, steps, refs, fwd, ccv, [top]),
                       fwd.S_inv)
     if unconditional.best not in first and \
-            np.any(beside.fit()[2][:len(names)] <= [thresholds[cv[n].hypothesis.kind]
+            np.any(beside.fit()[2][:len(names)] <= [threshold_of(thresholds, cv[n].hypothesis)
                                                      for n in names]):
         return None                     # an in-flight fault seen through a first-onset step
     fit = beside if iso.isolation == "single" and top == iso.best else given
