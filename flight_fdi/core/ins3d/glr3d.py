@@ -353,7 +353,7 @@ class Isolation:
     rival: str | None                # the best hypothesis of another (sensor, axis)
     outliers: int                    # updates whose outlier statistic exceeds its threshold
     ambiguity_resolved_s: float | None = None
-    gap: np.ndarray | None = None    # (M,) GLR gap best - rival with the data up to t_j
+    gap: np.ndarray | None = None    # (M,) the decision's gap best - rival with the data up to t_j
     rival_gain: float | None = None  # what the rival adds to the best fitted with it (settle)
     similarity: float | None = None  # |cos| of the angle between their signatures (0..1)
     reason: str | None = None        # ambiguous: "margin" (isolate) or "model" (settle)

@@ -264,7 +264,8 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
     """For an IMU/jump isolation with a rival: the two fitted together (their signatures
     through the forward filter; ``glr3d.settle`` with the model's relative
     ``signature_error``, default the grade's: ``grade_file.signature_error_of``, may make a
-    single one ``ambiguous``), then ``iso.gap`` and, for a single one, ``iso.ambiguity_resolved_s``.
+    single one ``ambiguous``), then ``iso.gap`` (the decision's: net of ``iso.offset``, NaN
+    before the best's onset) and, for a single one, ``iso.ambiguity_resolved_s``.
     ``given`` (``turn_on.Given``): the pair fitted together with faults taken as present (the
     turn-on biases; ``cv`` then holds the curves conditional on them), the same test on the
     statistics with those faults profiled out, at every update (the gap)."""
@@ -290,7 +291,10 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
         e, D = es[-1], Ds[-1]
         gap = _glr(es[:, 0], Ds[:, 0, 0]) - _glr(es[:, 1], Ds[:, 1, 1])
     settle(iso, e, D, signature_error, AMBIGUITY_MARGIN)
-    iso.gap = gap - iso.offset           # the decision's gap (unequal thresholds: isolate)
+    # the decision's gap (net of the thresholds' offset, as isolate), from the best's onset on:
+    # before it the best explains nothing and the offset alone would "tell them apart"
+    b = cv[iso.best]
+    iso.gap = np.where(refs.t >= b.t[b.best], gap - iso.offset, np.nan)
     if iso.isolation == "single":
         iso.ambiguity_resolved_s = resolved_time(refs.t, iso.gap, AMBIGUITY_MARGIN)
 
