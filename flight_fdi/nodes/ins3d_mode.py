@@ -15,7 +15,9 @@ stream to pass it, at most ``ins3d_wait_s`` of IMU time. The filter starts at th
 
 End of input: the last steps and reference rows wait for samples that come only with later
 messages. When no message arrived on any of the four inputs for ``ins3d_end_idle_s`` (steady
-clock: a replay's stopped /clock does not stop it), the node flushes them as at the end of a
+clock: a replay's stopped /clock does not stop it; counted from the end of the node's own
+work on the last message, and confirmed by the next timer tick, so that a node that was busy or
+starved of CPU first takes the messages queued meanwhile), the node flushes them as at the end of a
 bag (``Ins3dAssembler.finish``: the last samples clamp) and ends the record; a message after
 that starts a new record (a new filter from its first step, published with ``reset``). The
 pipeline (``nodes/ins3d_pipeline.py``) flushes at the end of its bag itself (``finish()``).
@@ -143,6 +145,7 @@ class Ins3dMode:
             ("received_ins", "received_reference", "published", "published_states",
              "records_ended"))
         self._last_msg = time.monotonic()
+        self._idle_seen: float | None = None      # the _last_msg an idle tick saw (to confirm)
         self._idle_s = float(p["ins3d_end_idle_s"])
         if self._idle_s > 0:
             from rclpy.clock import Clock, ClockType
@@ -173,14 +176,21 @@ class Ins3dMode:
         self.alarm_since: float | None = None
 
     def _check_idle(self) -> None:
-        """The end-of-input timer (module docstring)."""
-        if self.asm.t0_ns is not None and not self.asm.finished and \
-                time.monotonic() - self._last_msg >= self._idle_s:
-            self.finish()
-            self.counters.inc("records_ended")
-            self.node.get_logger().info(
-                f"ins3d: no input for {self._idle_s:g} s: flushed the end of the record "
-                f"(last step {self.asm.k})")
+        """The end-of-input timer (module docstring): idle on two ticks in a row, with no message
+        between them. After a stall (a long callback, a starved process) the executor may run this
+        timer before the messages that arrived meanwhile; the first idle tick only notes it."""
+        if self.asm.t0_ns is None or self.asm.finished or \
+                time.monotonic() - self._last_msg < self._idle_s:
+            self._idle_seen = None
+            return
+        if self._idle_seen != self._last_msg:
+            self._idle_seen = self._last_msg
+            return
+        self.finish()
+        self.counters.inc("records_ended")
+        self.node.get_logger().info(
+            f"ins3d: no input for {self._idle_s:g} s: flushed the end of the record "
+            f"(last step {self.asm.k})")
 
     # ------------------------------------------------------------------ inputs
     def _on_imu(self, m: Any) -> None:
@@ -217,6 +227,8 @@ class Ins3dMode:
             self._process(got)
         except (CoreError, ValueError, np.linalg.LinAlgError) as exc:
             self.node._drop(f"{key}_core_error", f"{name} message at {ns * 1e-9:.3f} s: {exc}")
+        finally:
+            self._last_msg = time.monotonic()     # idle counts from the end of the work
 
     def finish(self) -> None:
         """Flush the end of the record (see the class docstring)."""

@@ -171,6 +171,37 @@ def test_end_of_input_flushes_the_waiting_steps_and_a_new_record_starts(ros):
     assert node.ins3d.asm.t0_ns == later[0][0]
 
 
+def test_a_stall_is_not_the_end_of_input(ros, monkeypatch):
+    """After a stall (a long callback, a process starved of CPU) the executor may run the idle
+    timer before the messages that queued meanwhile: the first idle tick only notes it, the
+    queued messages continue the record, and the end is flushed only when two ticks in a row
+    saw no message (steady clock replaced by a controlled one)."""
+    from types import SimpleNamespace
+
+    from flight_fdi.nodes import ins3d_mode
+
+    clock = SimpleNamespace(now=1000.0)
+    monkeypatch.setattr(ins3d_mode, "time", SimpleNamespace(monotonic=lambda: clock.now))
+    msgs = _as_received(topic_messages(flight(30.0)))
+    node = ros.node(FilterNode, {"model": "ins3d", "input_qos": "reliable",
+                                     "input_queue_depth": 5000, "ins3d_end_idle_s": 1.0})
+    driver = ros.node("driver")
+    half = len(msgs) // 2
+    _replay(ros, node, driver, msgs[:half])
+    mode, c = node.ins3d, node.counters
+    clock.now += 5.0                    # the stall: the timer's tick comes first
+    mode._check_idle()
+    assert c["records_ended"] == 0
+    _replay(ros, node, driver, msgs[half:])
+    assert c["records_ended"] == 0 and not mode.asm.finished
+    assert mode.asm.t0_ns == msgs[0][0]     # still the first record
+    clock.now += 5.0                    # now the input has really ended
+    mode._check_idle()
+    assert c["records_ended"] == 0
+    mode._check_idle()
+    assert c["records_ended"] == 1 and mode.asm.finished
+
+
 def test_bad_messages_are_counted_not_fatal(ros):
     msgs = _as_received(topic_messages(flight(180.0)))[:3000]
     bad = []
