@@ -3,9 +3,13 @@ grade, calibrated on nominal flights simulated with its noise (flight_fdi/eval/c
 docs/ins3d.md "Calibrating a grade file").
 
 N seeded nominal flights (seeds S .. S+N-1, the profiles in turn) are simulated with the grade's
-values and analysed as ``analyze --model ins3d --grade FILE`` does; each hypothesis kind's
-threshold is set from the distribution of the flights' largest GLR so that a nominal flight
-exceeds any of them with probability at most the --false-isolation target. From the same flights
+values and analysed as ``analyze --model ins3d --grade FILE`` does; each threshold is set from
+the distribution of the flights' largest GLR so that a nominal flight exceeds any of them with
+probability at most the --false-isolation target P: per hypothesis (the 12 IMU steps / ramps
+and 3 GNSS jumps: 0.75 P / 15 each, the isolator uses these) and per kind (P / 4 each; the
+outliers' is used, the others are the fall-back), or with --per-kind per kind only. Flights
+of another length than 30 min are moved to 30 min by the length rule (glr3d.growth_of); the
+analysis raises the thresholds by the same rule for longer flights. From the same flights
 the seed method's episode probability (``seed_episode_probability``: what its persistent J
 episode's peak must fall below for the seed method to declare a flight the GLR finds clean) is
 set so that at most the --seed-declaration target of them would be declared (never above the
@@ -53,6 +57,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"flight length, 60..10800 s (default {CALIBRATED_LENGTH_S:g}: the "
                         "length the thresholds are stated for; others are moved by the "
                         "length rule)")
+    p.add_argument("--per-kind", action="store_true",
+                   help="calibrate one threshold per hypothesis kind only (step, ramp, jump, "
+                        "outliers: a quarter of the target each), as before per-hypothesis "
+                        "thresholds existed; default: per hypothesis too")
     p.add_argument("-o", "--output", default=None, metavar="OUT.yaml",
                    help="write the calibrated grade file here (default: the grade file itself)")
     add_engine_options(p, "--jobs", "--workers")
@@ -117,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     cal = run_calibration(grade, args.flights, args.seed, args.false_isolation, profiles,
                           args.duration, jobs=spec.workers or default_workers(),
                           progress=not args.no_progress, scheduler=spec.scheduler,
-                          seed_target=args.seed_declaration)
+                          seed_target=args.seed_declaration, per_hypothesis=not args.per_kind)
     new = with_thresholds(text, cal.thresholds, cal.metadata(), cal.episode_probability)
     tmp = out.with_name(out.name + ".tmp")
     try:
@@ -131,34 +139,54 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print(cal, out: Path, as_json: bool) -> None:
-    from flight_fdi.core.ins3d.grade_file import KINDS, grade_thresholds
     from flight_fdi.eval.calibrate3d import summary
 
     if as_json:
         json.dump({"grade": cal.grade.name, "output": str(out), "thresholds": cal.thresholds,
                    "seed_episode_probability": cal.episode_probability,
                    "spread": cal.spread, "calibration": cal.metadata(),
-                   "summary": summary(cal.rows), "elapsed_s": cal.elapsed_s,
-                   "flights": cal.rows}, sys.stdout)
+                   "summary": summary(cal.rows),
+                   "summary_hypotheses": summary(cal.rows, per_hypothesis=True),
+                   "elapsed_s": cal.elapsed_s, "flights": cal.rows}, sys.stdout)
         sys.stdout.write("\n")
         return
-    before = grade_thresholds(cal.grade)
-    summ = summary(cal.rows)
-    print(f"{'kind':<9} {'median':>7} {'90 %':>7} {'largest':>8} {'threshold':>10} "
-          f"{'spread':>7} {'before':>7}")
-    for k in KINDS:
-        s = summ[k]
-        print(f"{k:<9} {s['median']:7.1f} {s['q90']:7.1f} {s['max']:8.1f} "
-              f"{cal.thresholds[k]:10.2f} {cal.spread[k]:7.2f} {before[k]:7.1f}")
+    _table(cal, summary(cal.rows), "kind")
+    if cal.per_hypothesis:
+        print()
+        _table(cal, summary(cal.rows, per_hypothesis=True), "hypothesis")
     m = cal.metadata()
     lo, hi = m["interval95"]
     print(f"\n{m['flights']} nominal flights of {m['duration_s']:g} s in {cal.elapsed_s:.0f} s "
           f"({cal.engine}); target {100 * cal.target:g} % per flight: {m['exceeded']} of "
           f"{m['flights']} above a threshold ({100 * m['rate']:.1f} %, 95 % interval "
           f"{100 * lo:.1f}-{100 * hi:.1f} %)")
+    sh = m["shares"]
+    print("budget: " + (f"{100 * sh['hypothesis']:.3g} % per hypothesis (15), outliers "
+                        f"{100 * sh['outliers']:.3g} %; the kinds' step / ramp / jump are "
+                        "the fall-back" if cal.per_hypothesis else
+                        f"{100 * sh['step']:.3g} % per kind (--per-kind)")
+          + f"; thresholds for 30-min flights (maxima moved from {m['duration_s']:g} s by "
+          "the length rule)")
     sd = m["seed"]
     lo, hi = sd["interval95"]
     print(f"seed method: episode probability {sd['episode_probability']:.3g} (target "
           f"{100 * sd['target']:g} %): {sd['declared']} of {m['flights']} flights declared "
           f"({100 * sd['rate']:.1f} %, 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %; with the "
           f"default {sd['default']:g}: {sd['declared_default']}); wrote {out}")
+
+
+def _table(cal, summ: dict, what: str) -> None:
+    """The flights' maxima (at their length), the calibrated threshold (for 30 min), its
+    bootstrap spread and the grade's threshold before (``glr3d.threshold_of``: a
+    hypothesis' own, else its kind's) per kind or per hypothesis."""
+    from flight_fdi.core.ins3d.glr3d import hypotheses, threshold_of
+    from flight_fdi.core.ins3d.grade_file import grade_thresholds
+
+    before, w = grade_thresholds(cal.grade), max(9, max(len(k) for k in summ))
+    by_name = {h.name: h for h in hypotheses(3)}
+    print(f"{what:<{w}} {'median':>7} {'90 %':>7} {'largest':>8} {'threshold':>10} "
+          f"{'spread':>7} {'before':>7}")
+    for k, s in summ.items():
+        old = threshold_of(before, by_name[k]) if k in by_name else before[k]
+        print(f"{k:<{w}} {s['median']:7.1f} {s['q90']:7.1f} {s['max']:8.1f} "
+              f"{cal.thresholds[k]:10.2f} {cal.spread[k]:7.2f} {old:7.1f}")

@@ -168,11 +168,14 @@ def run_flights(flights: list[NominalFlight], jobs: int = 1, progress: bool = Fa
     return sorted(rows, key=lambda r: r["seed"])
 
 
-def summary(rows: list[dict]) -> dict[str, dict[str, float]]:
-    """Per kind: the largest, median and 90 % quantile of the flights' maxima."""
+def summary(rows: list[dict], per_hypothesis: bool = False) -> dict[str, dict[str, float]]:
+    """Per kind (``per_hypothesis``: per hypothesis of ``glr3d.PER_HYPOTHESIS``) the largest,
+    median and 90 % quantile of the flights' maxima (at the flights' own length)."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+
     out = {}
-    for k in KINDS:
-        m = np.array([r["max"][k] for r in rows])
+    for k in PER_HYPOTHESIS if per_hypothesis else KINDS:
+        m = np.array([r["max_by_hypothesis" if per_hypothesis else "max"][k] for r in rows])
         out[k] = {"max": float(m.max()), "median": float(np.median(m)),
                   "q90": float(np.quantile(m, 0.9))}
     return out
@@ -279,14 +282,29 @@ def exceeded_hypotheses(rows: list[dict], thresholds: dict[str, float]) -> int:
     return n
 
 
+def calibrate_grade(rows: list[dict], target: float,
+                    per_hypothesis: bool = True) -> dict[str, float]:
+    """The thresholds a grade file gets (for a flight of ``CALIBRATED_LENGTH_S``): per kind
+    (:func:`calibrate`: a quarter of ``target`` each) and, with ``per_hypothesis``, per
+    hypothesis (:func:`calibrate_hypotheses`: the isolator then uses these -- the outliers
+    keep their kind's quarter, the other three quarters go in equal shares to the 15
+    hypotheses; the kinds' step / ramp / jump stay as the fall-back of a hypothesis without
+    its own, ``glr3d.threshold_of``)."""
+    thr = calibrate(rows, target)
+    if per_hypothesis:
+        thr.update(calibrate_hypotheses(rows, target))
+    return thr
+
+
 def bootstrap_spread(rows: list[dict], target: float, draws: int = 200,
-                     seed: int = 0) -> dict[str, float]:
-    """Per kind the standard deviation of :func:`calibrate` over ``draws`` resamples of the
-    flights (with replacement): the sampling spread of a calibration on this many flights."""
+                     seed: int = 0, per_hypothesis: bool = False) -> dict[str, float]:
+    """Per kind (and per hypothesis with ``per_hypothesis``) the standard deviation of
+    :func:`calibrate_grade` over ``draws`` resamples of the flights (with replacement): the
+    sampling spread of a calibration on this many flights."""
     rng = np.random.default_rng(seed)
-    thr = [calibrate([rows[i] for i in rng.integers(0, len(rows), len(rows))], target)
-           for _ in range(draws)]
-    return {k: float(np.std([t[k] for t in thr], ddof=1)) for k in KINDS}
+    thr = [calibrate_grade([rows[i] for i in rng.integers(0, len(rows), len(rows))], target,
+                           per_hypothesis) for _ in range(draws)]
+    return {k: float(np.std([t[k] for t in thr], ddof=1)) for k in thr[0]}
 
 
 def exceeded(rows: list[dict], thresholds: dict[str, float]) -> int:
@@ -333,6 +351,7 @@ class Calibration:
     episode_probability: float = DEFAULT_EPISODE_PROBABILITY   # the seed method's
     seed_target: float = 0.01
     seed_achieved: dict = field(default_factory=dict)          # declared with it (``rate``)
+    per_hypothesis: bool = False   # thresholds per hypothesis too (:func:`calibrate_grade`)
 
     def metadata(self) -> dict:
         """The ``calibration`` record a grade file carries (``grade_file.with_thresholds``)."""
@@ -345,6 +364,7 @@ class Calibration:
                 "rate": round(a["rate"], 4),
                 "interval95": [round(v, 4) for v in a["interval95"]],
                 "spread": {k: round(v, 2) for k, v in self.spread.items()},
+                **self.rule(),
                 "seed": {"target": self.seed_target,
                          "episode_probability": self.episode_probability,
                          "declared": self.seed_achieved["k"],
@@ -355,14 +375,33 @@ class Calibration:
                                                            DEFAULT_EPISODE_PROBABILITY)}}
 
 
+    def rule(self) -> dict:
+        """How the budget was split (``rule``, ``shares``: each threshold's share of the
+        target) and, per hypothesis, the growth c that moved the flights' maxima from their
+        length to ``CALIBRATED_LENGTH_S`` (``glr3d.growth_of``; the analysis raises the
+        thresholds by the same c for longer flights)."""
+        from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS, growth_of
+
+        def r(x: float) -> float:
+            return float(f"{x:.6g}")
+
+        if not self.per_hypothesis:
+            return {"rule": "per_kind", "shares": {k: r(self.target / len(KINDS)) for k in KINDS}}
+        p = (1.0 - OUTLIER_SHARE) * self.target / len(PER_HYPOTHESIS)
+        return {"rule": "per_hypothesis",
+                "shares": {"outliers": r(OUTLIER_SHARE * self.target), "hypothesis": r(p)},
+                "growth": {h: growth_of(h) for h in PER_HYPOTHESIS}}
+
+
 def run_calibration(grade: ImuGrade, flights: int, seed: int, target: float,
                     profiles: tuple[str, ...] = PROFILES,
                     duration_s: float = CALIBRATED_LENGTH_S, jobs: int = 1,
                     progress: bool = False, on_result: Callable[[dict], None] | None = None,
-                    scheduler: str | None = None, seed_target: float | None = None
-                    ) -> Calibration:
+                    scheduler: str | None = None, seed_target: float | None = None,
+                    per_hypothesis: bool = True) -> Calibration:
     """Simulate and analyse ``flights`` nominal flights of ``grade``; calibrate its thresholds
-    and its seed-method episode probability (for ``seed_target``, default ``target``)."""
+    (:func:`calibrate_grade`: per kind and, with ``per_hypothesis``, per hypothesis) and its
+    seed-method episode probability (for ``seed_target``, default ``target``)."""
     if isinstance(flights, bool) or not isinstance(flights, int) or flights < MIN_FLIGHTS:
         raise EvalError(f"calibration needs at least {MIN_FLIGHTS} flights, got {flights!r}")
     if not 0.0 < target < 1.0:
@@ -373,16 +412,18 @@ def run_calibration(grade: ImuGrade, flights: int, seed: int, target: float,
     plan_ = plan(grade, flights, seed, tuple(profiles), duration_s)
     start, info = time.perf_counter(), {}
     rows = run_flights(plan_, jobs, progress, on_result, scheduler, info)
-    thr, p = calibrate(rows, target), calibrate_seed(rows, seed_target)
-    return Calibration(grade, target, rows, thr, bootstrap_spread(rows, target),
-                       rate(exceeded(rows, thr), len(rows)), time.perf_counter() - start,
+    thr, p = calibrate_grade(rows, target, per_hypothesis), calibrate_seed(rows, seed_target)
+    above = exceeded_hypotheses(rows, thr) if per_hypothesis else exceeded(rows, thr)
+    return Calibration(grade, target, rows, thr,
+                       bootstrap_spread(rows, target, per_hypothesis=per_hypothesis),
+                       rate(above, len(rows)), time.perf_counter() - start,
                        tuple(profiles), str(info.get("engine", "")), p, seed_target,
-                       rate(seed_declared(rows, p), len(rows)))
+                       rate(seed_declared(rows, p), len(rows)), per_hypothesis)
 
 
 __all__ = ["Calibration", "DEFAULT_EPISODE_PROBABILITY", "MIN_FLIGHTS", "NominalFlight",
            "OUTLIER_SHARE", "PROFILES", "bootstrap_spread", "calibrate",
-           "calibrate_hypotheses", "calibrate_seed", "check_rates", "exceeded",
+           "calibrate_grade", "calibrate_hypotheses", "calibrate_seed", "check_rates", "exceeded",
            "exceeded_hypotheses", "hypothesis_growth", "length_shift", "nominal_flight", "plan",
            "rate", "run_calibration", "run_flights", "seed_declared", "seed_statistic", "summary",
            "tail_threshold"]

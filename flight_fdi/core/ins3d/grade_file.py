@@ -258,8 +258,10 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict,
     """A grade file's ``text`` with its ``thresholds`` (and an earlier calibration: its comment
     and ``calibration`` record) replaced by these, under a comment saying how they were made
     (``calibration``: flights, seeds, duration_s, profiles, target, exceeded, rate, interval95,
-    date, and ``seed`` for the seed method -- ``eval.calibrate3d.Calibration.metadata``) and,
-    when given, the seed method's ``seed_episode_probability``. The rest of the file, comments
+    date, ``seed`` for the seed method, ``rule`` / ``shares`` / ``growth`` for the budget --
+    ``eval.calibrate3d.Calibration.metadata``) and, when given, the seed method's
+    ``seed_episode_probability``. Thresholds per kind only are written as one mapping line,
+    with per-hypothesis ones as a block (a key a line). The rest of the file, comments
     included, is kept."""
     ours = ("thresholds:", "calibration:", "seed_episode_probability:", CALIBRATED_MARK,
             "# calibration ")
@@ -279,8 +281,15 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict,
             f"# calibration target: false isolation {100 * c['target']:g} % per flight;",
             f"# calibration result: {c['exceeded']} of {c['flights']} flights above a threshold "
             f"({100 * c['rate']:.1f} %, 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %)"]
+    if c.get("rule") == "per_hypothesis":
+        sh = c["shares"]
+        note.append(f"# calibration rule: per hypothesis, {100 * sh['hypothesis']:.3g} % of "
+                    f"flights each, outliers {100 * sh['outliers']:.3g} % (kinds: fall-back)")
     keys = (*KINDS, *(h for h in PER_HYPOTHESIS if h in thresholds))
-    thr = "{" + ", ".join(f"{k}: {float(thresholds[k]):.2f}" for k in keys) + "}"
+    if len(keys) > len(KINDS):          # per hypothesis too: a block, one key a line
+        thr = "".join(f"\n  {k}: {float(thresholds[k]):.2f}" for k in keys)
+    else:
+        thr = " {" + ", ".join(f"{k}: {float(thresholds[k]):.2f}" for k in keys) + "}"
     seed = []
     if episode_probability is not None:
         sd = c.get("seed", {})
@@ -290,7 +299,7 @@ def with_thresholds(text: str, thresholds: dict[str, float], calibration: dict,
                        f"default {sd['default']:g}: {sd['declared_default']})"
                        if sd else ""))
         seed = [f"seed_episode_probability: {p:.3e}"]
-    return "\n".join(kept + note + [f"thresholds: {thr}"] + seed
+    return "\n".join(kept + note + [f"thresholds:{thr}"] + seed
                      + [f"calibration: {_yaml_json(c)}"]) + "\n"
 
 
