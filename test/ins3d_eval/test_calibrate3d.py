@@ -372,3 +372,52 @@ def test_hypothesis_growth_is_the_median_growth_per_ln_length_never_below_zero()
     from flight_fdi.core.ins3d.glr3d import growth_of
     assert exceeded_hypotheses(long, thr) == int(np.sum(
         z_long > 8.0 + growth_of("gyro_z_step") * ln4))
+
+
+def test_a_per_hypothesis_calibration_is_written_as_a_block_and_read_back(tmp_path):
+    """calibrate_grade on flights with both records: the kinds' (calibrate) and the
+    hypotheses' (calibrate_hypotheses) thresholds; written as a block, loaded back the same
+    values, and writing the file again with its own record changes nothing; the bootstrap
+    spread has one entry per threshold."""
+    import yaml
+
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+    from flight_fdi.eval.calibrate3d import calibrate_grade, calibrate_hypotheses
+
+    rows = [{**a, **b} for a, b in zip(_gumbel_rows(200, 8), _hyp_rows(200, 9, {}))]
+    thr = calibrate_grade(rows, 0.01)
+    assert thr == {**calibrate(rows, 0.01), **calibrate_hypotheses(rows, 0.01)}
+    assert calibrate_grade(rows, 0.01, per_hypothesis=False) == calibrate(rows, 0.01)
+    meta = {**META, "rule": "per_hypothesis", "shares": {"outliers": 0.0025,
+                                                         "hypothesis": 0.0005}}
+    text = with_thresholds(GRADE, thr, meta, 2e-8)
+    assert "\nthresholds:\n  step: " in text and "\n  gyro_z_step: " in text
+    assert "# calibration rule: per hypothesis, 0.05 % of flights each, outliers 0.25 %" in text
+    path = tmp_path / "g.yaml"
+    path.write_text(text)
+    assert dict(load_grade(path).thresholds) == pytest.approx(thr, abs=0.005)
+    doc = yaml.safe_load(text)
+    assert with_thresholds(text, doc["thresholds"], doc["calibration"],
+                           doc["seed_episode_probability"]) == text
+    spread = bootstrap_spread(rows, 0.01, draws=20, seed=3, per_hypothesis=True)
+    assert set(spread) == {*KINDS, *PER_HYPOTHESIS} and all(v > 0 for v in spread.values())
+
+
+def test_calibrated_at_another_length_the_analysis_gets_back_that_lengths_cut():
+    """Flights of 2 h: the file holds the 30-min value (the maxima moved by -c ln 4, c the
+    hypothesis' growth, glr3d.growth_of); a 2-h analysis raises it by the same c ln 4, i.e.
+    uses the tail cut of the 2-h maxima themselves (grade_file.grade_thresholds)."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS, growth_of
+    from flight_fdi.core.ins3d.grade_file import grade_thresholds
+    from flight_fdi.eval.calibrate3d import OUTLIER_SHARE, calibrate_grade
+
+    long = [{**a, **b} for a, b in zip(_gumbel_rows(200, 10, duration=7200.0),
+                                       _hyp_rows(200, 11, {}, 7200.0))]
+    thr = calibrate_grade(long, 0.01)
+    g = grade_from_dict({"name": "long", "base": "tactical", "thresholds": thr})
+    at_2h = grade_thresholds(g, 7200.0)
+    p = (1 - OUTLIER_SHARE) * 0.01 / len(PER_HYPOTHESIS)
+    for h in ("gyro_z_step", "reference_east_jump", "accelerometer_x_ramp"):
+        cut = tail_threshold(np.array([r["max_by_hypothesis"][h] for r in long]), p)
+        assert at_2h[h] == pytest.approx(cut, abs=0.006)
+        assert thr[h] == pytest.approx(cut - growth_of(h) * math.log(4.0), abs=0.006)
