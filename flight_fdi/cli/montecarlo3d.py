@@ -47,9 +47,11 @@ def add_ins3d_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--ladder", action="store_true",
                    help="instead of the study: the smallest body-axis step isolated in 95 %% "
                         "per sensor and axis (descending ladder; --ladder-grades, "
-                        "--ladder-runs, --ladder-rungs)")
-    g.add_argument("--ladder-grades", default="navigation", metavar="GRADE,...",
-                   help="grades of the ladder (default navigation)")
+                        "--ladder-runs, --ladder-rungs; --scenarios if given, else "
+                        "accel_step,gyro_step) for the --grade (a preset or a grade file: its "
+                        "values simulated, its thresholds used)")
+    g.add_argument("--ladder-grades", default=None, metavar="GRADE|FILE.yaml,...",
+                   help="grades of the ladder, presets or YAML grade files (default: --grade)")
     g.add_argument("--ladder-runs", type=int, default=10, metavar="N",
                    help="flights per rung (default 10)")
     g.add_argument("--ladder-rungs", type=int, default=5, metavar="N",
@@ -145,10 +147,15 @@ def _ladder(args: argparse.Namespace, config, workers: int, scheduler: str | Non
     if args.records:
         raise CliError("--records streams a study's flights; --ladder runs several studies "
                        "and does not take it")
-    grades = tuple(g.strip() for g in args.ladder_grades.split(",") if g.strip())
+    from flight_fdi.eval.montecarlo3d import SCENARIOS
+
+    grades = (config.grade,) if args.ladder_grades is None else \
+        tuple(g.strip() for g in args.ladder_grades.split(",") if g.strip())
+    given = {} if args.scenarios == ",".join(SCENARIOS) else {"scenarios": config.scenarios}
     try:
         ladder = run_ladder(config, grades, runs=args.ladder_runs, rungs=args.ladder_rungs,
-                            jobs=workers, progress=not args.no_progress, scheduler=scheduler)
+                            jobs=workers, progress=not args.no_progress, scheduler=scheduler,
+                            **given)
     except EvalError as exc:
         raise CliError(str(exc)) from None
     doc = {"model": "ins3d", "config": config.describe(), "ladder": ladder}

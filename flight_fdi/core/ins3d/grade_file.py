@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +76,7 @@ class CustomGrade(ImuGrade):
     thresholds: tuple[tuple[str, float], ...] = ()
     signature_error: float | None = None    # rad; None: the grade's axis misalignment
     episode_probability: float | None = None  # the seed method's; None: DiagnosisConfig's
+    base: str = field(default="", compare=False)  # the file's base preset ("" from numbers)
 
     def to_dict(self) -> dict:
         """The fields (SI), the thresholds as a mapping kind -> value."""
@@ -141,7 +142,7 @@ def grade_from_dict(doc: Any, path: str = "<dict>") -> CustomGrade:
           for key, (field, factor) in KEYS.items() if key in doc}
     thr = _thresholds(path, base, doc.get("thresholds", {}))
     preset = {f.name: getattr(GRADES[base], f.name) for f in fields(ImuGrade)}
-    return CustomGrade(**{**preset, **si, "name": name}, thresholds=thr,
+    return CustomGrade(**{**preset, **si, "name": name}, thresholds=thr, base=base,
                        signature_error=_signature_error(path, doc.get("signature_error_rad")),
                        episode_probability=_episode_probability(
                            path, doc.get("seed_episode_probability")))
