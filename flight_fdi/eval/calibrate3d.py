@@ -21,6 +21,12 @@ a calibration is the bootstrap standard deviation over the flights (:func:`boots
 The thresholds are stated for a flight of ``glr3d.CALIBRATED_LENGTH_S`` (what a grade file
 holds): flights of another length T are moved by ``glr3d.LENGTH_GROWTH`` x ln(1800 s / T).
 
+**Per hypothesis** (:func:`calibrate_hypotheses`; what :func:`calibrate_grade` and ``flight-fdi
+calibrate`` add by default): each of the 15 hypotheses of ``glr3d.PER_HYPOTHESIS`` gets
+(1 - ``OUTLIER_SHARE``) x target / 15 of the budget, the outliers keep their kind's quarter
+(union bound: at most the target in all); each hypothesis' maxima are moved to 30 min by its
+own growth (``glr3d.growth_of``), the rule the analysis applies to longer flights.
+
 **Seed method** (:func:`seed_statistic`, :func:`calibrate_seed`). When the GLR names nothing, the
 seed method still declares (``glitch`` / ``failure`` / ``ambiguous``, no sensor named) a flight
 whose strongest persistent J episode peaks above the chi^2(dof) quantile of
@@ -77,7 +83,9 @@ class NominalFlight:
 def plan(grade: ImuGrade, flights: int, seed: int, profiles: tuple[str, ...] = PROFILES,
          duration_s: float = CALIBRATED_LENGTH_S,
          checks: dict[str, dict[str, float]] | None = None) -> list[NominalFlight]:
-    """Flight i: profile ``profiles[i mod P]``, seed ``seed + i`` (trajectory and sensors)."""
+    """Flight i: profile ``profiles[i mod P]``, seed ``seed + i`` (trajectory and sensors);
+    ``checks``: named threshold sets (per kind, and per hypothesis where given) whose
+    isolation each flight records."""
     from flight_fdi.sim.trajectory import PROFILES as ALL
 
     for p in profiles:
@@ -89,7 +97,11 @@ def plan(grade: ImuGrade, flights: int, seed: int, profiles: tuple[str, ...] = P
         raise EvalError(f"seed must be an integer >= 0, got {seed!r}")
     if not isinstance(duration_s, (int, float)) or not 60.0 <= duration_s <= 10800.0:
         raise EvalError(f"flight length must be within 60..10800 s, got {duration_s!r}")
-    chk = tuple((n, tuple((k, float(t[k])) for k in KINDS)) for n, t in (checks or {}).items())
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+
+    keys = (*KINDS, *PER_HYPOTHESIS)        # a check's per-hypothesis thresholds too
+    chk = tuple((n, tuple((k, float(t[k])) for k in keys if k in t))
+                for n, t in (checks or {}).items())
     return [NominalFlight(profiles[i % len(profiles)], float(duration_s), grade, int(seed) + i,
                           chk) for i in range(int(flights))]
 

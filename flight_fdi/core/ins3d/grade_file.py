@@ -71,7 +71,8 @@ _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 class CustomGrade(ImuGrade):
     """A grade that is not a preset: its own GLR thresholds per kind (``KINDS``, for a flight of
     ``glr3d.CALIBRATED_LENGTH_S``) as (kind, value) pairs, then any per hypothesis
-    (``glr3d.PER_HYPOTHESIS``) as (name, value) pairs."""
+    (``glr3d.PER_HYPOTHESIS``) as (name, value) pairs; ``base``: the file's base preset (what
+    ``eval.ladder3d`` starts a ladder from; not compared, not in ``numbers``)."""
 
     thresholds: tuple[tuple[str, float], ...] = ()
     signature_error: float | None = None    # rad; None: the grade's axis misalignment
