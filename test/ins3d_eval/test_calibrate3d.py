@@ -421,3 +421,17 @@ def test_calibrated_at_another_length_the_analysis_gets_back_that_lengths_cut():
         cut = tail_threshold(np.array([r["max_by_hypothesis"][h] for r in long]), p)
         assert at_2h[h] == pytest.approx(cut, abs=0.006)
         assert thr[h] == pytest.approx(cut - growth_of(h) * math.log(4.0), abs=0.006)
+
+
+def test_a_check_keeps_its_per_hypothesis_thresholds():
+    """plan(checks=...) keeps a set's per-hypothesis thresholds (tools/ins3d_calibrate.py
+    --check on a per-hypothesis file): kinds out of reach and one hypothesis at 0 -- that
+    hypothesis is what the check isolates; without it nothing is."""
+    high = {k: 1e6 for k in KINDS}
+    f = plan(GRADES["navigation"], 1, 77, ("cruise_turns",), 60.0,
+             checks={"kinds": high, "own": {**high, "gyro_y_ramp": 0.0}})[0]
+    assert dict(f.checks)["own"][-1] == ("gyro_y_ramp", 0.0)
+    r = nominal_flight(f)
+    assert r["checks"]["kinds"]["isolation"] == "none"
+    assert r["checks"]["own"]["isolation"] != "none"
+    assert r["checks"]["own"]["best"] == "gyro_y_ramp"
