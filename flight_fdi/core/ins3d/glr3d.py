@@ -234,6 +234,15 @@ class GlrCurve:
         return float(self.t[a]), float(self.t[b])
 
 
+#: onsets searched per step / ramp / jump: information (1 / sd^2 of the magnitude) at least
+#: this fraction of the hypothesis' largest on the flight, i.e. its sd at most 100x its best.
+#: Below it the data left after the onset carry (almost) nothing of the hypothesis -- a
+#: vertical gyro step after the last turn -- but the GLR e^2 / d is scale-free: those onsets
+#: add chi^2 terms to the search, and made the nominal tail (docs/ins3d_eval.md, "Sixth
+#: evaluation"). 0: every onset with information, as before.
+INFORMATION_FLOOR = 1e-4
+
+
 def _direction(eta, I3, g, c_a, c_r, alpha):
     """(tau' eta, tau' I tau) over the onsets for tau = e_r - alpha e_a (alpha per onset; a step:
     c_r = -1)."""
@@ -247,9 +256,12 @@ def _direction(eta, I3, g, c_a, c_r, alpha):
 
 def curves(hyps: list[Hypothesis], t_onset: np.ndarray, t_start: float, duration: float,
            eta: np.ndarray, I3: np.ndarray, sB: np.ndarray, t_upd: np.ndarray,
-           oe: np.ndarray, oI: np.ndarray) -> dict[str, GlrCurve]:
+           oe: np.ndarray, oI: np.ndarray, floor: float = INFORMATION_FLOOR
+           ) -> dict[str, GlrCurve]:
     """GLR curves of every hypothesis from the sweep's per-onset eta (U, pB), I3 (U, 3, 6, 6)
-    and per-update outlier information oe (M, rows), oI (M, rows, rows)."""
+    and per-update outlier information oe (M, rows), oI (M, rows, rows). A step / ramp / jump
+    is searched only at onsets whose information is at least ``floor`` times its largest on
+    the flight (``INFORMATION_FLOOR``; elsewhere its statistic is 0)."""
     alpha = (t_onset - t_start) / duration
     out = {}
     for h in hyps:
@@ -264,7 +276,8 @@ def curves(hyps: list[Hypothesis], t_onset: np.ndarray, t_start: float, duration
             e, info = _direction(eta, I3, g, c % 3 if h.kind == "ramp" else c,
                                  c if h.kind == "ramp" else -1, alpha)
             t, scale = t_onset, sB[h.column]
-        ok = info > 1e-12 * max(float(np.max(np.abs(info))) if info.size else 0.0, 1e-300)
+        rel = 1e-12 if h.kind == "outliers" else max(floor, 1e-12)
+        ok = info > rel * max(float(np.max(np.abs(info))) if info.size else 0.0, 1e-300)
         safe = np.where(ok, info, 1.0)
         stat = np.where(ok, e * e / safe, 0.0)
         mag = np.where(ok, e / safe, np.nan) * scale
