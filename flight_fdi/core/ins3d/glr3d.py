@@ -256,12 +256,13 @@ def _direction(eta, I3, g, c_a, c_r, alpha):
 
 def curves(hyps: list[Hypothesis], t_onset: np.ndarray, t_start: float, duration: float,
            eta: np.ndarray, I3: np.ndarray, sB: np.ndarray, t_upd: np.ndarray,
-           oe: np.ndarray, oI: np.ndarray, floor: float = INFORMATION_FLOOR
+           oe: np.ndarray, oI: np.ndarray, floor: float | None = None
            ) -> dict[str, GlrCurve]:
     """GLR curves of every hypothesis from the sweep's per-onset eta (U, pB), I3 (U, 3, 6, 6)
     and per-update outlier information oe (M, rows), oI (M, rows, rows). A step / ramp / jump
     is searched only at onsets whose information is at least ``floor`` times its largest on
-    the flight (``INFORMATION_FLOOR``; elsewhere its statistic is 0)."""
+    the flight (None: ``INFORMATION_FLOOR``; elsewhere its statistic is 0)."""
+    floor = INFORMATION_FLOOR if floor is None else floor
     alpha = (t_onset - t_start) / duration
     out = {}
     for h in hyps:
