@@ -1,9 +1,10 @@
-"""The onset search's information floor (glr3d.INFORMATION_FLOOR, docs/ins3d_eval.md, "Sixth
-evaluation"): a step / ramp / jump is searched only at onsets where its information is at least
-the floor times its largest on the flight. Known answers: the rule itself on constructed
-information (brute force), and on a flight with data drawn from the filter's own model the
-onsets it drops are those after the last turn for the vertical gyro, where its GLR is
-chi^2 noise with (almost) no information behind it."""
+"""The onset search's information floor (``glr3d.curves(floor=)``, docs/ins3d_eval.md, "Sixth
+evaluation"; off by default, ``glr3d.INFORMATION_FLOOR`` = 0): a step / ramp / jump is searched
+only at onsets where its information is above the floor times its largest on the flight.
+Known answers: the rule itself on constructed information (brute force), and on a flight with
+data drawn from the filter's own model (floor 1e-4, the value measured) the onsets it drops are
+those after the last turn for the vertical gyro, where its GLR is chi^2 noise with (almost) no
+information behind it."""
 from __future__ import annotations
 
 from unittest import mock
@@ -18,6 +19,9 @@ from flight_fdi.eval.onset_bound import Signatures
 from flight_fdi.eval.power_bound import PowerFlight
 
 from .test_backward import short_analysis
+
+#: the floor measured in docs/ins3d_eval.md ("Sixth evaluation")
+FLOOR = 1e-4
 
 
 def _constructed(U: int = 6, rows: int = 3):
@@ -54,6 +58,8 @@ def test_the_floor_drops_exactly_the_onsets_below_it_and_keeps_the_others():
     assert curves(hyps, *args, floor=0.0)["gyro_z_step"].statistic == pytest.approx(25.0)
     assert curves(hyps, *args, floor=1e-4)["gyro_z_step"].statistic == pytest.approx(9.0)
     # the outliers' per-update statistic has no floor; the default is the module's constant
+    # (0: off -- every onset with information, the isolator as calibrated)
+    assert glr3d.INFORMATION_FLOOR == 0.0
     out0 = curves(hyps, *args, floor=0.5)["reference_east_outliers"]
     np.testing.assert_array_equal(out0.stat, curves(hyps, *args, floor=0.0)
                                   ["reference_east_outliers"].stat)
@@ -65,16 +71,16 @@ def test_the_floor_drops_exactly_the_onsets_below_it_and_keeps_the_others():
 @pytest.fixture(scope="module")
 def model_draws():
     """The 420-s cruise_turns flight (one turn, 303-372 s), 12 sets of innovations drawn from
-    the filter's own no-fault model: the GLR curves without and with the floor."""
+    the filter's own no-fault model: the GLR curves without (the default) and with the floor."""
     a = short_analysis()
     pf = PowerFlight(Signatures(a))
     rng = np.random.default_rng(3)
     out = []
     for _ in range(12):
         bwd = pf.noise(rng)
-        with mock.patch.object(glr3d, "INFORMATION_FLOOR", 0.0):
-            free = pf.curves(bwd)
-        out.append((free, pf.curves(bwd)))
+        free = pf.curves(bwd)
+        with mock.patch.object(glr3d, "INFORMATION_FLOOR", FLOOR):
+            out.append((free, pf.curves(bwd)))
     return a, out
 
 
@@ -88,7 +94,7 @@ def test_on_model_drawn_data_the_floor_drops_only_the_vertical_gyro_onsets_after
             if c0.hypothesis.kind == "outliers":
                 continue
             info = 1.0 / c0.sd ** 2
-            keep = info > glr3d.INFORMATION_FLOOR * np.nanmax(info)
+            keep = info > FLOOR * np.nanmax(info)
             np.testing.assert_array_equal(floored[name].stat[keep], c0.stat[keep])
             assert np.all(floored[name].stat[~keep] == 0.0)
             # dropped: onsets in the flight's last 20 % only (a ramp's information falls
@@ -98,7 +104,7 @@ def test_on_model_drawn_data_the_floor_drops_only_the_vertical_gyro_onsets_after
                 assert np.all(c0.t[~keep] > turn_end), name
         c0 = free["gyro_z_step"]
         info = 1.0 / c0.sd ** 2
-        keep = info > glr3d.INFORMATION_FLOOR * np.nanmax(info)
+        keep = info > FLOOR * np.nanmax(info)
         assert 0.8 * keep.size < keep.sum() < keep.size
         moved += c0.best >= 0 and not keep[c0.best]
     # without the floor the vertical gyro's noise maximum often sits after the turn, where a
