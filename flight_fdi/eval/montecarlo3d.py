@@ -203,7 +203,7 @@ class Case3D:
     level: float | None = None
     magnitude: float | None = None
     onset_s: float | None = None
-    grade: str | None = None     # None: the study's grade
+    grade: Any = None            # None: the study's grade; else a preset name or an ImuGrade
 
     @property
     def sensor(self) -> str | None:
@@ -228,7 +228,7 @@ def _seed(rng: np.random.Generator) -> int:
 
 
 def fault_case(index: int, scenario: str, axis: str, level: float, rng: np.random.Generator,
-               config: Study3DConfig, grade: str | None = None) -> Case3D:
+               config: Study3DConfig, grade: Any = None) -> Case3D:
     """A fault flight with a random sign, onset (on a 0.1-s grid) and seeds from ``rng``."""
     lo, hi = config.onset_window
     sign = 1.0 if rng.random() < 0.5 else -1.0
