@@ -106,21 +106,27 @@ def plan(grade: ImuGrade, flights: int, seed: int, profiles: tuple[str, ...] = P
                           chk) for i in range(int(flights))]
 
 
-def nominal_flight(f: NominalFlight) -> dict:
-    """The largest GLR per hypothesis kind (and its hypothesis) and per hypothesis
-    (``max_by_hypothesis``) of one nominal flight, its
-    verdict, and per check the isolation its thresholds give (``glr3d.isolate``)."""
+def analyse_nominal(f: NominalFlight):
+    """The ins3d analysis (``analyze_ins3d``) of one nominal flight, simulated from its seed."""
     from flight_fdi.bagio.ins3d_input import from_flight
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
-    from flight_fdi.core.ins3d.glr3d import isolate
     from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
     from flight_fdi.sim.trajectory import TrajectoryConfig
 
     cfg = Sim3DConfig(TrajectoryConfig(profile=f.profile, duration_s=f.duration_s,
                                        rate_hz=100.0, seed=f.seed), grade=f.grade, seed=f.seed)
     inp = from_flight(simulate3d(cfg))
-    a = analyze_ins3d(inp.steps, inp.refs, grade=f.grade, with_observability=False,
-                      **inp.vertical())   # the flight's own height loop, as the evaluation
+    return analyze_ins3d(inp.steps, inp.refs, grade=f.grade, with_observability=False,
+                         **inp.vertical())   # the flight's own height loop, as the evaluation
+
+
+def nominal_flight(f: NominalFlight) -> dict:
+    """The largest GLR per hypothesis kind (and its hypothesis) and per hypothesis
+    (``max_by_hypothesis``) of one nominal flight, its
+    verdict, and per check the isolation its thresholds give (``glr3d.isolate``)."""
+    from flight_fdi.core.ins3d.glr3d import isolate
+
+    a = analyse_nominal(f)
     best = {k: max((c.statistic, n) for n, c in a.glr.items() if c.hypothesis.kind == k)
             for k in KINDS}
     checks = {}

@@ -127,15 +127,26 @@ def mixture_achieved(log_lr: np.ndarray, alpha: float = ALPHA) -> float:
     return float(np.mean(x > -math.log(alpha)))
 
 
+def onset_terms(c: GlrCurve, window: tuple[float, float] | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(e, d) of the curve's onsets in ``window`` (None: all) where it has information:
+    d = 1 / sd^2 (the information per SI unit of the size, SI^-2) and e = b^ d, so that the
+    GLR there is e^2 / d and the log likelihood ratio of a size b is b e - b^2 d / 2."""
+    on = np.isfinite(c.sd) & np.isfinite(c.mag)
+    if window is not None:
+        on &= (c.t >= window[0]) & (c.t <= window[1])
+    if not on.any():
+        raise EvalError(f"no onset of {c.hypothesis.name} with information in {window}")
+    d = 1.0 / c.sd[on] ** 2
+    return c.mag[on] * d, d
+
+
 def log_mixture_lr(c: GlrCurve, b: float, window: tuple[float, float]) -> float:
     """log of the likelihood ratio of the onset mixture (uniform over the curve's onsets in
     ``window``) against no fault, b (SI, signed) known: log mean exp(b e - b^2 d / 2) with
     e = b^ / sd^2 and d = 1 / sd^2 of the curve (SI)."""
-    on = (c.t >= window[0]) & (c.t <= window[1]) & np.isfinite(c.sd)
-    if not on.any():
-        raise EvalError(f"log_mixture_lr: no onset of {c.hypothesis.name} in {window}")
-    d = 1.0 / c.sd[on] ** 2
-    x = b * c.mag[on] * d - 0.5 * b * b * d
+    e, d = onset_terms(c, window)
+    x = b * e - 0.5 * b * b * d
     top = float(x.max())
     return top + math.log(float(np.mean(np.exp(x - top))))
 
@@ -337,4 +348,4 @@ def flight_record(item: tuple) -> dict:
 __all__ = ["ALPHA", "K_GRID", "LEVELS", "PowerFlight", "RULES", "Rival", "Separation",
            "flight_record",
            "glr_known_onsets", "glr_power", "log_mixture_lr", "main_curves", "mixture_achieved",
-           "mixture_power_bound", "np_power", "separation", "separation_bound"]
+           "mixture_power_bound", "np_power", "onset_terms", "separation", "separation_bound"]
