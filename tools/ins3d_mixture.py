@@ -5,15 +5,20 @@ row is appended to --out (JSON lines) as it arrives. Usage::
     .venv/bin/python tools/ins3d_mixture.py nominal --flights 160 --seed0 20000 --jobs 2 \\
         --out out/mix/nominal_2h.jsonl
     .venv/bin/python tools/ins3d_mixture.py zstudy --jobs 2 --out out/mix/z.jsonl
+    .venv/bin/python tools/ins3d_mixture.py xystudy --jobs 2 --out out/mix/xy.jsonl
+    .venv/bin/python tools/ins3d_mixture.py report --out out/mix/nominal_2h.jsonl \
+        --faults out/mix/z.jsonl out/mix/xy.jsonl
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 
 from flight_fdi.core.ins3d.grade_file import resolve_grade
 from flight_fdi.eval.calibrate3d import plan
+from flight_fdi.eval.errors import EvalError
 from flight_fdi.eval.mixture3d import fault_mixture, nominal_mixture
 from flight_fdi.eval.montecarlo3d import Study3DConfig, plan_study
 from flight_fdi.eval.parallel import parallel_map
@@ -22,31 +27,74 @@ from flight_fdi.eval.parallel import parallel_map
 Z_STUDY = ((111, (0.05, 0.1, 0.2)), (115, (0.05,)))
 
 
-def z_items(level: float = 0.05) -> list[tuple]:
-    """(case, config) of the z study's flights at ``level`` (deg/h)."""
+def z_items(level: float = 0.05, axes: tuple[str, ...] = ("z",),
+            study: tuple = Z_STUDY) -> list[tuple]:
+    """(case, config) of the z study's flights (``axes``: its x / y flights instead) at
+    ``level`` (deg/h)."""
     items = []
-    for seed, levels in Z_STUDY:
+    for seed, levels in study:
         cfg = Study3DConfig(nominal=0, per_scenario=90, scenarios=("gyro_step",),
                             levels={"gyro_step": levels}, duration_s=7200.0,
-                            profile="cruise_turns", seed=seed, axes=("z",))
+                            profile="cruise_turns", seed=seed, axes=axes)
         items += [(c, cfg) for c in plan_study(cfg) if c.level == level]
     return items
 
 
+def _read(path: str) -> list[dict]:
+    with open(path) as f:
+        return [json.loads(x) for x in f if x.strip()]
+
+
+def report(nominal: str, faults: list[str], p: tuple[float, ...] = (5e-4, 0.01)) -> None:
+    """Per hypothesis: the nominal flights' M and GLR (median / 90 % / largest), their tail
+    thresholds at each p; per fault file: flights whose true hypothesis' M / GLR exceeds each."""
+    import numpy as np
+
+    from flight_fdi.eval.mixture3d import tail_thresholds
+
+    rows = _read(nominal)
+    thr = {(k, q): tail_thresholds(rows, q, k) for k in ("M", "glr") for q in p}
+    print(f"{len(rows)} nominal flights, seeds {min(r['seed'] for r in rows)}-"
+          f"{max(r['seed'] for r in rows)}")
+    for h in rows[0]["M"]:
+        line = []
+        for k in ("M", "glr"):
+            x = np.array([r[k][h] for r in rows])
+            line.append(f"{k} {np.median(x):.1f}/{np.quantile(x, 0.9):.1f}/{x.max():.1f} thr "
+                        + "/".join(f"{thr[(k, q)][h]:.1f}" for q in p))
+        print(f"{h:22s} " + "  ".join(line))
+    for path in faults:
+        recs = _read(path)
+        for k in ("M", "glr"):
+            for q in p:
+                hits = sum(r[k][f"{r['sensor']}_{r['axis']}_step"] > thr[(k, q)][
+                    f"{r['sensor']}_{r['axis']}_step"] for r in recs)
+                print(f"{path}: {k} above its p = {q:g} threshold: {hits}/{len(recs)}")
+        right = sum(r["ins3d"]["isolation"] == "single" and (r["ins3d"]["sensor"],
+                    r["ins3d"]["axis"]) == (r["sensor"], r["axis"]) for r in recs)
+        print(f"{path}: the isolator (glr3d.isolate, main's thresholds) right: {right}/{len(recs)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=("nominal", "zstudy"))
+    ap.add_argument("what", choices=("nominal", "zstudy", "xystudy", "report"))
+    ap.add_argument("--faults", nargs="*", default=[], help="report: fault-flight files")
     ap.add_argument("--flights", type=int, default=160)
     ap.add_argument("--seed0", type=int, default=20000)
     ap.add_argument("--duration", type=float, default=7200.0)
     ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--out", required=True)
+    ap.add_argument("--out", required=True, help="rows (JSON lines); report: the nominal rows")
     a = ap.parse_args()
+    if a.what == "report":
+        report(a.out, a.faults)
+        return
     if a.what == "nominal":
         fn, items = nominal_mixture, plan(resolve_grade("navigation"), a.flights, a.seed0,
                                           duration_s=a.duration)
-    else:
+    elif a.what == "zstudy":
         fn, items = fault_mixture, z_items()
+    else:           # the x / y flights at 0.05 deg/h of seed 115 (the 90 extra flights)
+        fn, items = fault_mixture, z_items(axes=("x", "y"), study=Z_STUDY[1:])
     t0 = time.time()
 
     def arrived(r: dict) -> None:
@@ -59,4 +107,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except (OSError, ValueError, KeyError, EvalError) as exc:
+        sys.exit(f"ins3d_mixture: {exc}")

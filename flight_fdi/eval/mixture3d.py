@@ -98,5 +98,16 @@ def fault_mixture(item: tuple) -> dict:
             "glr": {n: float(c.statistic) for n, c in main_curves(an.glr).items()}}
 
 
+def tail_thresholds(rows: list[dict], p: float, key: str = "M") -> dict[str, float]:
+    """Per hypothesis the x its nominal flights' ``key`` ("M" or "glr") exceeds with
+    probability ``p`` (``calibrate3d.tail_threshold``, the one tail rule), from rows of
+    :func:`nominal_mixture` of one flight length."""
+    from .calibrate3d import tail_threshold
+
+    if len({r["duration_s"] for r in rows}) > 1:
+        raise EvalError("tail_thresholds: the rows mix flight lengths")
+    return {h: tail_threshold(np.array([r[key][h] for r in rows]), p) for h in rows[0][key]}
+
+
 __all__ = ["fault_mixture", "log_bayes_factors", "mixture_statistic", "mixture_statistics",
-           "nominal_mixture", "prior_sd"]
+           "nominal_mixture", "prior_sd", "tail_thresholds"]

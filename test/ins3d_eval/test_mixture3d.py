@@ -15,7 +15,7 @@ from scipy.stats import norm
 from flight_fdi.core.ins3d.glr3d import GlrCurve, Hypothesis
 from flight_fdi.eval.errors import EvalError
 from flight_fdi.eval.mixture3d import (log_bayes_factors, mixture_statistic, mixture_statistics,
-                                       prior_sd)
+                                       prior_sd, tail_thresholds)
 
 DEG_H = math.radians(1.0) / 3600.0
 GX = Hypothesis("gyro_x_step", "gyro", "x", "step", 3)
@@ -110,3 +110,16 @@ def test_mixture_is_larger_with_a_true_signature_on_model_drawn_data(pf):
         alone.append(mixture_statistics(pf.curves(noise))["gyro_y_step"])
     assert all(f > a for f, a in zip(with_fault, alone))
     assert max(alone) < 2.0 * math.log(100.0) < float(np.median(with_fault))
+
+
+def test_tail_thresholds_use_the_one_tail_rule_per_hypothesis():
+    from flight_fdi.eval.calibrate3d import tail_threshold
+
+    rng = np.random.default_rng(2)
+    rows = [{"duration_s": 7200.0, "M": {"a": float(x), "b": float(y)}}
+            for x, y in rng.standard_normal((40, 2))]
+    thr = tail_thresholds(rows, 5e-4)
+    assert thr["a"] == tail_threshold(np.array([r["M"]["a"] for r in rows]), 5e-4)
+    assert set(thr) == {"a", "b"}
+    with pytest.raises(EvalError):
+        tail_thresholds(rows + [{"duration_s": 1800.0, "M": {"a": 0.0, "b": 0.0}}], 0.01)
