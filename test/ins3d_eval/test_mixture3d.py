@@ -81,17 +81,7 @@ def test_prior_rule_and_bad_input():
 
 # --------------------------------------------------------------------------- an ins3d flight
 
-@pytest.fixture(scope="module")
-def pf():
-    """600 s of cruise_turns (first turn 303-372 s), navigation grade, nominal."""
-    from flight_fdi.eval.montecarlo3d import Case3D, Study3DConfig
-    from flight_fdi.eval.onset_bound import Signatures, analyse_case
-    from flight_fdi.eval.power_bound import PowerFlight
-
-    cfg = Study3DConfig(nominal=1, per_scenario=0, duration_s=600.0, profile="cruise_turns",
-                        single_axis=False)
-    _, an = analyse_case(Case3D(0, "nominal", 11, 12), cfg)
-    return PowerFlight(Signatures(an))
+# (the flight: the ``pf`` fixture of conftest.py)
 
 
 def test_mixture_is_larger_with_a_true_signature_on_model_drawn_data(pf):

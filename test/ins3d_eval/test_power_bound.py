@@ -19,8 +19,8 @@ from scipy.stats import beta, ncx2, norm
 
 from flight_fdi.core.ins3d.glr3d import GlrCurve, Hypothesis
 from flight_fdi.eval.errors import EvalError
-from flight_fdi.eval.onset_bound import Signatures, analyse_case, quad
-from flight_fdi.eval.power_bound import (ALPHA, PowerFlight, glr_known_onsets, glr_power,
+from flight_fdi.eval.onset_bound import quad
+from flight_fdi.eval.power_bound import (ALPHA, glr_known_onsets, glr_power,
                                          log_mixture_lr, mixture_achieved,
                                          mixture_power_bound, np_power,
                                          separation, separation_bound)
@@ -150,15 +150,7 @@ def test_log_mixture_lr_of_a_curve_is_the_mean_likelihood_ratio_over_the_window(
 
 # --------------------------------------------------------------------------- an ins3d flight
 
-@pytest.fixture(scope="module")
-def pf():
-    """600 s of cruise_turns (first turn 303-372 s), navigation grade, nominal."""
-    from flight_fdi.eval.montecarlo3d import Case3D, Study3DConfig
-
-    cfg = Study3DConfig(nominal=1, per_scenario=0, duration_s=600.0, profile="cruise_turns",
-                        single_axis=False)
-    _, an = analyse_case(Case3D(0, "nominal", 11, 12), cfg)
-    return PowerFlight(Signatures(an))
+# (the flight: the ``pf`` fixture of conftest.py)
 
 
 def test_noiseless_sweep_gives_the_signature_information_and_is_linear(pf):
