@@ -89,10 +89,13 @@ def report(nominal: str, faults: list[str], p: tuple[float, ...] = (5e-4, 0.01))
         for k in ("M", "glr"):
             for q in p:
                 dec = [_excess_rule(r, thr[(k, q)], k) for r in recs]
-                named = sum(b == f"{r['sensor']}_{r['axis']}_step" for (b, _), r in
-                            zip(dec, recs))
-                print(f"{path}: {k} p = {q:g}: the true hypothesis has the largest excess "
-                      f"{named}/{len(recs)}; more than one above on {sum(n > 1 for _, n in dec)}")
+                step = sum(b == f"{r['sensor']}_{r['axis']}_step" for (b, _), r in
+                           zip(dec, recs))
+                axis = sum(b is not None and b.startswith(f"{r['sensor']}_{r['axis']}_")
+                           for (b, _), r in zip(dec, recs))
+                print(f"{path}: {k} p = {q:g}: largest excess the true step {step}/{len(recs)}, "
+                      f"its sensor and axis (step or ramp) {axis}; more than one above on "
+                      f"{sum(n > 1 for _, n in dec)}")
         for k in ("M", "glr", "markov"):
             for q in p:
                 hits = sum(r["glr" if k == "glr" else "M"][f"{r['sensor']}_{r['axis']}_step"]
