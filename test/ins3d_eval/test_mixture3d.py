@@ -113,3 +113,22 @@ def test_tail_thresholds_use_the_one_tail_rule_per_hypothesis():
     assert set(thr) == {"a", "b"}
     with pytest.raises(EvalError):
         tail_thresholds(rows + [{"duration_s": 1800.0, "M": {"a": 0.0, "b": 0.0}}], 0.01)
+
+
+def test_the_tool_fails_with_one_line(tmp_path):
+    """tools/ins3d_mixture.py report on two nominal rows (too few flights for the tail rule)
+    and on a missing file: one line on stderr, a non-zero exit."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tool = Path(__file__).resolve().parents[2] / "tools" / "ins3d_mixture.py"
+    rows = tmp_path / "n.jsonl"
+    rows.write_text("".join(json.dumps({"seed": i, "duration_s": 7200.0, "M": {"a": 0.0},
+                                        "glr": {"a": 1.0}}) + "\n" for i in range(2)))
+    for out in (rows, tmp_path / "missing.jsonl"):
+        r = subprocess.run([sys.executable, str(tool), "report", "--out", str(out)],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode != 0
+        assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
