@@ -6,6 +6,7 @@ row is appended to --out (JSON lines) as it arrives. Usage::
         --out out/mix/nominal_2h.jsonl
     .venv/bin/python tools/ins3d_mixture.py zstudy --jobs 2 --out out/mix/z.jsonl
     .venv/bin/python tools/ins3d_mixture.py xystudy --jobs 2 --out out/mix/xy.jsonl
+    .venv/bin/python tools/ins3d_mixture.py randomz --jobs 2 --out out/mix/random_z.jsonl
     .venv/bin/python tools/ins3d_mixture.py report --out out/mix/nominal_2h.jsonl \
         --faults out/mix/z.jsonl out/mix/xy.jsonl
 """
@@ -28,16 +29,16 @@ from flight_fdi.eval.parallel import parallel_map
 Z_STUDY = ((111, (0.05, 0.1, 0.2)), (115, (0.05,)))
 
 
-def z_items(level: float = 0.05, axes: tuple[str, ...] = ("z",),
-            study: tuple = Z_STUDY) -> list[tuple]:
-    """(case, config) of the z study's flights (``axes``: its x / y flights instead) at
-    ``level`` (deg/h)."""
+def z_items(level: float | None = 0.05, axes: tuple[str, ...] = ("z",),
+            study: tuple = Z_STUDY, profile: str = "cruise_turns") -> list[tuple]:
+    """(case, config) of the z study's flights (``axes``: its x / y flights instead; ``study``
+    and ``profile``: another 2-h gyro step study) at ``level`` (deg/h; None: all)."""
     items = []
     for seed, levels in study:
         cfg = Study3DConfig(nominal=0, per_scenario=90, scenarios=("gyro_step",),
                             levels={"gyro_step": levels}, duration_s=7200.0,
-                            profile="cruise_turns", seed=seed, axes=axes)
-        items += [(c, cfg) for c in plan_study(cfg) if c.level == level]
+                            profile=profile, seed=seed, axes=axes)
+        items += [(c, cfg) for c in plan_study(cfg) if level is None or c.level == level]
     return items
 
 
@@ -109,7 +110,7 @@ def report(nominal: str, faults: list[str], p: tuple[float, ...] = (5e-4, 0.01))
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=("nominal", "zstudy", "xystudy", "report"))
+    ap.add_argument("what", choices=("nominal", "zstudy", "xystudy", "randomz", "report"))
     ap.add_argument("--faults", nargs="*", default=[], help="report: fault-flight files")
     ap.add_argument("--flights", type=int, default=160)
     ap.add_argument("--seed0", type=int, default=20000)
@@ -125,8 +126,11 @@ def main() -> None:
                                           duration_s=a.duration)
     elif a.what == "zstudy":
         fn, items = fault_mixture, z_items()
-    else:           # the x / y flights at 0.05 deg/h of seed 115 (the 90 extra flights)
+    elif a.what == "xystudy":   # the x / y flights at 0.05 deg/h of seed 115 (90 extra)
         fn, items = fault_mixture, z_items(axes=("x", "y"), study=Z_STUDY[1:])
+    else:           # the z flights of the 2-h `random` gyro step study (seed 11), all levels
+        fn, items = fault_mixture, z_items(None, study=((11, (0.05, 0.1, 0.2)),),
+                                           profile="random")
     t0 = time.time()
 
     def arrived(r: dict) -> None:
