@@ -7,8 +7,10 @@ row is appended to --out (JSON lines) as it arrives. Usage::
     .venv/bin/python tools/ins3d_mixture.py zstudy --jobs 2 --out out/mix/z.jsonl
     .venv/bin/python tools/ins3d_mixture.py xystudy --jobs 2 --out out/mix/xy.jsonl
     .venv/bin/python tools/ins3d_mixture.py randomz --jobs 2 --out out/mix/random_z.jsonl
-    .venv/bin/python tools/ins3d_mixture.py report --out out/mix/nominal_2h.jsonl \
-        --faults out/mix/z.jsonl out/mix/xy.jsonl
+    .venv/bin/python tools/ins3d_mixture.py nominal --flights 90 --duration 1800 --seed0 21000 \\
+        --jobs 2 --out out/mix/nominal_30min.jsonl
+    .venv/bin/python tools/ins3d_mixture.py report --out out/mix/nominal_2h.jsonl \\
+        --faults out/mix/z.jsonl out/mix/xy.jsonl --short out/mix/nominal_30min.jsonl
 """
 from __future__ import annotations
 
@@ -54,6 +56,26 @@ def _excess_rule(rec: dict, thr: dict[str, float], key: str) -> tuple[str | None
     best = max(ex, key=ex.get)
     n = sum(v > 0 for v in ex.values())
     return (best if n else None), n
+
+
+def report_procedure(short: str, nominal: str, faults: list[str]) -> None:
+    """Both statistics' thresholds by the grade's procedure (``procedure_thresholds``) and the
+    fault flights above them and named by the largest excess (sensor and axis)."""
+    from flight_fdi.eval.mixture3d import procedure_thresholds
+
+    s, lo = _read(short), _read(nominal)
+    for k in ("M", "glr"):
+        thr = procedure_thresholds(s, lo, k)
+        print(f"grade's procedure, {k}: gyro z step {thr['gyro_z_step']:.2f}; held-in flights "
+              f"above any: {sum(_excess_rule(r, thr, k)[0] is not None for r in lo)}/{len(lo)}")
+        for path in faults:
+            recs = _read(path)
+            above = sum(r[k][f"{r['sensor']}_{r['axis']}_step"] > thr[
+                f"{r['sensor']}_{r['axis']}_step"] for r in recs)
+            named = sum((_excess_rule(r, thr, k)[0] or "").startswith(
+                f"{r['sensor']}_{r['axis']}_") for r in recs)
+            print(f"  {path}: above {above}/{len(recs)}, its sensor and axis the largest "
+                  f"excess {named}")
 
 
 def report(nominal: str, faults: list[str], p: tuple[float, ...] = (5e-4, 0.01)) -> None:
@@ -112,6 +134,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=("nominal", "zstudy", "xystudy", "randomz", "report"))
     ap.add_argument("--faults", nargs="*", default=[], help="report: fault-flight files")
+    ap.add_argument("--short", default="", help="report: 30-min nominal rows (the grade's "
+                    "procedure: thresholds pooled over both lengths)")
     ap.add_argument("--flights", type=int, default=160)
     ap.add_argument("--seed0", type=int, default=20000)
     ap.add_argument("--duration", type=float, default=7200.0)
@@ -120,6 +144,8 @@ def main() -> None:
     a = ap.parse_args()
     if a.what == "report":
         report(a.out, a.faults)
+        if a.short:
+            report_procedure(a.short, a.out, a.faults)
         return
     if a.what == "nominal":
         fn, items = nominal_mixture, plan(resolve_grade("navigation"), a.flights, a.seed0,

@@ -109,5 +109,23 @@ def tail_thresholds(rows: list[dict], p: float, key: str = "M") -> dict[str, flo
     return {h: tail_threshold(np.array([r[key][h] for r in rows]), p) for h in rows[0][key]}
 
 
+def procedure_thresholds(short: list[dict], long: list[dict], key: str = "M",
+                         target: float = 0.01) -> dict[str, float]:
+    """Per hypothesis the threshold for a flight of the ``long`` rows' length by the grade's
+    own procedure (``calibrate3d.hypothesis_growth`` on the two lengths' medians, then
+    ``calibrate_hypotheses``: pooled, an equal share of ``target`` each), applied to ``key``
+    ("M" or "glr") of rows of :func:`nominal_mixture`."""
+    from .calibrate3d import CALIBRATED_LENGTH_S, calibrate_hypotheses, hypothesis_growth
+
+    def conv(rows: list[dict]) -> list[dict]:
+        return [{"duration_s": r["duration_s"], "max_by_hypothesis": r[key]} for r in rows]
+
+    s, lo = conv(short), conv(long)
+    growth = hypothesis_growth(s, lo)
+    thr = calibrate_hypotheses(s + lo, target, growth)
+    stretch = math.log(long[0]["duration_s"] / CALIBRATED_LENGTH_S)
+    return {h: thr[h] + growth[h] * stretch for h in thr}
+
+
 __all__ = ["fault_mixture", "log_bayes_factors", "mixture_statistic", "mixture_statistics",
-           "nominal_mixture", "prior_sd", "tail_thresholds"]
+           "nominal_mixture", "prior_sd", "procedure_thresholds", "tail_thresholds"]

@@ -132,3 +132,22 @@ def test_the_tool_fails_with_one_line(tmp_path):
                            capture_output=True, text=True, timeout=120)
         assert r.returncode != 0
         assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+
+
+def test_procedure_thresholds_move_the_long_flights_by_their_growth():
+    """2-h rows = the 30-min rows + 1 for every hypothesis: growth 1 / ln 4, both sets pooled
+    at the 30-min length are the 30-min values twice, and the 2-h threshold is their tail
+    threshold at the equal share (0.75 x 1 % / 15) plus 1."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+    from flight_fdi.eval.calibrate3d import tail_threshold
+    from flight_fdi.eval.mixture3d import procedure_thresholds
+
+    rng = np.random.default_rng(4)
+    x = rng.standard_normal((30, len(PER_HYPOTHESIS)))
+    short = [{"duration_s": 1800.0, "M": dict(zip(PER_HYPOTHESIS, map(float, v)))} for v in x]
+    long = [{"duration_s": 7200.0, "M": {h: v + 1.0 for h, v in r["M"].items()}}
+            for r in short]
+    thr = procedure_thresholds(short, long)
+    for i, h in enumerate(PER_HYPOTHESIS):
+        want = tail_threshold(np.concatenate([x[:, i], x[:, i]]), 0.75 * 0.01 / 15) + 1.0
+        assert thr[h] == pytest.approx(want, abs=0.006)       # (calibrate rounds to 0.01)
