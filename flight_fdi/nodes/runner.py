@@ -18,11 +18,14 @@ conditions on the EventsExecutor (which does not support them: bag_player's fast
 ``ack_topic``), is logged as FATAL and the process exits 1 without spinning; an invalid
 ``--executor`` is an argparse error (exit 2);
 SIGINT / SIGTERM (at any point after ``rclpy.init``) and an external shutdown end the process
-normally; a second SIGINT / SIGTERM gets the default action.
+normally; a second SIGINT / SIGTERM gets the default action. SIGUSR1 prints the Python stack of
+every thread to stderr and the node goes on (``faulthandler``: a node that hangs, e.g. in its
+shutdown, can say where; the graph tests send it before they kill a node that did not stop).
 """
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import os
 import signal
 import sys
@@ -108,6 +111,7 @@ class StopSignals:
     only sets :attr:`signum`; the spin loop sees it within one ``spin_once`` timeout, the callback
     in progress completes, and the node is torn down in order. A second signal of the same kind
     gets the default action (a hung shutdown can still be killed with another Ctrl-C).
+    While installed, SIGUSR1 prints every thread's Python stack to stderr (``faulthandler``).
     Installed in the main thread only (elsewhere Python cannot handle signals: a no-op).
     """
 
@@ -120,9 +124,12 @@ class StopSignals:
         if threading.current_thread() is threading.main_thread():
             for signum in self.signals:
                 self._previous[signum] = signal.signal(signum, self._handle)
+            faulthandler.register(signal.SIGUSR1, all_threads=True)
         return self
 
     def __exit__(self, *exc: Any) -> None:
+        if self._previous:
+            faulthandler.unregister(signal.SIGUSR1)
         for signum, previous in self._previous.items():
             signal.signal(signum, previous)
         self._previous.clear()

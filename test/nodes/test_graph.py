@@ -53,6 +53,11 @@ def stop(procs: list[subprocess.Popen]) -> list[str]:
         try:
             out.append(p.communicate(timeout=30)[0])
         except subprocess.TimeoutExpired:
+            p.send_signal(signal.SIGUSR1)       # the node's threads' stacks (runner.py), then
+            try:                                # kill: the log says where it hung
+                p.communicate(timeout=5)
+            except subprocess.TimeoutExpired:
+                pass
             p.kill()
             out.append(p.communicate()[0])
     return out
@@ -138,6 +143,8 @@ def one_replay(ros, probe, bag, tmp_path, run: int, stall_s: float = 0.0,
                        timeout=20, what="the recorder catching up")
     finally:
         logs = stop(procs)
+    if [p.returncode for p in procs[:2]] != [0, 0]:
+        print("\n".join(logs))                 # whole (the assertion message is shortened)
     assert [p.returncode for p in procs[:2]] == [0, 0], logs
     v = probe.values[f"{f}: inputs"]
     return dict(published=published, received_ins=int(v["received_ins"]),

@@ -113,6 +113,21 @@ def test_a_second_signal_gets_the_default_action():
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+def test_sigusr1_prints_every_threads_stack_and_the_node_goes_on(capfd):
+    """A node that hangs (e.g. in its shutdown) can say where: SIGUSR1 dumps the stacks."""
+    class Dumping(_Probe):
+        def _tick(self):
+            super()._tick()
+            if self.ticks == 2:
+                os.kill(os.getpid(), signal.SIGUSR1)
+            if self.ticks == 4:
+                self.done.set_result(self.ticks)
+
+    assert _run(Dumping, until=lambda node: node.done, exit_status=lambda node: node.ticks) == 4
+    err = capfd.readouterr().err
+    assert "most recent call first" in err and "_tick" in err
+
+
 def test_an_error_while_the_context_is_up_is_not_swallowed():
     def broken():
         raise RuntimeError("bug in the constructor")
