@@ -238,6 +238,14 @@ def calibrate(rows: list[dict], target: float) -> dict[str, float]:
 OUTLIER_SHARE = 0.25
 
 
+def hypothesis_share(target: float) -> float:
+    """Each hypothesis' share of the false-isolation ``target`` when calibrated per hypothesis:
+    (1 - ``OUTLIER_SHARE``) x target, split equally over ``glr3d.PER_HYPOTHESIS``."""
+    from flight_fdi.core.ins3d.glr3d import PER_HYPOTHESIS
+
+    return (1.0 - OUTLIER_SHARE) * target / len(PER_HYPOTHESIS)
+
+
 def hypothesis_growth(short: list[dict], long: list[dict]) -> dict[str, float]:
     """Per hypothesis of ``glr3d.PER_HYPOTHESIS`` the growth c of its nominal maximum with the
     flight length, measured: (median over the long flights - median over the short ones) /
@@ -276,7 +284,7 @@ def calibrate_hypotheses(rows: list[dict], target: float,
 
     if not 0.0 < target < 1.0:
         raise EvalError(f"false-isolation target must be within (0, 1), got {target!r}")
-    p = (1.0 - OUTLIER_SHARE) * target / len(PER_HYPOTHESIS)
+    p = hypothesis_share(target)
     out = {}
     for h in PER_HYPOTHESIS:
         c = growth_of(h) if growth is None or h not in growth else growth[h]
@@ -392,7 +400,6 @@ class Calibration:
                          "declared_default": seed_declared(self.rows,
                                                            DEFAULT_EPISODE_PROBABILITY)}}
 
-
     def rule(self) -> dict:
         """How the budget was split (``rule``, ``shares``: each threshold's share of the
         target) and, per hypothesis, the growth c that moved the flights' maxima from their
@@ -405,9 +412,9 @@ class Calibration:
 
         if not self.per_hypothesis:
             return {"rule": "per_kind", "shares": {k: r(self.target / len(KINDS)) for k in KINDS}}
-        p = (1.0 - OUTLIER_SHARE) * self.target / len(PER_HYPOTHESIS)
         return {"rule": "per_hypothesis",
-                "shares": {"outliers": r(OUTLIER_SHARE * self.target), "hypothesis": r(p)},
+                "shares": {"outliers": r(OUTLIER_SHARE * self.target),
+                           "hypothesis": r(hypothesis_share(self.target))},
                 "growth": {h: growth_of(h) for h in PER_HYPOTHESIS}}
 
 
@@ -442,6 +449,6 @@ def run_calibration(grade: ImuGrade, flights: int, seed: int, target: float,
 __all__ = ["Calibration", "DEFAULT_EPISODE_PROBABILITY", "MIN_FLIGHTS", "NominalFlight",
            "OUTLIER_SHARE", "PROFILES", "bootstrap_spread", "calibrate",
            "calibrate_grade", "calibrate_hypotheses", "calibrate_seed", "check_rates", "exceeded",
-           "exceeded_hypotheses", "hypothesis_growth", "length_shift", "nominal_flight", "plan",
+           "exceeded_hypotheses", "hypothesis_growth", "hypothesis_share", "length_shift", "nominal_flight", "plan",
            "rate", "run_calibration", "run_flights", "seed_declared", "seed_statistic", "summary",
            "tail_threshold"]
