@@ -449,6 +449,7 @@ def run_calibration(grade: ImuGrade, flights: int, seed: int, target: float,
 __all__ = ["Calibration", "DEFAULT_EPISODE_PROBABILITY", "MIN_FLIGHTS", "NominalFlight",
            "OUTLIER_SHARE", "PROFILES", "bootstrap_spread", "calibrate",
            "calibrate_grade", "calibrate_hypotheses", "calibrate_seed", "check_rates", "exceeded",
-           "exceeded_hypotheses", "hypothesis_growth", "hypothesis_share", "length_shift", "nominal_flight", "plan",
+           "exceeded_hypotheses", "hypothesis_growth", "hypothesis_share", "length_shift",
+           "nominal_flight", "plan",
            "rate", "run_calibration", "run_flights", "seed_declared", "seed_statistic", "summary",
            "tail_threshold"]

@@ -399,7 +399,8 @@ def format_onset_coverage(rows: Sequence[dict], drops: Sequence[float]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["KINDS", "LoadSampler", "by_onset", "calibration_table", "detectable_steps", "format_by_onset",
+__all__ = ["KINDS", "LoadSampler", "by_onset", "calibration_table", "detectable_steps",
+           "format_by_onset",
            "format_by_turn_after", "format_detectable", "format_nominal",
            "format_onset_by_axis", "study_files",
            "format_nominal_maxima",

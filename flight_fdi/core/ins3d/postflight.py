@@ -300,4 +300,5 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
 
 
 __all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_information", "fault_scales",
-           "fused_forward", "glr_curves", "kernel_args", "resolve", "run_backward", "seed_method", "signature"]
+           "fused_forward", "glr_curves", "kernel_args", "resolve", "run_backward", "seed_method",
+           "signature"]
