@@ -21,16 +21,18 @@ from .real3d import Fault, Recording, Settings, analyze
 def model_error_angle(rec_out: dict, fault: Fault) -> float | None:
     """When the fault's sensor and axis is the best or the runner-up of a run (``record``)
     and the pair was fitted: the angle (rad) by which the true hypothesis's signature misses
-    the data in the pair's plane beyond noise, asin sqrt(max(L2 - L_true - 9.21, 0) / L2) --
-    the signature error ``glr3d.settle`` must allow for the true one to stay a candidate.
-    None otherwise."""
+    the data in the pair's plane beyond noise -- the signature error ``glr3d.settle`` must allow
+    for the true one to stay a candidate were it the runner-up: asin sqrt(max(L2 - L_true - o -
+    9.21, 0) / L2), o the other one's threshold minus the true one's (``settle`` takes the gap
+    net of it: ``Isolation.offset`` = the best's minus the rival's). None otherwise."""
     L2 = rec_out.get("pair")
     if not L2 or L2 <= 0:
         return None
-    for key in ("best", "rival"):
+    offset = rec_out.get("offset", 0.0)
+    for key, o in (("best", -offset), ("rival", offset)):
         name = rec_out[key] or ""
         if name.startswith(f"{fault.sensor}_{fault.axis}_"):
-            miss = max(L2 - rec_out[f"{key}_statistic"] - AMBIGUITY_MARGIN, 0.0)
+            miss = max(L2 - rec_out[f"{key}_statistic"] - o - AMBIGUITY_MARGIN, 0.0)
             return math.asin(math.sqrt(min(miss / L2, 1.0)))
     return None
 
