@@ -35,7 +35,7 @@ def add_ins3d_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--profile", default="random", metavar="PROFILE",
                    help=f"trajectory ({', '.join(PROFILES)}; random: one seeded trajectory per "
                         "flight; default random)")
-    g.add_argument("--scenarios", default=",".join(SCENARIOS), metavar="NAME,...",
+    g.add_argument("--scenarios", default=None, metavar="NAME,...",
                    help="fault scenarios (default all: " + ",".join(SCENARIOS) + ")")
     g.add_argument("--level", action="append", default=[], metavar="SCENARIO=A,B,...",
                    help="levels of a scenario in its unit (mg, deg/h, mg/h, deg/h^2, m/s); "
@@ -90,7 +90,7 @@ def study_config(args: argparse.Namespace):
     """Study3DConfig from the options (validated by the evaluation package)."""
     from flight_fdi.cli.analyze import analysis_config
     from flight_fdi.eval.errors import EvalError
-    from flight_fdi.eval.montecarlo3d import Study3DConfig
+    from flight_fdi.eval.montecarlo3d import SCENARIOS, Study3DConfig
 
     if args.channel != "x":
         raise CliError("--channel belongs to the single-axis study; --model ins3d analyses "
@@ -100,7 +100,8 @@ def study_config(args: argparse.Namespace):
     try:
         return Study3DConfig(
             nominal=args.nominal, per_scenario=args.per_fault,
-            scenarios=tuple(s.strip() for s in args.scenarios.split(",") if s.strip()),
+            scenarios=tuple(SCENARIOS) if args.scenarios is None else
+            tuple(s.strip() for s in args.scenarios.split(",") if s.strip()),
             levels=_levels(args), duration_s=args.duration, profile=args.profile,
             grade=args.grade, onset_window=tuple(args.onset),
             gnss_latency_s=args.gnss_latency / 1000.0, seed=args.seed,
@@ -147,11 +148,9 @@ def _ladder(args: argparse.Namespace, config, workers: int, scheduler: str | Non
     if args.records:
         raise CliError("--records streams a study's flights; --ladder runs several studies "
                        "and does not take it")
-    from flight_fdi.eval.montecarlo3d import SCENARIOS
-
     grades = (config.grade,) if args.ladder_grades is None else \
         tuple(g.strip() for g in args.ladder_grades.split(",") if g.strip())
-    given = {} if args.scenarios == ",".join(SCENARIOS) else {"scenarios": config.scenarios}
+    given = {} if args.scenarios is None else {"scenarios": config.scenarios}
     try:
         ladder = run_ladder(config, grades, runs=args.ladder_runs, rungs=args.ladder_rungs,
                             jobs=workers, progress=not args.no_progress, scheduler=scheduler,

@@ -127,5 +127,7 @@ def test_cli_ladder_on_a_grade_file(tmp_path, capsys):
         assert main(common + ["--no-progress"] + opt) == 1
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "unknown key 'thresholds.gyro_w_step'" in err, err
-    assert main(common[:5] + ["ref_jump"] + common[6:] + ["--no-progress"]) == 1
-    assert "ladder scenario must be an IMU scenario" in capsys.readouterr().err
+    from flight_fdi.eval.montecarlo3d import SCENARIOS
+    for given in ("ref_jump", ",".join(SCENARIOS)):      # the whole list given is given too
+        assert main(common[:5] + [given] + common[6:] + ["--no-progress"]) == 1
+        assert "ladder scenario must be an IMU scenario" in capsys.readouterr().err
