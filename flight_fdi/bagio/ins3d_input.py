@@ -7,6 +7,15 @@ evaluation.
 The propagation grid is the /ins/imu stamps: step k runs from IMU message k to k+1 with the mean
 specific force and rate of message k+1 (the mean over the interval that ends at its stamp). The
 INS velocity, latitude and height at the boundaries are interpolated from their own topics.
+
+The bag's description (metadata ``flight_fdi.sim3d``, JSON) may say how to model this INS and
+its reference, in a block ``error_model`` (``error_model_options``; docs/ins3d.md, "The contract
+description"): ``vertical`` (the error model's vertical channel: free, damped or loop),
+``latency`` (estimate a reference latency state), ``reference_markov`` (null, or [sigma_h,
+sigma_v m/s, tau s] of the reference's Markov noise) and ``initial_attitude`` (``levelled``: the
+INS levelled itself on its accelerometers -- the aligned prior; ``independent``: its attitude
+came from elsewhere -- independent states). Without the block (the simulator's bags) the
+analysis options are those of before (``Ins3dInput.vertical``).
 """
 from __future__ import annotations
 
@@ -29,6 +38,10 @@ TRUTH_TOPIC = "/sim/truth"
 ENU_FRAME, BODY_FRAME = "enu", "base_link"
 #: the variance written on the covariance diagonal of what a message does not measure
 UNMEASURED_VARIANCE = 1e6
+#: the description's block of error-model options and its keys
+ERROR_MODEL = "error_model"
+ERROR_MODEL_KEYS = ("vertical", "latency", "reference_markov", "initial_attitude")
+INITIAL_ATTITUDE = {"levelled": True, "independent": False}   # -> analyze_ins3d aligned_prior
 
 
 @dataclass
@@ -51,6 +64,62 @@ class Ins3dInput:
             return {}
         loop = VerticalLoop.from_description(self.description)
         return {"vertical": "damped"} if loop is None else {"vertical": "loop", "loop": loop}
+
+    def model_options(self, where: str = "bag") -> dict:
+        """The ``analyze_ins3d`` options of this input: ``vertical()``, overridden by the
+        description's ``error_model`` block (``error_model_options``; BagError for a bad one).
+        A ``loop`` vertical channel takes the description's baro loop when it has one."""
+        out = self.vertical()
+        given = error_model_options(self.description, where)
+        if given.get("vertical", "loop") != "loop":
+            out.pop("loop", None)
+        return {**out, **given}
+
+
+def error_model_options(description: dict | None, where: str = "bag") -> dict:
+    """The ``analyze_ins3d`` options (vertical, latency, ref_markov, aligned_prior) that a
+    description's ``error_model`` block gives (module docstring), {} without one; BagError, one
+    line, for a key or value it does not know."""
+    from ..core.ins3d.model import VERTICAL
+    block = (description or {}).get(ERROR_MODEL)
+    if block is None:
+        return {}
+    head = f"{where}: metadata flight_fdi.sim3d {ERROR_MODEL}"
+    if not isinstance(block, dict):
+        raise BagError(f"{head}: expected a mapping of {', '.join(ERROR_MODEL_KEYS)}")
+    bad = sorted(set(block) - set(ERROR_MODEL_KEYS), key=str)
+    if bad:
+        raise BagError(f"{head}: unknown key {bad[0]!r} (allowed: {', '.join(ERROR_MODEL_KEYS)})")
+    out: dict = {}
+    if "vertical" in block:
+        if block["vertical"] not in VERTICAL:
+            raise BagError(f"{head}.vertical must be one of {', '.join(VERTICAL)}, got "
+                           f"{block['vertical']!r}")
+        out["vertical"] = block["vertical"]
+    if "latency" in block:
+        if not isinstance(block["latency"], bool):
+            raise BagError(f"{head}.latency must be true or false, got {block['latency']!r}")
+        out["latency"] = block["latency"]
+    if "reference_markov" in block:
+        out["ref_markov"] = _markov(head, block["reference_markov"])
+    if "initial_attitude" in block:
+        if block["initial_attitude"] not in INITIAL_ATTITUDE:
+            raise BagError(f"{head}.initial_attitude must be one of "
+                           f"{', '.join(INITIAL_ATTITUDE)}, got {block['initial_attitude']!r}")
+        out["aligned_prior"] = INITIAL_ATTITUDE[block["initial_attitude"]]
+    return out
+
+
+def _markov(head: str, value) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    ok = isinstance(value, list) and len(value) == 3 and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v > 0
+        for v in value)
+    if not ok:
+        raise BagError(f"{head}.reference_markov must be null or [sigma_h, sigma_v, tau], all "
+                       f"> 0, got {value!r}")
+    return (float(value[0]), float(value[1]), float(value[2]))
 
 
 def _interp(t_out: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -144,7 +213,8 @@ def check_topics(path: str | Path, topics: dict[str, str] | None = None) -> dict
 
 
 def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dInput:
-    """Decode a bag's contract topics (names configurable) into the estimator's input."""
+    """Decode a bag's contract topics (names configurable) into the estimator's input, with its
+    description (BagError for a bad ``error_model`` block)."""
     from .reader import read_messages
     names = check_topics(path, topics)
     by_topic: dict[str, list] = {v: [] for v in names.values()}
@@ -154,6 +224,7 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dI
     inp = build_input(*arrays)
     inp.t0_ns = t0
     inp.description = sim_description(path)
+    error_model_options(inp.description, f"bag '{path}'")     # a bad block: said here, once
     return inp
 
 
@@ -269,5 +340,6 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
     return t_imu, q, f, w, t_vel, v, t_fix, lat, h, t_ref, v_ref, r_ref, t0_ns
 
 
-__all__ = ["Ins3dInput", "TOPICS", "TRUTH_TOPIC", "TYPES", "build_input", "check_topics",
-           "from_flight", "read_ins3d", "read_truth3d", "truth_from_flight"]
+__all__ = ["ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput", "TOPICS",
+           "TRUTH_TOPIC", "TYPES", "build_input", "check_topics",
+           "error_model_options", "from_flight", "read_ins3d", "read_truth3d", "truth_from_flight"]

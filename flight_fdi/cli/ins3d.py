@@ -110,7 +110,7 @@ def analyze_bag(bag: str, args: argparse.Namespace):
     names = check_topics(bag, topics(args))
     inp = read_ins3d(bag, names)
     analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
-                             gate=s["gate"], **inp.vertical())
+                             gate=s["gate"], **inp.model_options())
     return ins3d_result(analysis, bag, source(names, s)), analysis, inp
 
 
@@ -274,7 +274,7 @@ def settings_of_result(args: argparse.Namespace, source: dict) -> None:
 
 def run_run(args: argparse.Namespace) -> int:
     """``flight-fdi run BAG --model ins3d``: the node pipeline (nodes/ins3d_pipeline.py)."""
-    from flight_fdi.bagio.ins3d_input import check_topics
+    from flight_fdi.bagio.ins3d_input import check_topics, error_model_options, sim_description
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
     from flight_fdi.nodes.pipeline import PipelineError
@@ -285,10 +285,11 @@ def run_run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("out") / bag.resolve().name
     s = settings(args)
     names = check_topics(bag, topics(args))
+    options = error_model_options(sim_description(bag), f"bag '{bag}'")
     try:
         run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], storage=args.storage, overwrite=True,
-                             source=source(names, s),
+                             source=source(names, s), options=options,
                              progress=None if args.no_progress else sys.stderr)
     except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None

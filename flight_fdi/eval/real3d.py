@@ -301,16 +301,22 @@ def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
 
 
 def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str | Path,
-                       cfg: Contract = Contract(), epoch_s: int = 1_700_000_000,
-                       overwrite: bool = False) -> dict[str, int]:
-    """The same contract as a bag (the topics and frames of ``sim.bag3d``; metadata
-    ``flight_fdi.sim3d`` says ``vertical: free``, so ``flight-fdi analyze --model ins3d``
-    models the vertical channel as ``damped``): the user-facing path. Returns message counts."""
+                       cfg: Contract | None = None, epoch_s: int = 1_700_000_000,
+                       overwrite: bool = False, settings: "Settings | None" = None
+                       ) -> dict[str, int]:
+    """The same contract as a bag (the topics and frames of ``sim.bag3d``): the user-facing path.
+    Its metadata ``flight_fdi.sim3d`` says ``vertical: free`` (the INS) and, in its
+    ``error_model`` block (``error_model_of``), how ``settings`` (default ``Settings()``) models
+    this INS and reference -- what ``flight-fdi analyze/run --model ins3d`` then use
+    (``bagio.ins3d_input.error_model_options``). ``cfg``: the contract (default
+    ``settings.contract``). Returns message counts."""
     import json
 
     from ..bagio import cdr
     from ..bagio.ins3d_input import imu_payloads, ins_fix_payloads, velocity_payloads
     from ..bagio.writer import open_writer
+    settings = settings or Settings()
+    cfg = cfg or settings.contract
     a = contract_arrays(rec, bg, ba, cfg)
 
     def ns(t):
@@ -326,11 +332,20 @@ def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str
     doc = json.dumps({"vertical": "free", "source": f"mimu_quadrotor {rec.name} IMU_{rec.unit}",
                       "contract": {"imu_rate_hz": cfg.imu_rate_hz, "ref_half": cfg.ref_half,
                                    "ref_every": cfg.ref_every,
-                                   "ref_ins_shape": cfg.ref_ins_shape}}, sort_keys=True)
+                                   "ref_ins_shape": cfg.ref_ins_shape},
+                      "error_model": error_model_of(settings)}, sort_keys=True)
     with open_writer(Path(path), storage="mcap", overwrite=overwrite) as bag:
         bag.set_metadata("flight_fdi.sim3d", doc)
         bag.write_series(series)
         return dict(bag.counts)
+
+
+def error_model_of(settings: "Settings") -> dict:
+    """The bag description's ``error_model`` block of ``settings`` (``analyze``'s model options:
+    vertical channel, latency state, no reference Markov noise, the prior)."""
+    return {"vertical": settings.vertical, "latency": bool(settings.latency),
+            "reference_markov": None,
+            "initial_attitude": "levelled" if settings.aligned_prior else "independent"}
 
 
 @dataclass(frozen=True)
@@ -459,6 +474,6 @@ def names_in(data_dir: Path) -> list[str]:
 
 __all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "Settings", "analyze",
            "build_contract", "calibrate", "contract_arrays", "day_of", "default_data_dir",
-           "fault_runs", "gt_quaternions", "gt_velocity", "initial_state", "judge",
+           "error_model_of", "fault_runs", "gt_quaternions", "gt_velocity", "initial_state", "judge",
            "mechanize_recording", "names_in", "read_gt", "read_recording", "record",
            "recording_biases", "write_contract_bag", "xsens_grade"]

@@ -44,17 +44,19 @@ from ..core.gate import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.ins3d.analysis import analyze_ins3d
 from ..core.ins3d.grade_file import is_grade_file, resolve_grade
 from ..core.ins3d.grades import GRADES as PRESETS
-from ..core.ins3d.model import Ins3dModel
+from ..core.ins3d.model import VERTICAL, Ins3dModel
 from ..core.ins3d.stream import Boundary, Ins3dAssembler, Ins3dStream
 from . import diagnostics as diag
 from .convert import header
-from .ins3d_recording import (CHANNEL, ROW_NAMES, grade_params, pack_step, state_units,
-                              t0_params)
+from .ins3d_recording import (CHANNEL, ROW_NAMES, grade_params, option_params, pack_step,
+                              state_units, t0_params)
 from .params import ParamSpec, fail
 
 MODEL = "ins3d"
 #: the grade presets an analysis takes (core/ins3d/grades.py; "perfect" is for tests)
 GRADES = tuple(g for g in PRESETS if g != "perfect")
+#: the model options of ``analyze_ins3d`` (one set of defaults for the node and the CLI)
+_ANALYZE = {k: v.default for k, v in inspect.signature(analyze_ins3d).parameters.items()}
 
 INS3D_PARAMS = (
     ParamSpec("imu_topic", "string", "/ins/imu",
@@ -69,6 +71,20 @@ INS3D_PARAMS = (
     ParamSpec("ins3d_rows", "int", 3,
               "ins3d mode: reference rows, 2 (east, north) or 3 (with up)", "rows",
               min=2, max=3),
+    ParamSpec("ins3d_vertical", "string", _ANALYZE["vertical"],
+              "ins3d mode: the error model's vertical channel -- loop (the INS's baro height "
+              "loop), damped (an unknown height loop: dv_U a Markov state of its own) or free "
+              "(a free-inertial INS on a short flight); a bag's description says which "
+              "(docs/ins3d.md, 'The contract description')", choices=VERTICAL),
+    ParamSpec("ins3d_latency", "bool", _ANALYZE["latency"],
+              "ins3d mode: estimate the reference's latency (a state)"),
+    ParamSpec("ins3d_reference_markov", "double_array", list(_ANALYZE["ref_markov"]),
+              "ins3d mode: the reference's Markov noise states, [sigma_h m/s, sigma_v m/s, tau "
+              "s] (all > 0), or [0, 0, 0]: none (white reference noise)", min=0.0),
+    ParamSpec("ins3d_aligned_prior", "bool", _ANALYZE["aligned_prior"],
+              "ins3d mode: the initial covariance of an INS levelled on its own accelerometers "
+              "(the tilt cancels the horizontal accelerometer bias); false: independent states "
+              "(its attitude came from elsewhere)"),
     ParamSpec("ins3d_wait_s", "double", 1.0,
               "ins3d mode: longest wait (in IMU stamps) of a step for the reference stream to "
               "pass it; after that a late reference sample is dropped", "s",
@@ -85,8 +101,6 @@ USED = INS3D_ONLY + (
     "model", "ins_topic", "reference_topic", "input_qos", "input_queue_depth", "gate_rule",
     "gate_probability", "alarm_m", "alarm_n", "gate_action", "frame_id",
     "diagnostics_period_s", "stale_after_s", "rate_window_s")
-#: the model options of ``analyze_ins3d`` (one set of defaults for the node and the CLI)
-_ANALYZE = {k: v.default for k, v in inspect.signature(analyze_ins3d).parameters.items()}
 
 
 def build_model(values: dict[str, Any], defaults: dict[str, Any]) -> Ins3dModel:
@@ -102,13 +116,41 @@ def build_model(values: dict[str, Any], defaults: dict[str, Any]) -> Ins3dModel:
     grade = values["ins3d_grade"]
     if grade not in GRADES and not is_grade_file(grade):
         fail("ins3d_grade", grade, f"a preset ({', '.join(GRADES)}) or a YAML grade file")
+    opts = model_options(values)
     try:
         return Ins3dModel.from_grade(resolve_grade(grade), position=_ANALYZE["position"],
-                                     rows=values["ins3d_rows"], vertical=_ANALYZE["vertical"],
-                                     latency=_ANALYZE["latency"],
-                                     ref_markov=_ANALYZE["ref_markov"])
+                                     rows=values["ins3d_rows"], vertical=opts["vertical"],
+                                     latency=opts["latency"], ref_markov=opts["ref_markov"])
     except CoreError as exc:   # a bad grade file
         fail("ins3d_grade", grade, f"a valid YAML grade file ({exc})")
+
+
+def model_options(values: dict[str, Any]) -> dict[str, Any]:
+    """The ``analyze_ins3d`` model options of the node parameters (ParameterError for a bad
+    ``ins3d_reference_markov``)."""
+    mk = [float(v) for v in values["ins3d_reference_markov"]]
+    if len(mk) != 3 or not (all(v > 0 for v in mk) or not any(mk)):
+        fail("ins3d_reference_markov", mk, "[sigma_h, sigma_v, tau], all > 0, or [0, 0, 0]")
+    return {"vertical": values["ins3d_vertical"], "latency": bool(values["ins3d_latency"]),
+            "ref_markov": tuple(mk) if any(mk) else None,
+            "aligned_prior": bool(values["ins3d_aligned_prior"])}
+
+
+def option_parameters(options: dict[str, Any]) -> dict[str, Any]:
+    """The node parameters of ``analyze_ins3d`` model options (vertical, latency, ref_markov,
+    aligned_prior; e.g. a bag description's, ``bagio.ins3d_input.error_model_options``); the
+    options not given keep the parameters' defaults."""
+    out: dict[str, Any] = {}
+    if "vertical" in options:
+        out["ins3d_vertical"] = options["vertical"]
+    if "latency" in options:
+        out["ins3d_latency"] = bool(options["latency"])
+    if "ref_markov" in options:
+        mk = options["ref_markov"]
+        out["ins3d_reference_markov"] = [0.0] * 3 if mk is None else [float(v) for v in mk]
+    if "aligned_prior" in options:
+        out["ins3d_aligned_prior"] = bool(options["aligned_prior"])
+    return out
 
 
 def refuse_in_other_modes(values: dict[str, Any], defaults: dict[str, Any]) -> None:
@@ -242,7 +284,8 @@ class Ins3dMode:
                     self._held.append(e)
                     continue
                 s = e.step
-                P0 = self.model.p0_aligned(s.C[0], s.f_n[0], float(s.lat[0]))
+                P0 = self.model.p0_aligned(s.C[0], s.f_n[0], float(s.lat[0])) \
+                    if self.p["ins3d_aligned_prior"] else np.diag(self.model.p0())
                 self.stream = Ins3dStream(self.model, self.gate, P0=P0)
                 self._publish_model()
                 held, self._held = self._held, []
@@ -307,6 +350,7 @@ class Ins3dMode:
 
         m, g, st = self.model, self.gate, self.stream
         names, values = grade_params(m.grade)
+        opt_names, opt_values = option_params(model_options(self.p))
         flat = lambda a: np.asarray(a, dtype=float).reshape(-1).tolist()
         self.node.pub_model.publish(ModelInfo(
             header=header(self.node.get_clock().now().to_msg(), self.p["frame_id"]),
@@ -314,8 +358,8 @@ class Ins3dMode:
             state_units=state_units(m.names), measurement_names=list(ROW_NAMES[:m.rows]),
             n=m.n, m=m.rows, p=0, a=[], qc=flat(np.diag(m.qc())), h=flat(m.H()), r=[],
             p0=flat(st.P), b=[], scale=flat(st.s),
-            param_names=["rows", "t0_sec", "t0_nanosec", *names],
-            param_values=[float(m.rows), *t0_params(self.asm.t0_ns), *values],
+            param_names=["rows", "t0_sec", "t0_nanosec", *opt_names, *names],
+            param_values=[float(m.rows), *t0_params(self.asm.t0_ns), *opt_values, *values],
             gate_rule=g.rule, gate_probability=float(g.probability), alarm_m=g.alarm_m,
             alarm_n=g.alarm_n, gate_action=g.action))
 
@@ -353,4 +397,4 @@ class Ins3dMode:
 
 
 __all__ = ["INS3D_ONLY", "INS3D_PARAMS", "Ins3dMode", "MODEL", "build_model", "is_ins3d",
-           "refuse_in_other_modes"]
+           "model_options", "option_parameters", "refuse_in_other_modes"]

@@ -10,33 +10,57 @@ The player paces on ``fdi/state`` with a window of ``ACK_WINDOW`` messages: the 
 looks ahead (a step waits for the next /ins/fix sample, 0.2 s at 5 Hz), so the window must cover
 ~15 messages; and it bounds how far one topic's messages can run ahead of another's in the
 filter's callbacks (~1.1 s of the sample bags), which must stay below the filter's
-``ins3d_wait_s`` (``WAIT_S``) or reference rows would come after their step was taken. At the end
-of the replay the filter is flushed (``Ins3dMode.finish``) before the recording is closed.
+``ins3d_wait_s`` (``WAIT_S``) or reference rows would come after their step was taken. A bag with
+a sparse reference (e.g. 1 Hz against 40-Hz INS topics: the real recordings of
+docs/ins3d_real.md) holds a reference period of INS messages back; its window covers two
+periods plus the sample bags' margin (``ack_window``; the sample bags keep ``ACK_WINDOW``). At
+the end of the replay the filter is flushed (``Ins3dMode.finish``) before the recording is
+closed.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 from .pipeline import Graph, PipelineRun, Progress
 
 ACK_WINDOW = 60
+MARGIN = 45         # a sample bag's ~15 messages of look-ahead, three times
 WAIT_S = 5.0
 
 
-def _message_count(bag: Path, topics: list[str]) -> int:
+def _message_counts(bag: Path, topics: list[str]) -> dict[str, int]:
     from rosbags.rosbag2 import Reader
 
     try:
         with Reader(bag) as r:
-            return sum(c.msgcount for c in r.connections if c.topic in topics)
-    except Exception:  # only for the progress lines; the reader reports real problems
-        return 1
+            out = {t: 0 for t in topics}
+            for c in r.connections:
+                if c.topic in out:
+                    out[c.topic] += c.msgcount
+            return out
+    except Exception:  # only for progress and pacing; the reader reports real problems
+        return {}
 
 
-def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any) -> dict:
-    """filter_node parameters of the ins3d mode for a replay (reliable inputs)."""
-    return {"model": "ins3d", "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
+def ack_window(counts: dict[str, int], reference_topic: str) -> int:
+    """The player's window (module docstring): ``ACK_WINDOW``, or for a bag with more
+    messages per reference period (a sparse reference) two periods' messages plus ``MARGIN``."""
+    n_ref = counts.get(reference_topic, 0)
+    if n_ref < 1:
+        return ACK_WINDOW
+    per_period = math.ceil((sum(counts.values()) - n_ref) / n_ref)
+    return max(ACK_WINDOW, 2 * per_period + MARGIN)
+
+
+def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any,
+                        options: dict | None = None) -> dict:
+    """filter_node parameters of the ins3d mode for a replay (reliable inputs); ``options``: the
+    model options of the bag's description (``bagio.ins3d_input.error_model_options``)."""
+    from .ins3d_mode import option_parameters
+
+    return {**option_parameters(options or {}), "model": "ins3d", "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
             "fix_topic": names["ins_fix"], "reference_topic": names["ref_velocity"],
             "ins3d_grade": grade, "ins3d_rows": int(rows), "ins3d_wait_s": WAIT_S,
             "input_qos": "reliable",
@@ -49,10 +73,11 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                    grade: str = "navigation", rows: int = 2, gate: Any = None,
                    storage: str = "mcap", overwrite: bool = False, timeout_s: float = 600.0,
                    executor: str = "events", log_level: str = "warn", source: dict | None = None,
-                   progress: Any = None) -> PipelineRun:
+                   progress: Any = None, options: dict | None = None) -> PipelineRun:
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
     before any node exists (BagError). Leaves ``recording/`` and ``result.json`` in
-    ``out_dir``."""
+    ``out_dir``. ``options``: the model options (``filter_parameters3d``; the filter records
+    them, the smoother analyses with them)."""
     from flight_fdi.bagio.ins3d_input import check_topics
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.gate import GateConfig
@@ -65,16 +90,18 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     bag = Path(bag)
     names = check_topics(bag, topics)
     played = list(names.values())
-    tick_progress = Progress(_message_count(bag, played), progress)
+    counts = _message_counts(bag, played)
+    tick_progress = Progress(sum(counts.values()) or 1, progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recording, result_json = out / "recording", out / "result.json"
     with Graph(executor, log_level, timeout_s) as g:
-        flt = g.build(FilterNode, filter_parameters3d(names, grade, rows, gate))
+        flt = g.build(FilterNode, filter_parameters3d(names, grade, rows, gate, options))
         rec = g.build(RecorderNode, {"output": str(recording), "storage": storage,
                                      "overwrite": overwrite})
         player = g.build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
-                                     "ack_window": ACK_WINDOW, "publish_clock": False,
+                                     "ack_window": ack_window(counts, names["ref_velocity"]),
+                                     "publish_clock": False,
                                      "topics": played})
         g.replay(player, tick_progress)
         c = flt.counters
@@ -96,4 +123,4 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     return run
 
 
-__all__ = ["ACK_WINDOW", "filter_parameters3d", "run_pipeline3d"]
+__all__ = ["ACK_WINDOW", "ack_window", "filter_parameters3d", "run_pipeline3d"]

@@ -6,10 +6,13 @@ ins3d``.
 Channel ``ins3d``. ModelInfo: ``model_name`` ``ins3d/<grade>``, state names and units, the
 measurement rows, Qc (diagonal), H (without the latency column), P0 (the aligned prior), the
 scale, ``param_names`` ``rows, t0_sec, t0_nanosec`` (t0: the stamp all times are relative to,
-the earliest first stamp of the four inputs, as the bag reader takes it) and, for a grade that is
-not a preset (a YAML grade file), its numbers ``grade.<field>`` (SI) and GLR thresholds
-``grade.threshold_<kind>`` (``grade_params``: the smoother analyses with the same grade), and the
-gate.
+the earliest first stamp of the four inputs, as the bag reader takes it), the model options
+``model.vertical`` (index in ``core.ins3d.model.VERTICAL``), ``model.latency``,
+``model.aligned_prior`` (1/0) and ``model.ref_markov_sigma_h`` / ``_sigma_v`` / ``_tau_s`` (0:
+none) (``option_params``; a recording without them: the ``analyze_ins3d`` defaults) and, for a
+grade that is not a preset (a YAML grade file), its numbers ``grade.<field>`` (SI) and GLR
+thresholds ``grade.threshold_<kind>`` (``grade_params``: the smoother analyses with the same
+grade and options), and the gate.
 FilterState, two kinds, in the filter's order:
 
 * a **step** (``dt`` > 0, or ``reset`` for boundary 0): header stamp = the /ins/imu stamp of the
@@ -32,6 +35,8 @@ CHANNEL = "ins3d"
 STEP_U = 20
 ROW_NAMES = ("east", "north", "up")
 GRADE_PREFIX = "grade."
+OPTION_PREFIX = "model."
+_MARKOV = ("ref_markov_sigma_h", "ref_markov_sigma_v", "ref_markov_tau_s")
 _UNITS = {"dv": "m/s", "ph": "rad", "ba": "m/s^2", "bg": "rad/s", "dp": "m", "re": "m/s",
           "la": "s"}
 
@@ -61,6 +66,35 @@ def grade_params(grade: Any) -> tuple[list[str], list[float]]:
     return [GRADE_PREFIX + k for k in nums], list(nums.values())
 
 
+def option_params(options: dict[str, Any]) -> tuple[list[str], list[float]]:
+    """The ModelInfo parameters of the model options (vertical, latency, ref_markov,
+    aligned_prior; module docstring)."""
+    from flight_fdi.core.ins3d.model import VERTICAL
+
+    mk = options["ref_markov"] or (0.0, 0.0, 0.0)
+    vals = {"vertical": float(VERTICAL.index(options["vertical"])),
+            "latency": float(options["latency"]), "aligned_prior": float(options["aligned_prior"]),
+            **{k: float(v) for k, v in zip(_MARKOV, mk)}}
+    return [OPTION_PREFIX + k for k in vals], list(vals.values())
+
+
+def recorded_options(params: dict[str, float]) -> dict[str, Any]:
+    """The model options of a recording's ModelInfo parameters ({} for a recording without
+    them: the ``analyze_ins3d`` defaults)."""
+    from flight_fdi.core.ins3d.model import VERTICAL
+
+    p = {k[len(OPTION_PREFIX):]: v for k, v in params.items() if k.startswith(OPTION_PREFIX)}
+    if not p:
+        return {}
+    try:
+        mk = tuple(float(p[k]) for k in _MARKOV)
+        return {"vertical": VERTICAL[int(p["vertical"])], "latency": bool(p["latency"]),
+                "aligned_prior": bool(p["aligned_prior"]),
+                "ref_markov": mk if any(mk) else None}
+    except (KeyError, IndexError, ValueError) as exc:
+        raise BagError(f"ins3d recording: bad model options {p} ({exc})") from None
+
+
 def recorded_grade(model_name: str, params: dict[str, float]) -> Any:
     """The grade of a recording: the CustomGrade of its ``grade.*`` parameters, else the preset
     its ``model_name`` (``ins3d/<grade>``) names."""
@@ -77,7 +111,7 @@ def _stamp_ns(msg: Any) -> int:
 
 def read_recording3d(path: str | Path, state_topic: str = "/fdi/state",
                      model_topic: str = "/fdi/model") -> dict:
-    """{grade, rows, gate, t0_ns, steps (NavSteps), refs (RefRows), x_last} of an ins3d
+    """{grade, rows, options (``recorded_options``), gate, t0_ns, steps (NavSteps), refs (RefRows), x_last} of an ins3d
     recording (BagError when it is not one or is inconsistent)."""
     from flight_fdi.bagio.reader import read_messages
     from flight_fdi.core.gate import GateConfig
@@ -128,6 +162,7 @@ def read_recording3d(path: str | Path, state_topic: str = "/fdi/state",
     gate = GateConfig(rule=info.gate_rule, probability=info.gate_probability,
                       alarm_m=info.alarm_m, alarm_n=info.alarm_n, action=info.gate_action)
     return {"grade": recorded_grade(info.model_name, params), "rows": int(params["rows"]),
+            "options": recorded_options(params),
             "gate": gate, "t0_ns": t0_ns, "steps": steps, "refs": refs,
             "x_last": np.asarray(states[-1].x, dtype=float), "frame_id": info.header.frame_id}
 
@@ -143,7 +178,7 @@ def analyze_recording3d(path: str | Path, state_topic: str = "/fdi/state",
 
     rec = read_recording3d(path, state_topic, model_topic)
     analysis = analyze_ins3d(rec["steps"], rec["refs"], grade=rec["grade"], rows=rec["rows"],
-                             gate=gate or rec["gate"])
+                             gate=gate or rec["gate"], **rec["options"])
     return ins3d_result(analysis, bag_label or str(path)), analysis, rec
 
 
@@ -165,5 +200,5 @@ def smoother_run3d(bag: str, state_topic: str, model_topic: str, gate: Any = Non
                            error=str(exc))
 
 
-__all__ = ["CHANNEL", "STEP_U", "analyze_recording3d", "grade_params", "pack_step",
-           "read_recording3d", "recorded_grade", "smoother_run3d", "state_units", "t0_params"]
+__all__ = ["CHANNEL", "STEP_U", "analyze_recording3d", "grade_params", "option_params",
+           "pack_step", "read_recording3d", "recorded_grade", "recorded_options", "smoother_run3d", "state_units", "t0_params"]

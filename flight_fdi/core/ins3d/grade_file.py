@@ -18,6 +18,10 @@ there (docs/ins3d_real.md). ``seed_episode_probability`` (optional, in (0, 1)): 
 ``DiagnosisConfig.episode_probability`` for this grade -- the upper-tail probability a persistent
 J episode's peak must fall below to be declared (default 1e-6, the presets'); ``flight-fdi
 calibrate`` sets it so that the grade's nominal flights are rarely declared (``diagnosis_config_of``).
+``seed_fisher_window`` (optional, an integer > 4) and ``seed_min_valid_steps`` (optional, an
+integer >= 1): the seed method's Fisher window and the fewest valid steps it analyses
+(``DiagnosisConfig``; defaults 50 and 100 -- a short flight with a 1-Hz reference needs less, e.g.
+5 and 5 on the real MEMS recordings: config/grades/xsens_dot_mimu.yaml).
 
 Example (config/grades/example_mems_custom.yaml)::
 
@@ -63,7 +67,10 @@ POSITIVE = ("gyro_tau_s", "accel_tau_s")
 KINDS = ("step", "ramp", "jump", "outliers")
 #: the keys of a grade file besides KEYS
 _OTHER_KEYS = ("name", "base", "thresholds", "calibration", "signature_error_rad",
-               "seed_episode_probability")
+               "seed_episode_probability", "seed_fisher_window", "seed_min_valid_steps")
+#: the seed method's integer keys: key -> (CustomGrade field, smallest value)
+SEED_INTEGERS = {"seed_fisher_window": ("fisher_window", 5),
+                 "seed_min_valid_steps": ("min_valid_steps", 1)}
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -77,6 +84,8 @@ class CustomGrade(ImuGrade):
     thresholds: tuple[tuple[str, float], ...] = ()
     signature_error: float | None = None    # rad; None: the grade's axis misalignment
     episode_probability: float | None = None  # the seed method's; None: DiagnosisConfig's
+    fisher_window: int | None = None          # the seed method's; None: DiagnosisConfig's
+    min_valid_steps: int | None = None        # the seed method's; None: DiagnosisConfig's
     base: str = field(default="", compare=False)  # the file's base preset ("" from numbers)
 
     def to_dict(self) -> dict:
@@ -92,6 +101,9 @@ class CustomGrade(ImuGrade):
             out["signature_error"] = float(self.signature_error)
         if self.episode_probability is not None:
             out["episode_probability"] = float(self.episode_probability)
+        for f, _ in SEED_INTEGERS.values():
+            if getattr(self, f) is not None:
+                out[f] = float(getattr(self, f))
         return out
 
     @classmethod
@@ -104,8 +116,9 @@ class CustomGrade(ImuGrade):
         except KeyError as exc:
             raise CoreError(f"IMU grade {name!r}: value {exc.args[0]!r} missing") from None
         eps, p = values.get("signature_error"), values.get("episode_probability")
+        seed = {f: int(values[f]) for f, _ in SEED_INTEGERS.values() if f in values}
         return cls(name, thresholds=thr, signature_error=None if eps is None else float(eps),
-                   episode_probability=None if p is None else float(p), **kw)
+                   episode_probability=None if p is None else float(p), **seed, **kw)
 
 
 def _number(path: str, key: str, value: Any, positive: bool = False) -> float:
@@ -146,7 +159,9 @@ def grade_from_dict(doc: Any, path: str = "<dict>") -> CustomGrade:
     return CustomGrade(**{**preset, **si, "name": name}, thresholds=thr, base=base,
                        signature_error=_signature_error(path, doc.get("signature_error_rad")),
                        episode_probability=_episode_probability(
-                           path, doc.get("seed_episode_probability")))
+                           path, doc.get("seed_episode_probability")),
+                       **{f: _integer(path, key, doc[key], least)
+                          for key, (f, least) in SEED_INTEGERS.items() if key in doc})
 
 
 def _signature_error(path: str, value: Any) -> float | None:
@@ -169,11 +184,19 @@ def _episode_probability(path: str, value: Any) -> float | None:
     return v
 
 
+def _integer(path: str, key: str, value: Any, least: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise CoreError(f"grade file {path}: {key} must be an integer >= {least}, got {value!r}")
+    return value
+
+
 def diagnosis_config_of(grade: ImuGrade) -> DiagnosisConfig:
     """The seed method's rules for a grade: ``DiagnosisConfig()`` with a grade file's
-    ``seed_episode_probability`` as its ``episode_probability`` (a preset: the default)."""
-    p = getattr(grade, "episode_probability", None)
-    return DiagnosisConfig() if p is None else DiagnosisConfig(episode_probability=float(p))
+    ``seed_episode_probability``, ``seed_fisher_window`` and ``seed_min_valid_steps`` (a preset:
+    the defaults)."""
+    given = {"episode_probability": getattr(grade, "episode_probability", None),
+             **{f: getattr(grade, f, None) for f, _ in SEED_INTEGERS.values()}}
+    return DiagnosisConfig(**{k: v for k, v in given.items() if v is not None})
 
 
 def signature_error_of(grade: ImuGrade) -> float:
