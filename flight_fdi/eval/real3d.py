@@ -474,6 +474,7 @@ def names_in(data_dir: Path) -> list[str]:
 
 __all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "Settings", "analyze",
            "build_contract", "calibrate", "contract_arrays", "day_of", "default_data_dir",
-           "error_model_of", "fault_runs", "gt_quaternions", "gt_velocity", "initial_state", "judge",
+           "error_model_of", "fault_runs", "gt_quaternions", "gt_velocity", "initial_state",
+           "judge",
            "mechanize_recording", "names_in", "read_gt", "read_recording", "record",
            "recording_biases", "write_contract_bag", "xsens_grade"]

@@ -60,7 +60,8 @@ def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any,
     model options of the bag's description (``bagio.ins3d_input.error_model_options``)."""
     from .ins3d_mode import option_parameters
 
-    return {**option_parameters(options or {}), "model": "ins3d", "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
+    return {**option_parameters(options or {}), "model": "ins3d",
+            "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
             "fix_topic": names["ins_fix"], "reference_topic": names["ref_velocity"],
             "ins3d_grade": grade, "ins3d_rows": int(rows), "ins3d_wait_s": WAIT_S,
             "input_qos": "reliable",

@@ -111,8 +111,9 @@ def _stamp_ns(msg: Any) -> int:
 
 def read_recording3d(path: str | Path, state_topic: str = "/fdi/state",
                      model_topic: str = "/fdi/model") -> dict:
-    """{grade, rows, options (``recorded_options``), gate, t0_ns, steps (NavSteps), refs (RefRows), x_last} of an ins3d
-    recording (BagError when it is not one or is inconsistent)."""
+    """{grade, rows, options (``recorded_options``), gate, t0_ns, steps (NavSteps), refs
+    (RefRows), x_last} of an ins3d recording (BagError when it is not one or is
+    inconsistent)."""
     from flight_fdi.bagio.reader import read_messages
     from flight_fdi.core.gate import GateConfig
     from flight_fdi.core.ins3d.data import NavSteps, RefRows
@@ -201,4 +202,5 @@ def smoother_run3d(bag: str, state_topic: str, model_topic: str, gate: Any = Non
 
 
 __all__ = ["CHANNEL", "STEP_U", "analyze_recording3d", "grade_params", "option_params",
-           "pack_step", "read_recording3d", "recorded_grade", "recorded_options", "smoother_run3d", "state_units", "t0_params"]
+           "pack_step", "read_recording3d", "recorded_grade", "recorded_options",
+           "smoother_run3d", "state_units", "t0_params"]

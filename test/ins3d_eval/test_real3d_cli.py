@@ -29,19 +29,12 @@ FAULTS = {"nominal": None,
 
 
 @pytest.fixture(scope="module")
-def rec():
-    return R.read_recording(DATA, NAME, 1)
-
-
-@pytest.fixture(scope="module")
-def cal():
+def bags(tmp_path_factory):
+    """{case: (bag, the Python analysis of the same recording)}: unit 1 of the excerpt, its
+    leave-one-out calibration removed."""
+    rec = R.read_recording(DATA, NAME, 1)
     doc = json.loads((DATA / NAME / "calibration.json").read_text())
-    return np.array(doc["gyro_bias_rad_s"]), np.array(doc["accel_bias_m_s2"])
-
-
-@pytest.fixture(scope="module")
-def bags(rec, cal, tmp_path_factory):
-    """{case: (bag, the Python analysis of the same recording)}."""
+    cal = np.array(doc["gyro_bias_rad_s"]), np.array(doc["accel_bias_m_s2"])
     root = tmp_path_factory.mktemp("real3d_cli")
     out = {}
     for case, fault in FAULTS.items():
