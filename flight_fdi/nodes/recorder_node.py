@@ -117,8 +117,8 @@ class RecorderNode(Node):
 
     ``RecorderNode(**node_kwargs)``; parameters: :data:`RECORDER_PARAMS`. Attributes for callers
     in the same process: ``bag`` (:class:`RecordingBag`), ``counts()`` and ``last_receive`` (steady
-    clock seconds of the last message). ``close()`` (also called by ``destroy_node``) completes
-    the bag.
+    clock seconds of the last message). ``close()`` (also called by ``finish_work`` and
+    ``destroy_node``) completes the bag.
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -290,6 +290,11 @@ class RecorderNode(Node):
         per_topic = ", ".join(f"{t}: {n}" for t, n in self.counts().items())
         self.get_logger().info(f"closed {self.bag.path}: {self.bag.message_count} messages "
                                f"({per_topic})")
+
+    def finish_work(self) -> None:
+        """The recorder's work at the end (called by the runner before the middleware teardown,
+        which can block): complete the bag."""
+        self.close()
 
     def destroy_node(self) -> None:
         self.close()

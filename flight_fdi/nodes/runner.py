@@ -21,6 +21,14 @@ SIGINT / SIGTERM (at any point after ``rclpy.init``) and an external shutdown en
 normally; a second SIGINT / SIGTERM gets the default action. SIGUSR1 prints the Python stack of
 every thread to stderr and the node goes on (``faulthandler``: a node that hangs, e.g. in its
 shutdown, can say where; the graph tests send it before they kill a node that did not stop).
+
+Shutdown: the node first completes its own work (``finish_work()`` when it has one: a recorder
+closes its bag), then the middleware is torn down (executor, node, context; with Fast DDS the
+last node's destruction deletes the DDS participant). That teardown is bounded
+(:class:`TeardownWatchdog`, ``teardown_timeout``): under CPU load a recorder's was seen to block
+for good inside ``rcl_node_fini`` while its peers shut down at the same moment (one stop in
+about 150); after the bound the process says so, prints every thread's stack and exits with the
+node's own status.
 """
 from __future__ import annotations
 
@@ -40,6 +48,7 @@ from rclpy.signals import SignalHandlerOptions
 from .errors import ParameterError
 
 EXECUTORS = ("single", "events")
+TEARDOWN_TIMEOUT_S = 10.0  # bound on the middleware teardown once the node's work is complete
 
 
 def make_executor(kind: str, context: Any = None) -> Any:
@@ -143,10 +152,49 @@ class StopSignals:
         return self.signum is not None
 
 
+class TeardownWatchdog:
+    """Bounds the middleware teardown that follows a node's completed work.
+
+    Inside ``with TeardownWatchdog(name, status, timeout):`` a daemon thread waits ``timeout``
+    seconds; if the block has not ended by then it writes one line saying so and every thread's
+    stack to stderr and ends the process with ``status`` (``os._exit``: what the node was
+    responsible for is done; only the middleware's goodbye to its peers is lost, and they drop
+    the participant when its lease expires). Should the blocked call hold the GIL (the thread
+    could not run), faulthandler's own watchdog, which needs none, dumps the stacks and exits
+    with status 1 after ``2 * timeout``. ``timeout`` None: no bound.
+    """
+
+    def __init__(self, name: str, status: int, timeout: float | None) -> None:
+        self.name, self.status, self.timeout = name, status, timeout
+        self._done = threading.Event()
+        self.thread = threading.Thread(target=self._watch, name="teardown-watchdog", daemon=True)
+
+    def __enter__(self) -> "TeardownWatchdog":
+        if self.timeout is not None:
+            self.thread.start()
+            faulthandler.dump_traceback_later(2 * self.timeout, exit=True)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._done.set()
+        if self.timeout is not None:
+            faulthandler.cancel_dump_traceback_later()
+
+    def _watch(self) -> None:
+        if self._done.wait(self.timeout):
+            return
+        os.write(2, (f"[WARN] [{self.name}]: the middleware teardown (executor, node, context) "
+                     f"did not end within {self.timeout:g} s after the node completed its work; "
+                     f"exiting with status {self.status} without it. Stacks:\n").encode())
+        faulthandler.dump_traceback(all_threads=True)
+        os._exit(self.status)
+
+
 def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = None,
              exit_status: Callable[[Any], int] = lambda node: 0,
              until: Callable[[Any], Any] = lambda node: None,
-             default_executor: str = "single") -> int:
+             default_executor: str = "single",
+             teardown_timeout: float | None = TEARDOWN_TIMEOUT_S) -> int:
     """Run the node ``factory()`` on the executor chosen by ``--executor`` (``default_executor``
     when not given) until SIGINT / SIGTERM or an external shutdown, or until the
     future ``until(node)`` (None: no such future) completes; ``exit_status(node)`` is then the
@@ -156,6 +204,11 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
     first spin, or while it spins -- ends the process normally (:class:`StopSignals`): the node
     is destroyed (a recorder completes its bag), the context shut down, and the return code is
     ``exit_status(node)`` (0 when no node was built).
+
+    Then, in this order: the node's ``finish_work()`` if it has one (its work completed, e.g. a
+    recorder's bag closed), ``exit_status(node)``, and the middleware teardown (executor shutdown,
+    ``destroy_node``, context shutdown), bounded by ``teardown_timeout`` seconds
+    (:class:`TeardownWatchdog`; None: unbounded).
     """
     from .param_args import normalize_ros_args
 
@@ -193,9 +246,13 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         finally:
-            if executor is not None:
-                executor.shutdown()
-            if node is not None:
-                node.destroy_node()
-            rclpy.try_shutdown()
-    return 0 if node is None else exit_status(node)
+            if node is not None and hasattr(node, "finish_work"):
+                node.finish_work()      # the node's work complete before anything can block
+            status = 0 if node is None else exit_status(node)
+            with TeardownWatchdog(name, status, teardown_timeout):
+                if executor is not None:
+                    executor.shutdown()
+                if node is not None:
+                    node.destroy_node()
+                rclpy.try_shutdown()
+    return status

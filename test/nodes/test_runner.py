@@ -178,3 +178,64 @@ def test_executor_option_reads_only_the_non_ros_arguments():
     assert runner.executor_option(["prog", "--ros-args", "-p", "executor:=events"], "p") == "single"
     with pytest.raises(ParameterError, match="invalid executor 'threads'"):
         runner.make_executor("threads")
+
+
+# ------------------------------------------------------------------ a teardown that blocks
+# (a recorder's blocked for good inside rcl_node_fini, Fast DDS deleting its participant, while
+# its peers shut down at the same moment: about one stop in 150 under CPU load)
+
+_HANGING_TEARDOWN = """
+import ctypes, sys, threading
+from rclpy.node import Node
+from rclpy.task import Future
+from flight_fdi.nodes import runner
+
+class Hanging(Node):
+    def __init__(self):
+        super().__init__("hanging_teardown")
+        self.done = Future()
+        self.create_timer(0.01, lambda: self.done.set_result(True))
+
+    def finish_work(self):
+        print("work complete", flush=True)
+
+    def destroy_node(self):
+        super().destroy_node()
+        if sys.argv[1] == "gil":       # blocked in C with the GIL held (PyDLL keeps it)
+            ctypes.PyDLL(None).pause()
+        threading.Event().wait()       # blocked, GIL released (as in rcl_node_fini)
+
+sys.exit(runner.run_node(Hanging, "hanging_teardown", ["prog"], until=lambda n: n.done,
+                         exit_status=lambda n: 3, teardown_timeout=float(sys.argv[2])))
+"""
+
+
+def _run_hanging(how: str, timeout_s: float):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _HANGING_TEARDOWN, how, str(timeout_s)],
+                          capture_output=True, text=True, timeout=60)  # (a failure bound)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def test_a_blocked_middleware_teardown_ends_with_the_nodes_status_after_its_work():
+    rc, out, err = _run_hanging("released", 0.5)
+    assert rc == 3, err                           # the node's status, not a hang
+    assert out == "work complete\n"               # the work was completed before the teardown
+    assert "did not end within 0.5 s" in err and "exiting with status 3" in err
+    assert "in destroy_node" in err               # the stack says where it blocked
+
+
+def test_a_teardown_blocked_with_the_gil_held_still_ends_with_the_stacks():
+    rc, out, err = _run_hanging("gil", 0.5)
+    assert rc == 1, err                           # faulthandler's watchdog: no status to give
+    assert out == "work complete\n"
+    assert "Timeout (0:00:01)!" in err and "in destroy_node" in err
+
+
+def test_the_teardown_watchdog_stands_down_when_the_teardown_ends():
+    with runner.TeardownWatchdog("quick", 5, 30.0) as watchdog:
+        assert watchdog.thread.is_alive()
+    watchdog.thread.join(timeout=10)  # (a failure bound: it returns at once)
+    assert not watchdog.thread.is_alive()
