@@ -246,13 +246,15 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         finally:
-            if node is not None and hasattr(node, "finish_work"):
-                node.finish_work()      # the node's work complete before anything can block
-            status = 0 if node is None else exit_status(node)
-            with TeardownWatchdog(name, status, teardown_timeout):
-                if executor is not None:
-                    executor.shutdown()
-                if node is not None:
-                    node.destroy_node()
-                rclpy.try_shutdown()
+            try:
+                if node is not None and hasattr(node, "finish_work"):
+                    node.finish_work()  # the node's work complete before anything can block
+            finally:
+                status = 0 if node is None else exit_status(node)
+                with TeardownWatchdog(name, status, teardown_timeout):
+                    if executor is not None:
+                        executor.shutdown()
+                    if node is not None:
+                        node.destroy_node()
+                    rclpy.try_shutdown()
     return status
