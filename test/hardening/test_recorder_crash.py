@@ -19,8 +19,8 @@ the middle of one too) and kills it. Then:
 
 * every killed bag opens with rosbags, and an mcap one also with the independent ``mcap``
   library (CRCs validated); its messages are a gap-free prefix of what was sent, in order, and
-  hold every message that was on disk when the kill came (the recorder buffers at most one flush
-  interval: that much, and no more, is lost); ``metadata.yaml`` says the bag was not closed
+  hold every message that was on disk when the kill came (at least message ``k``: a kill loses
+  only what the recorder buffered since its last flush); ``metadata.yaml`` says the bag was not closed
   cleanly, is complete and counts at most what the file holds (it is replaced after the data of a
   flush, so a kill between the two leaves it one flush behind);
 * every interrupted bag holds all messages, in order, with complete metadata (counts, clean
