@@ -26,8 +26,8 @@ Shutdown: the node first completes its own work (``finish_work()`` when it has o
 closes its bag), then the middleware is torn down (executor, node, context; with Fast DDS the
 last node's destruction deletes the DDS participant). That teardown is bounded
 (:class:`TeardownWatchdog`, ``teardown_timeout``): under CPU load a recorder's was seen to block
-for good inside ``rcl_node_fini`` while its peers shut down at the same moment (one stop in
-about 150); after the bound the process says so, prints every thread's stack and exits with the
+for good inside ``rcl_node_fini`` while its peers shut down at the same moment (1 stop in
+776); after the bound the process says so, prints every thread's stack and exits with the
 node's own status.
 """
 from __future__ import annotations

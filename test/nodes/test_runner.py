@@ -182,7 +182,7 @@ def test_executor_option_reads_only_the_non_ros_arguments():
 
 # ------------------------------------------------------------------ a teardown that blocks
 # (a recorder's blocked for good inside rcl_node_fini, Fast DDS deleting its participant, while
-# its peers shut down at the same moment: about one stop in 150 under CPU load)
+# its peers shut down at the same moment: 1 stop in 776 under CPU load)
 
 _HANGING_TEARDOWN = """
 import ctypes, sys, threading
