@@ -35,7 +35,11 @@ acknowledged every published message (as ``ros2 bag play --wait-for-all-acked``)
 reports done and the executable exits: a reader that fell behind (a stopped or loaded consumer)
 gets lost samples retransmitted only while the writer lives -- without the wait a consumer
 stopped at the end of a replay received 18 of 150 INS samples (test_graph.py). Topics still
-unacknowledged then are named in the log and the ``unacknowledged_at_end`` diagnostic.
+unacknowledged then are named in the log and the ``unacknowledged_at_end`` diagnostic. The
+default, 15 s, leaves room for a consumer that resumes late: Fast DDS acknowledges on the
+writer's heartbeat (every 3 s by default), so a reader resumed after a stall acknowledges up to
+~3 s later (measured 2.7-2.9 s beside two busy loops); 5 s, the old default, was not enough for
+the 2.5-s stall of test_graph.py on a loaded machine (2 failures in 7 runs).
 
 ``/clock`` (rosgraph_msgs/Clock) carries the bag receive time of the playback position, at most
 ``clock_frequency`` times per second of bag time, so other nodes can run with ``use_sim_time``.
@@ -108,7 +112,7 @@ PLAYER_PARAMS = (
               "give up waiting for subscribers after this long (0 = wait forever)", unit="s",
               min=0.0, max=86400.0),
     ParamSpec("exit_when_done", "bool", True, "the executable exits when the replay is done"),
-    ParamSpec("drain_timeout", "double", 5.0,
+    ParamSpec("drain_timeout", "double", 15.0,
               "at the end of the replay, wait up to this long until every reliable subscriber "
               "acknowledged every published message (as ros2 bag play --wait-for-all-acked); "
               "0 = do not wait", unit="s", min=0.0, max=3600.0),

@@ -87,7 +87,7 @@ SMOOTHER_PARAMS = (
     ParamSpec("analyze_on_start", "bool", True, "analyse 'bag' as soon as the node starts"),
     ParamSpec("exit_when_done", "bool", False,
               "the executable exits after the first analysis (batch use; exit status 1 on error)"),
-    ParamSpec("drain_timeout", "double", 5.0,
+    ParamSpec("drain_timeout", "double", 15.0,
               "with exit_when_done: before exiting, wait up to this long until every reliable "
               "subscriber acknowledged the published result (0 = do not wait)", unit="s",
               min=0.0, max=3600.0),
