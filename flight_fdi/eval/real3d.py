@@ -384,18 +384,24 @@ class Settings:
         return xsens_grade(self.gyro_bias_deg_h * DEG_H, self.accel_bias,
                            self.arw_deg_rt_h * DEG_RTH, self.vrw)
 
+    def diagnosis(self):
+        """The seed method's rules (``DiagnosisConfig``) for these short flights."""
+        from ..core.diagnosis import DiagnosisConfig
+        return DiagnosisConfig(fisher_window=self.fisher_window,
+                               min_valid_steps=self.min_valid_steps)
+
 
 def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings = Settings()):
-    """``analyze_ins3d`` of the contract built from ``rec`` (biases bg, ba removed)."""
-    from ..core.diagnosis import DiagnosisConfig
+    """``analyze_ins3d`` of the contract built from ``rec`` (biases bg, ba removed); the model
+    options through the bag description's ``error_model`` block (``error_model_of``, read back
+    by ``bagio.ins3d_input.error_model_options``), as ``flight-fdi analyze`` on the bag."""
+    from ..bagio.ins3d_input import ERROR_MODEL, error_model_options
     from ..core.ins3d.analysis import analyze_ins3d
     inp = build_contract(rec, bg, ba, settings.contract)
+    options = error_model_options({ERROR_MODEL: error_model_of(settings)}, "real3d.Settings")
     return analyze_ins3d(inp.steps, inp.refs, grade=settings.grade(), rows=settings.rows,
-                         vertical=settings.vertical, latency=settings.latency, ref_markov=None,
-                         diagnosis=DiagnosisConfig(fisher_window=settings.fisher_window,
-                                                   min_valid_steps=settings.min_valid_steps),
-                         signature_error=settings.signature_error,
-                         aligned_prior=settings.aligned_prior)
+                         diagnosis=settings.diagnosis(),
+                         signature_error=settings.signature_error, **options)
 
 
 def record(analysis, t0: float = 0.0) -> dict:
@@ -475,6 +481,5 @@ def names_in(data_dir: Path) -> list[str]:
 __all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "Settings", "analyze",
            "build_contract", "calibrate", "contract_arrays", "day_of", "default_data_dir",
            "error_model_of", "fault_runs", "gt_quaternions", "gt_velocity", "initial_state",
-           "judge",
-           "mechanize_recording", "names_in", "read_gt", "read_recording", "record",
+           "judge", "mechanize_recording", "names_in", "read_gt", "read_recording", "record",
            "recording_biases", "write_contract_bag", "xsens_grade"]

@@ -21,7 +21,6 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from ..core.diagnosis import DiagnosisConfig
 from ..core.ins3d.grade_file import (KEYS, diagnosis_config_of, grade_thresholds, load_grade,
                                      signature_error_of)
 from ..core.ins3d.grades import ImuGrade
@@ -89,8 +88,7 @@ def grade_file_differences(path: str | Path = GRADE_FILE,
         else signature_error_of(want)
     if not _close(signature_error_of(got), eps):
         out.append(f"signature error: file {signature_error_of(got)!r}, Settings {eps!r}")
-    seed = DiagnosisConfig(fisher_window=settings.fisher_window,
-                           min_valid_steps=settings.min_valid_steps)
+    seed = settings.diagnosis()
     if diagnosis_config_of(got) != seed:
         out.append(f"seed method: file {diagnosis_config_of(got)}, Settings {seed}")
     return out

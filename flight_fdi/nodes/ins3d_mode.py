@@ -41,7 +41,7 @@ import numpy as np
 
 from ..core.errors import CoreError
 from ..core.gate import ALARM_CLEARED, ALARM_RAISED, GateConfig
-from ..core.ins3d.analysis import analyze_ins3d
+from ..core.ins3d.analysis import analyze_ins3d, initial_covariance
 from ..core.ins3d.grade_file import is_grade_file, resolve_grade
 from ..core.ins3d.grades import GRADES as PRESETS
 from ..core.ins3d.model import VERTICAL, Ins3dModel
@@ -284,8 +284,8 @@ class Ins3dMode:
                     self._held.append(e)
                     continue
                 s = e.step
-                P0 = self.model.p0_aligned(s.C[0], s.f_n[0], float(s.lat[0])) \
-                    if self.p["ins3d_aligned_prior"] else np.diag(self.model.p0())
+                P0 = initial_covariance(self.model, s.C[0], s.f_n[0], float(s.lat[0]),
+                                        self.p["ins3d_aligned_prior"])
                 self.stream = Ins3dStream(self.model, self.gate, P0=P0)
                 self._publish_model()
                 held, self._held = self._held, []

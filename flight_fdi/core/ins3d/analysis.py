@@ -121,6 +121,14 @@ class Ins3dAnalysis:
         return [(a, b) for a, b, kind in self.manoeuvres if kind == "turn"]
 
 
+def initial_covariance(model: Ins3dModel, C0: np.ndarray, f0: np.ndarray, lat0: float,
+                       aligned: bool = True) -> np.ndarray:
+    """P0 at the first step (attitude C0, specific force f0 in the navigation frame, latitude
+    lat0): a levelled INS's (``Ins3dModel.p0_aligned``: the tilt cancels the horizontal
+    accelerometer bias) when ``aligned``, else independent states (``Ins3dModel.p0``)."""
+    return model.p0_aligned(C0, f0, lat0) if aligned else np.diag(model.p0())
+
+
 def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navigation",
                   rows: int = 3,
                   position: bool = False, vertical: str = "loop", latency: bool = True,
@@ -160,8 +168,7 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     turns = manoeuvres(steps)
     if max_dt is not None:
         steps, refs = coarsen(steps, refs, max_dt)
-    P0 = model.p0_aligned(steps.C[0], steps.f_n[0], float(steps.lat[0])) if aligned_prior \
-        else np.diag(model.p0())
+    P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]), aligned_prior)
     with ThreadPoolExecutor(max_workers=1) as pool:     # the second core: the Gramian
         obs = pool.submit(observability, model, steps, refs, P0=P0) if with_observability \
             else None
@@ -194,4 +201,4 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
         resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
 
 
-__all__ = ["Ins3dAnalysis", "analyze_ins3d"]
+__all__ = ["Ins3dAnalysis", "analyze_ins3d", "initial_covariance"]
