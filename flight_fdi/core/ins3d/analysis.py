@@ -20,9 +20,10 @@ from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .filter import Ins3dForward, run_forward
 from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
-from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade
+from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade, signature_error_of
 from .grades import ImuGrade
 from .model import IBA, IBG, Ins3dModel
+from .nonlinear import NonlinearCheck, confirm, needs_check
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
 from .result3d import post_flight
@@ -47,6 +48,8 @@ class Ins3dAnalysis:
     #: turn-on biases (a step best at the first update) and the in-flight decision given them
     #: (``turn_on.decide``; None: none, the decision is the unconditional one)
     turn_on: TurnOn | None = None
+    #: the nonlinear check of a large gyro fault (``nonlinear.confirm``; None: not needed)
+    nonlinear: NonlinearCheck | None = None
 
     @property
     def decision_glr(self) -> dict[str, GlrCurve]:
@@ -79,7 +82,7 @@ class Ins3dAnalysis:
         turn_on = None if self.turn_on is None else \
             self.turn_on.records(self.glr, self.thresholds, t0)
         out = post_flight(self.decision_glr, self.isolation, self.seed, self.thresholds, t0,
-                          turn_on)
+                          turn_on, self.nonlinear)
         out["glr"]["joint"] = {k: float(v.max(initial=0.0)) for k, v in self.joint.items()}
         return out
 
@@ -180,13 +183,15 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:
-            _post_flight(out, diagnosis or diagnosis_config_of(model.grade), signature_error)
+            _post_flight(out, diagnosis or diagnosis_config_of(model.grade), signature_error,
+                         gate=gate)
         out.observability = obs.result() if obs is not None else None
     return out
 
 
 def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
-                 signature_error: float | None = None) -> None:
+                 signature_error: float | None = None, check: bool = True,
+                 gate: GateConfig = GateConfig()) -> None:
     model, steps, refs, fwd = out.model, out.steps, out.refs, out.forward
     out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
     out.seed = seed_method(model, out.backward, cfg)
@@ -199,6 +204,17 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
         out.isolation = out.turn_on.isolation
     else:
         resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
+    if check and needs_check(out.decision_glr, out.isolation, float(steps.t[-1])):
+        def reanalyse(steps_c, refs_c):
+            again = Ins3dAnalysis(model, run_forward(model, steps_c, refs_c, gate=gate,
+                                                     P0=fwd.P0, keep_prior=True, threads=1),
+                                  None, out.manoeuvres, steps_c, refs_c,
+                                  thresholds=out.thresholds)
+            _post_flight(again, cfg, signature_error, check=False, gate=gate)
+            return again.isolation
+        out.nonlinear = confirm(model, steps, refs, fwd.P0, out.decision_glr, out.isolation,
+                                reanalyse, signature_error_of(model.grade)
+                                if signature_error is None else signature_error)
 
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d", "initial_covariance"]

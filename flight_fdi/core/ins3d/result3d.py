@@ -87,9 +87,10 @@ def onset_interval(c: GlrCurve, cv: dict[str, GlrCurve] | None = None,
 
 
 def fault_record(cv: dict[str, GlrCurve], name: str, thresholds: dict[str, float], t0: float,
-                 runner_up: str | None, outliers: int = 0) -> dict:
+                 runner_up: str | None, outliers: int = 0, exact=None) -> dict:
     """One fault (``$defs/fault``): magnitude signed as the sensor's error (a reference jumping
-    by +d reads +d, although the offset of z = v_INS - v_ref is -d)."""
+    by +d reads +d, although the offset of z = v_INS - v_ref is -d). ``exact``: the hypothesis'
+    ``nonlinear.Fit`` (onset and magnitude from it, no onset interval)."""
     c = cv[name]
     h = c.hypothesis
     k = c.best
@@ -98,6 +99,8 @@ def fault_record(cv: dict[str, GlrCurve], name: str, thresholds: dict[str, float
     unit_eng, factor = ENGINEERING.get((h.sensor, h.kind), (h.unit, 1.0))
     onset, end, count = float(c.t[k]), None, None
     interval = onset_interval(c, cv)
+    if exact is not None:
+        onset, mag, interval = exact.onset, exact.magnitude, None
     if h.kind == "outliers":
         above = c.t[c.stat > thresholds["outliers"]]
         count = max(int(above.size), 1)
@@ -128,14 +131,18 @@ def _top(cv: dict[str, GlrCurve], iso: Isolation) -> str:
                key=lambda c: c.statistic).hypothesis.name
 
 
-def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0) -> dict:
+def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0, check=None) -> dict:
     if seed.verdict == "insufficient_data":
         return {"verdict": "insufficient_data", "fault": None, "candidates": [],
                 "headline": "insufficient data for the analysis", "element": None,
                 "onset_s": None, "magnitude": None}
     if iso.isolation == "single":
-        f = fault_record(cv, iso.best, thresholds, t0, iso.rival, iso.outliers)
+        f = fault_record(cv, iso.best, thresholds, t0, iso.rival, iso.outliers,
+                         check and check.fit_of(iso.best))
         head = describe(f)
+        if iso.reason == "nonlinear":
+            head += (" (beyond the small-angle model: removed exactly, it leaves a nominal "
+                     "flight and explains it best)")
         if iso.ambiguity_resolved_s is not None and iso.rival is not None:
             head += (f" (told from {cv[iso.rival].hypothesis.sensor} "
                      f"{cv[iso.rival].hypothesis.axis} from {iso.ambiguity_resolved_s - t0:.0f} s)")
@@ -143,9 +150,12 @@ def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0) -> dict:
                 "candidates": [], "headline": head, "element": cv[iso.best].hypothesis.element,
                 "onset_s": f["onset_s"], "magnitude": f["magnitude"]}
     if iso.isolation == "ambiguous":
-        cands = [fault_record(cv, iso.best, thresholds, t0, iso.rival),
-                 fault_record(cv, iso.rival, thresholds, t0, iso.best)]
-        head = "ambiguous: " + " or ".join(describe(c) for c in cands) + _why(iso, cands)
+        cands = [fault_record(cv, iso.best, thresholds, t0, iso.rival, 0,
+                              check and check.fit_of(iso.best)),
+                 fault_record(cv, iso.rival, thresholds, t0, iso.best, 0,
+                              check and check.fit_of(iso.rival))]
+        head = "ambiguous: " + " or ".join(describe(c) for c in cands) + _why(
+            iso, cands, bool(check and check.fit_of(iso.best).explains))
         return {"verdict": "ambiguous", "fault": None, "candidates": cands, "headline": head,
                 "element": None, "onset_s": None, "magnitude": None}
     verdict = seed.verdict
@@ -156,9 +166,15 @@ def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0) -> dict:
             "element": seed.element, "onset_s": _rel(seed.onset_t, t0), "magnitude": None}
 
 
-def _why(iso: Isolation, cands: list[dict]) -> str:
+def _why(iso: Isolation, cands: list[dict], explained: bool = False) -> str:
     """Why two candidates are ambiguous (``glr3d`` module docstring)."""
     a, b = (c["statistic"] for c in cands)
+    if iso.reason == "nonlinear":
+        if not explained:
+            return (" (beyond the small-angle model: removed exactly, neither leaves a nominal "
+                    "flight)")
+        return (" (beyond the small-angle model: removed exactly, both explain the flight "
+                "within what the model's error allows)")
     if iso.reason == "model":
         return (f" (statistics {a:.4g} and {b:.4g}, signatures alike to cos "
                 f"{iso.similarity:.3f}: the gap is within what the model's error allows)")
@@ -184,11 +200,11 @@ def _disagreement(seed: SeedDiagnosis, glr_element: str | None, top: GlrCurve,
 
 def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
                 thresholds: dict[str, float], t0: float = 0.0,
-                turn_on: list[dict] | None = None) -> dict:
+                turn_on: list[dict] | None = None, nonlinear=None) -> dict:
     """The ``post_flight`` dict (times relative to ``t0``); ``turn_on``: the turn-on biases
     (``turn_on.TurnOn.records``; ``cv`` and ``iso`` then the decision given them), added as
     ``turn_on_bias`` and to the headline (no in-flight fault: "no in-flight fault; ...")."""
-    dec = _decision(cv, iso, seed, thresholds, t0)
+    dec = _decision(cv, iso, seed, thresholds, t0, nonlinear)
     if turn_on:
         told = "; ".join(describe_turn_on(r) for r in turn_on)
         if iso.isolation == "none" and dec["verdict"] not in ("no_fault", "insufficient_data"):
@@ -210,6 +226,7 @@ def post_flight(cv: dict[str, GlrCurve], iso: Isolation, seed: SeedDiagnosis,
                                       threshold_of(thresholds, top.hypothesis)),
         "ambiguity_resolved_s": _rel(iso.ambiguity_resolved_s, t0),
         "turn_on_bias": list(turn_on or []),
+        "nonlinear": None if nonlinear is None else nonlinear.record(t0),
         "seed_method": {
             "verdict": seed.verdict, "element": seed.element,
             "onset_s": _rel(seed.onset_t, t0),

@@ -1,0 +1,291 @@
+"""The nonlinear check of a large gyro fault: the fault, removed from the INS exactly (not to
+first order), must leave a nominal flight (docs/ins3d_nonlinear.md).
+
+**Why.** The ins3d model is linear in the attitude error (small angles). A gyro step of degrees
+per second leaves tens of degrees of attitude error within seconds; the linear signatures are
+then wrong and GLR may name the wrong axis with confidence (on the real Xsens excerpt, a gyro z
+step of 10 deg/s 10 s before the end was named gyro x: the linear signature of a yaw error
+cannot follow a rotation of 100 deg).
+
+**The exact removal** of a fault u (body axis, ``step``: b from the onset, ``ramp``: b (t -
+onset)) from the INS of the steps (``data.NavSteps``: attitude C, measured rate w and specific
+force f_b = C^T f_n of each step):
+
+* attitude: the INS integrated w, the fault-free INS w - u_g; both see the same navigation-frame
+  rates, so C_c = C D with the body-frame rotation D' = -[w x] D + D [(w - u_g) x], per step
+  D_k+1 = exp(-[w dt]) D_k exp([(w - u_g) dt]) (exact for the step's mean rate);
+* velocity, position, the vertical channel and its loop: the model's own transition Phi_k
+  (Coriolis, Schuler, gravity with height) driven by the exact specific-force difference
+  C (f_b - D (f_b - u_a)) dt (D at mid-step; an accelerometer fault: C u_a, as the model). The
+  state's phi carries only the attitude error the velocity error itself causes (Schuler);
+  the biases stay zero.
+
+The fault-free flight is then C_c, f_n_c = C_c (f_b - u_a), v - dv (mid-step), h - dh, w - u_g
+and z - dv at the updates (``corrected``).
+
+**The fit** (``fit``): onset and magnitude minimising -2 ln L = sum(nu' S^-1 nu + ln det S) of
+the no-fault forward filter on the corrected flight: the magnitude over a log grid of both
+signs around the linear GLR's estimate, refined (``scipy.optimize.minimize_scalar``); the onset
+over the steps around the linear onsets; then the magnitude again.
+
+**The check** (``confirm``, called by ``analysis.analyze_ins3d`` when the decision names a gyro
+whose fault turns the attitude by more than ``SMALL_ANGLE_RAD`` over the flight, linear
+magnitude x time): the decision's hypotheses and the gyro steps of the three axes are each fitted
+and removed, and the corrected flight analysed again; a hypothesis *explains* the flight when the
+corrected flight has no GLR detection. One explains: it is the answer (``single``, reason
+``nonlinear``, with the fitted onset and magnitude); several: ``ambiguous`` between the two
+best fits; none: ``ambiguous`` (the decision's best and rival) -- a fault beyond the model is
+not named with confidence.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+from scipy.optimize import minimize_scalar
+
+from .data import NavSteps, RefRows
+from .filter import run_forward
+from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation
+from .model import IBA, IV, Ins3dModel, fill_F, transition
+
+#: the attitude a named gyro fault may turn over the flight (rad, |b| (T - onset), a ramp
+#: |b| (T - onset)^2 / 2) before the decision is checked nonlinearly: the linear signature's
+#: relative error is about half the angle (2.5 % here)
+SMALL_ANGLE_RAD = 0.05
+#: the magnitude grid: the linear estimate times 10^(-GRID_DECADES .. +GRID_DECADES), both signs
+GRID_DECADES = 1.5
+GRID_POINTS = 13
+
+
+@njit(cache=True)
+def _expm_skew(w, out):
+    """out = exp([w x]) (Rodrigues)."""
+    th = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    if th < 1e-8:
+        a, b = 1.0, 0.5
+    else:
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / (th * th)
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    KK = K @ K
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a * K[i, j] + b * KK[i, j] + (1.0 if i == j else 0.0)
+
+
+@njit(cache=True)
+def _effect(C, f_n, w_b, v, lat, h, dt, t, bias, k0, gyro, axis, ramp, mag, x_out, D_mid):
+    """x_out[k] (K+1, n): the error state the fault leaves at boundary k; D_mid[k] (K, 3, 3):
+    the body-frame correction at mid-step k (module docstring)."""
+    n = x_out.shape[1]
+    K = dt.size
+    F, Phi, F2 = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    x = np.zeros(n)
+    D = np.eye(3)
+    A, B = np.empty((3, 3)), np.empty((3, 3))
+    u = np.zeros(3)
+    for k in range(K):
+        x_out[k] = x
+        if k < k0:
+            D_mid[k] = D
+            continue
+        b = mag * (0.5 * (t[k] + t[k + 1]) - t[k0]) if ramp else mag
+        u[:] = 0.0
+        u[axis] = b
+        f_b = C[k].T @ f_n[k]
+        _expm_skew(-w_b[k] * dt[k], A)
+        _expm_skew((w_b[k] - u) * dt[k] if gyro else w_b[k] * dt[k], B)
+        D1 = A @ D @ B
+        Dm = 0.5 * (D + D1)
+        g = C[k] @ (f_b - Dm @ (f_b - (u * 0.0 if gyro else u)))
+        fill_F(F, C[k], f_n[k], v[k], lat[k], h[k], bias)
+        transition(F, dt[k], Phi, F2)
+        x = Phi @ x
+        for i in range(3):
+            x[IV + i] += g[i] * dt[k]
+        x[IBA:IBA + 6] = 0.0
+        D_mid[k] = Dm
+        D = D1
+    x_out[K] = x
+
+
+def _orthonormal(M: np.ndarray) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(M)
+    return U @ Vt
+
+
+def corrected(model: Ins3dModel, steps: NavSteps, refs: RefRows, sensor: str, axis: str,
+              kind: str, k0: int, magnitude: float) -> tuple[NavSteps, RefRows]:
+    """The flight without the fault (``sensor`` accelerometer / gyro, body ``axis`` x/y/z,
+    ``kind`` step / ramp from boundary ``k0``, ``magnitude`` SI), module docstring."""
+    K = len(steps)
+    x = np.empty((K + 1, model.n))
+    D = np.empty((K, 3, 3))
+    gyro = sensor == "gyro"
+    i = "xyz".index(axis)
+    _effect(steps.C, steps.f_n, steps.w_b, steps.v, steps.lat, steps.h, steps.dt, steps.t,
+            model.kernel_params(), int(k0), gyro, i, kind == "ramp", float(magnitude), x, D)
+    tm = 0.5 * (steps.t[1:] + steps.t[:-1]) - steps.t[min(k0, K)]
+    u = np.zeros((K, 3))
+    u[k0:, i] = magnitude * (tm[k0:] if kind == "ramp" else 1.0)
+    Cc = steps.C @ _orthonormal(D)
+    f_b = np.einsum("kji,kj->ki", steps.C, steps.f_n)
+    f_c = np.einsum("kij,kj->ki", Cc, f_b - (0.0 if gyro else u))
+    xm = 0.5 * (x[1:] + x[:-1])
+    h = steps.h - xm[:, model.ih] if model.ih >= 0 else steps.h
+    out = NavSteps(steps.t, steps.dt, np.ascontiguousarray(Cc), f_c,
+                   steps.w_b - (u if gyro else 0.0), steps.v - xm[:, IV:IV + 3], steps.lat, h)
+    z = refs.z - x[refs.step, IV:IV + 3]
+    return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a)
+
+
+def neg2_log_likelihood(model: Ins3dModel, steps: NavSteps, refs: RefRows,
+                        P0: np.ndarray) -> float:
+    """-2 ln L (up to a constant) of the no-fault forward filter: sum nu' S^-1 nu + ln det S."""
+    fwd = run_forward(model, steps, refs, P0=P0, threads=1)
+    return float(fwd.beta2.sum() + np.linalg.slogdet(fwd.S)[1].sum())
+
+
+@dataclass
+class Fit:
+    """One hypothesis fitted by exact removal (``fit``) and the corrected flight's decision."""
+
+    name: str
+    sensor: str
+    axis: str
+    kind: str
+    onset: float               # s (the step grid's time)
+    magnitude: float           # SI
+    cost: float                # -2 ln L of the corrected flight
+    isolation_after: str = "?"  # the corrected flight's isolation (none: explained)
+    best_after: str | None = None
+
+    @property
+    def explains(self) -> bool:
+        return self.isolation_after == "none"
+
+
+def fit(model: Ins3dModel, steps: NavSteps, refs: RefRows, P0: np.ndarray, curve: GlrCurve,
+        k_range: tuple[int, int]) -> Fit:
+    """Onset (a step boundary in ``k_range``) and magnitude of ``curve``'s hypothesis by exact
+    removal (module docstring, "The fit")."""
+    h = curve.hypothesis
+
+    def cost(k: int, b: float) -> float:
+        return neg2_log_likelihood(model, *corrected(model, steps, refs, h.sensor, h.axis,
+                                                     h.kind, k, b), P0)
+
+    def magnitude(k: int, b0: float) -> tuple[float, float]:
+        scale = max(abs(b0), 3.0 * float(curve.sd[curve.best]), 1e-12)
+        grid = scale * 10.0 ** np.linspace(-GRID_DECADES, GRID_DECADES, GRID_POINTS)
+        grid = np.concatenate([-grid[::-1], [0.0], grid])
+        vals = np.array([cost(k, b) for b in grid])
+        j = int(np.argmin(vals))
+        lo, hi = grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]
+        if hi > lo:
+            r = minimize_scalar(lambda b: cost(k, b), bounds=(lo, hi), method="bounded",
+                                options={"xatol": 1e-3 * max(abs(grid[j]), 1e-12)})
+            if r.fun < vals[j]:
+                return float(r.x), float(r.fun)
+        return float(grid[j]), float(vals[j])
+
+    k = int(np.clip(np.searchsorted(steps.t, curve.t[curve.best]), *k_range))
+    b, c = magnitude(k, float(curve.mag[curve.best]))
+    ks = np.arange(k_range[0], k_range[1] + 1)
+    scan = np.array([cost(int(j), b) for j in ks])
+    if scan.min() < c:
+        k = int(ks[np.argmin(scan)])
+        b, c = magnitude(k, b)
+    return Fit(h.name, h.sensor, h.axis, h.kind, float(steps.t[k]), b, c)
+
+
+def implied_angle(curve: GlrCurve, t_end: float) -> float:
+    """The attitude a gyro hypothesis' linear estimate turns by ``t_end`` (rad; 0 otherwise)."""
+    h = curve.hypothesis
+    if h.sensor != "gyro":
+        return 0.0
+    span = max(t_end - float(curve.t[curve.best]), 0.0)
+    b = abs(float(curve.mag[curve.best]))
+    return b * span if h.kind == "step" else 0.5 * b * span * span
+
+
+def needs_check(cv: dict[str, GlrCurve], iso: Isolation, t_end: float,
+                limit: float = SMALL_ANGLE_RAD) -> bool:
+    """Whether the decision names (single) or lists (ambiguous) a gyro hypothesis whose
+    linear estimate turns the attitude by more than ``limit``."""
+    if iso.isolation not in ("single", "ambiguous"):
+        return False
+    names = [n for n in (iso.best, iso.rival if iso.isolation == "ambiguous" else None) if n]
+    return any(implied_angle(cv[n], t_end) > limit for n in names)
+
+
+@dataclass
+class NonlinearCheck:
+    """What ``confirm`` tested and decided."""
+
+    fits: list[Fit] = field(default_factory=list)
+    before: str = ""             # the decision before: "single gyro_x_step", ...
+    after: str = ""
+    cost0: float = 0.0           # -2 ln L of the flight as it is (no fault)
+    statistic: float = 0.0       # cost0 - the best fit's: the likelihood ratio of the best
+    gap: float = 0.0             # the runner-up's cost - the best's
+    allowance: float = 0.0       # the gap a single answer needs: margin + statistic sin^2(eps)
+
+    def explaining(self) -> list[Fit]:
+        return sorted((f for f in self.fits if f.explains), key=lambda f: f.cost)
+
+    def fit_of(self, name: str | None) -> Fit | None:
+        return next((f for f in self.fits if f.name == name), None)
+
+    def record(self, t0: float = 0.0) -> dict:
+        """The result's ``nonlinear`` section."""
+        return {"before": self.before, "after": self.after, "statistic": self.statistic,
+                "gap": self.gap, "allowance": self.allowance,
+                "fits": [{"hypothesis": f.name, "onset_s": f.onset - t0,
+                          "magnitude": f.magnitude, "neg2_log_likelihood": f.cost,
+                          "explains": f.explains, "isolation_after": f.isolation_after,
+                          "best_after": f.best_after} for f in self.fits]}
+
+
+def tested(cv: dict[str, GlrCurve], iso: Isolation) -> list[str]:
+    """The decision's best and rival, and the gyro steps of the three axes."""
+    names = [iso.best, iso.rival] + [f"gyro_{a}_step" for a in "xyz"]
+    return [n for i, n in enumerate(names) if n and n in cv and n not in names[:i]
+            and cv[n].hypothesis.kind in ("step", "ramp")]
+
+
+def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, P0: np.ndarray,
+            cv: dict[str, GlrCurve], iso: Isolation, reanalyse, eps: float,
+            margin: float = AMBIGUITY_MARGIN) -> NonlinearCheck:
+    """The nonlinear check (module docstring); ``reanalyse(steps, refs) -> Isolation`` is the
+    post-flight decision of a corrected flight, ``eps`` the model's relative signature error
+    (``glr3d.settle``). Changes ``iso`` in place."""
+    check = NonlinearCheck(before=f"{iso.isolation} {iso.best}",
+                           cost0=neg2_log_likelihood(model, steps, refs, P0))
+    j_of = {float(t): j for j, t in enumerate(refs.t)}
+    own = [cv[n].t[cv[n].best] for n in (iso.best, iso.rival) if n]
+    j_lo = min(j_of.get(float(t), 0) for t in own)
+    j_hi = max(j_of.get(float(t), refs.t.size - 1) for t in own)
+    for name in tested(cv, iso):
+        j = j_of.get(float(cv[name].t[cv[name].best]), j_lo)
+        a, b = max(min(j, j_lo) - 2, 0), min(max(j, j_hi) + 1, refs.t.size - 1)
+        f = fit(model, steps, refs, P0, cv[name], (int(refs.step[a]), int(refs.step[b])))
+        after = reanalyse(*corrected(model, steps, refs, f.sensor, f.axis, f.kind,
+                                     int(np.searchsorted(steps.t, f.onset)), f.magnitude))
+        f.isolation_after, f.best_after = after.isolation, after.best
+        check.fits.append(f)
+    best, rival = sorted(check.fits, key=lambda f: f.cost)[:2]
+    check.statistic = check.cost0 - best.cost
+    check.gap = rival.cost - best.cost
+    check.allowance = margin + max(check.statistic, 0.0) * math.sin(eps) ** 2
+    iso.best, iso.rival, iso.reason = best.name, rival.name, "nonlinear"
+    iso.isolation = "single" if best.explains and check.gap > check.allowance else "ambiguous"
+    iso.ambiguity_resolved_s = None
+    check.after = f"{iso.isolation} {iso.best}"
+    return check
+
+
+__all__ = ["Fit", "NonlinearCheck", "SMALL_ANGLE_RAD", "confirm", "corrected", "fit",
+           "implied_angle", "needs_check", "neg2_log_likelihood", "tested"]
