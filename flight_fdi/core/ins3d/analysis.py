@@ -212,7 +212,7 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
                                   thresholds=out.thresholds)
             _post_flight(again, cfg, signature_error, check=False, gate=gate)
             return again.isolation
-        out.nonlinear = confirm(model, steps, refs, fwd.P0, out.decision_glr, out.isolation,
+        out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
                                 reanalyse, signature_error_of(model.grade)
                                 if signature_error is None else signature_error)
 

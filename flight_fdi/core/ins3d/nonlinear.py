@@ -53,11 +53,13 @@ from .model import IBA, IV, Ins3dModel, fill_F, transition
 
 #: the attitude a named gyro fault may turn over the flight (rad, |b| (T - onset), a ramp
 #: |b| (T - onset)^2 / 2) before the decision is checked nonlinearly: the linear signature's
-#: relative error is about half the angle (2.5 % here)
-SMALL_ANGLE_RAD = 0.05
+#: relative error is about half the angle (5 % here)
+SMALL_ANGLE_RAD = 0.1
 #: the magnitude grid: the linear estimate times 10^(-GRID_DECADES .. +GRID_DECADES), both signs
 GRID_DECADES = 1.5
-GRID_POINTS = 13
+GRID_POINTS = 9
+#: at most this many onsets (steps) scanned per hypothesis
+MAX_ONSETS = 16
 
 
 @njit(cache=True)
@@ -142,10 +144,30 @@ def corrected(model: Ins3dModel, steps: NavSteps, refs: RefRows, sensor: str, ax
 
 
 def neg2_log_likelihood(model: Ins3dModel, steps: NavSteps, refs: RefRows,
-                        P0: np.ndarray) -> float:
+                        P0: np.ndarray, x0: np.ndarray | None = None) -> float:
     """-2 ln L (up to a constant) of the no-fault forward filter: sum nu' S^-1 nu + ln det S."""
-    fwd = run_forward(model, steps, refs, P0=P0, threads=1)
+    fwd = run_forward(model, steps, refs, x0=x0, P0=P0, threads=1)
     return float(fwd.beta2.sum() + np.linalg.slogdet(fwd.S)[1].sum())
+
+
+@dataclass
+class Window:
+    """The flight from update ``j`` on (its steps from that update's boundary), with the
+    forward filter's state and covariance before that update: the likelihood of a fault that
+    starts later, without filtering the part of the flight it leaves unchanged again."""
+
+    steps: NavSteps
+    refs: RefRows
+    x0: np.ndarray
+    P0: np.ndarray
+
+    @classmethod
+    def of(cls, steps: NavSteps, refs: RefRows, fwd, j: int) -> "Window":
+        k = int(refs.step[j])
+        w = NavSteps(steps.t[k:], steps.dt[k:], steps.C[k:], steps.f_n[k:], steps.w_b[k:],
+                     steps.v[k:], steps.lat[k:], steps.h[k:])
+        r = RefRows(refs.t[j:], refs.z[j:], refs.r[j:], refs.step[j:] - k, refs.a[j:])
+        return cls(w, r, fwd.x_prior[j], fwd.P_prior[j])
 
 
 @dataclass
@@ -167,15 +189,16 @@ class Fit:
         return self.isolation_after == "none"
 
 
-def fit(model: Ins3dModel, steps: NavSteps, refs: RefRows, P0: np.ndarray, curve: GlrCurve,
-        k_range: tuple[int, int]) -> Fit:
-    """Onset (a step boundary in ``k_range``) and magnitude of ``curve``'s hypothesis by exact
-    removal (module docstring, "The fit")."""
+def fit(model: Ins3dModel, win: Window, curve: GlrCurve, k_range: tuple[int, int],
+        t_first: float) -> Fit:
+    """Onset (a step boundary of the window in ``k_range``) and magnitude of ``curve``'s
+    hypothesis by exact removal (module docstring, "The fit"), the magnitude first searched at
+    the onset ``t_first`` (the decision's best's: where the data change)."""
     h = curve.hypothesis
 
     def cost(k: int, b: float) -> float:
-        return neg2_log_likelihood(model, *corrected(model, steps, refs, h.sensor, h.axis,
-                                                     h.kind, k, b), P0)
+        return neg2_log_likelihood(model, *corrected(model, win.steps, win.refs, h.sensor,
+                                                     h.axis, h.kind, k, b), win.P0, win.x0)
 
     def magnitude(k: int, b0: float) -> tuple[float, float]:
         scale = max(abs(b0), 3.0 * float(curve.sd[curve.best]), 1e-12)
@@ -186,19 +209,20 @@ def fit(model: Ins3dModel, steps: NavSteps, refs: RefRows, P0: np.ndarray, curve
         lo, hi = grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]
         if hi > lo:
             r = minimize_scalar(lambda b: cost(k, b), bounds=(lo, hi), method="bounded",
-                                options={"xatol": 1e-3 * max(abs(grid[j]), 1e-12)})
+                                options={"xatol": 3e-3 * max(abs(grid[j]), 1e-12)})
             if r.fun < vals[j]:
                 return float(r.x), float(r.fun)
         return float(grid[j]), float(vals[j])
 
-    k = int(np.clip(np.searchsorted(steps.t, curve.t[curve.best]), *k_range))
+    k = int(np.clip(np.searchsorted(win.steps.t, t_first), *k_range))
     b, c = magnitude(k, float(curve.mag[curve.best]))
-    ks = np.arange(k_range[0], k_range[1] + 1)
+    ks = np.unique(np.round(np.linspace(k_range[0], k_range[1],
+                                        min(MAX_ONSETS, k_range[1] - k_range[0] + 1))))
     scan = np.array([cost(int(j), b) for j in ks])
     if scan.min() < c:
         k = int(ks[np.argmin(scan)])
         b, c = magnitude(k, b)
-    return Fit(h.name, h.sensor, h.axis, h.kind, float(steps.t[k]), b, c)
+    return Fit(h.name, h.sensor, h.axis, h.kind, float(win.steps.t[k]), b, c)
 
 
 def implied_angle(curve: GlrCurve, t_end: float) -> float:
@@ -213,12 +237,11 @@ def implied_angle(curve: GlrCurve, t_end: float) -> float:
 
 def needs_check(cv: dict[str, GlrCurve], iso: Isolation, t_end: float,
                 limit: float = SMALL_ANGLE_RAD) -> bool:
-    """Whether the decision names (single) or lists (ambiguous) a gyro hypothesis whose
+    """Whether the decision's best or rival (single or ambiguous) is a gyro hypothesis whose
     linear estimate turns the attitude by more than ``limit``."""
     if iso.isolation not in ("single", "ambiguous"):
         return False
-    names = [n for n in (iso.best, iso.rival if iso.isolation == "ambiguous" else None) if n]
-    return any(implied_angle(cv[n], t_end) > limit for n in names)
+    return any(implied_angle(cv[n], t_end) > limit for n in (iso.best, iso.rival) if n)
 
 
 @dataclass
@@ -256,22 +279,29 @@ def tested(cv: dict[str, GlrCurve], iso: Isolation) -> list[str]:
             and cv[n].hypothesis.kind in ("step", "ramp")]
 
 
-def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, P0: np.ndarray,
+def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
             cv: dict[str, GlrCurve], iso: Isolation, reanalyse, eps: float,
             margin: float = AMBIGUITY_MARGIN) -> NonlinearCheck:
-    """The nonlinear check (module docstring); ``reanalyse(steps, refs) -> Isolation`` is the
+    """The nonlinear check (module docstring); ``fwd`` the flight's forward pass (with the
+    priors: ``run_forward(keep_prior=True)``), ``reanalyse(steps, refs) -> Isolation`` the
     post-flight decision of a corrected flight, ``eps`` the model's relative signature error
     (``glr3d.settle``). Changes ``iso`` in place."""
-    check = NonlinearCheck(before=f"{iso.isolation} {iso.best}",
-                           cost0=neg2_log_likelihood(model, steps, refs, P0))
     j_of = {float(t): j for j, t in enumerate(refs.t)}
-    own = [cv[n].t[cv[n].best] for n in (iso.best, iso.rival) if n]
-    j_lo = min(j_of.get(float(t), 0) for t in own)
-    j_hi = max(j_of.get(float(t), refs.t.size - 1) for t in own)
-    for name in tested(cv, iso):
-        j = j_of.get(float(cv[name].t[cv[name].best]), j_lo)
-        a, b = max(min(j, j_lo) - 2, 0), min(max(j, j_hi) + 1, refs.t.size - 1)
-        f = fit(model, steps, refs, P0, cv[name], (int(refs.step[a]), int(refs.step[b])))
+    own = [j_of.get(float(cv[n].t[cv[n].best]), 0) for n in (iso.best, iso.rival) if n]
+    names = tested(cv, iso)
+    spans = {}
+    for name in names:       # two updates before the earliest linear onset to one after the last
+        j = j_of.get(float(cv[name].t[cv[name].best]), min(own))
+        spans[name] = (max(min(j, *own) - 2, 0), min(max(j, *own) + 1, refs.t.size - 1))
+    j0 = min(a for a, _ in spans.values())
+    win = Window.of(steps, refs, fwd, j0)
+    check = NonlinearCheck(before=f"{iso.isolation} {iso.best}",
+                           cost0=neg2_log_likelihood(model, win.steps, win.refs, win.P0, win.x0))
+    k0 = int(refs.step[j0])
+    for name in names:
+        a, b = spans[name]
+        f = fit(model, win, cv[name], (int(refs.step[a]) - k0, int(refs.step[b]) - k0),
+                float(cv[iso.best].t[cv[iso.best].best]))
         after = reanalyse(*corrected(model, steps, refs, f.sensor, f.axis, f.kind,
                                      int(np.searchsorted(steps.t, f.onset)), f.magnitude))
         f.isolation_after, f.best_after = after.isolation, after.best
@@ -287,5 +317,5 @@ def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, P0: np.ndarray,
     return check
 
 
-__all__ = ["Fit", "NonlinearCheck", "SMALL_ANGLE_RAD", "confirm", "corrected", "fit",
+__all__ = ["Fit", "NonlinearCheck", "SMALL_ANGLE_RAD", "Window", "confirm", "corrected", "fit",
            "implied_angle", "needs_check", "neg2_log_likelihood", "tested"]
