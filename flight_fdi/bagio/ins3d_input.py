@@ -15,11 +15,13 @@ description"): ``vertical`` (the error model's vertical channel: free, damped or
 sigma_v m/s, tau s] of the reference's Markov noise) and ``initial_attitude`` (``levelled``: the
 INS levelled itself on its accelerometers -- the aligned prior; ``independent``: its attitude
 came from elsewhere -- independent states). Without the block (the simulator's bags) the
-analysis options are those of before (``Ins3dInput.vertical``).
+analysis options are those of before (``Ins3dInput.vertical``). The command line's options
+(``--vertical`` ...) give a block of their own that wins key by key (``model_options_with``,
+``with_error_model``); a result records the block it was analysed with (``error_model_used``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -108,6 +110,47 @@ def error_model_options(description: dict | None, where: str = "bag") -> dict:
                            f"{', '.join(INITIAL_ATTITUDE)}, got {block['initial_attitude']!r}")
         out["aligned_prior"] = INITIAL_ATTITUDE[block["initial_attitude"]]
     return out
+
+
+def with_error_model(description: dict | None, block: dict) -> dict | None:
+    """A copy of ``description`` whose ``error_model`` block has the keys of ``block`` (a block
+    given elsewhere: the command line's options) in place of its own; ``description`` itself
+    when ``block`` is empty. Checks nothing: ``error_model_options`` reads the result."""
+    if not block:
+        return description
+    own = (description or {}).get(ERROR_MODEL)
+    return {**(description or {}), ERROR_MODEL: {**(own if isinstance(own, dict) else {}),
+                                                 **block}}
+
+
+def model_options_with(inp: Ins3dInput, block: dict, where: str = "bag") -> dict:
+    """``inp.model_options(where)`` with the keys of ``block`` (an ``error_model`` block given
+    elsewhere, e.g. on the command line) winning over the description's block -- the one
+    ``error_model_options`` check for both (BagError). An input without a description keeps
+    the analysis defaults for the keys ``block`` does not give."""
+    error_model_options(inp.description, where)           # the bag's own block, as it is
+    if inp.description is None:
+        return error_model_options({ERROR_MODEL: block}, where)
+    return replace(inp, description=with_error_model(inp.description, block)
+                   ).model_options(where)
+
+
+def error_model_used(options: dict) -> dict:
+    """The complete ``error_model`` block (all of ERROR_MODEL_KEYS) of ``analyze_ins3d`` model
+    options: the inverse of ``error_model_options``, the options not given at
+    ``analyze_ins3d``'s defaults (which are also filter_node's parameter defaults) -- what a
+    result records as the options it was analysed with."""
+    import inspect
+
+    from ..core.ins3d.analysis import analyze_ins3d
+    sig = inspect.signature(analyze_ins3d).parameters
+    o = {k: options.get(k, sig[k].default)
+         for k in ("vertical", "latency", "ref_markov", "aligned_prior")}
+    mk = o["ref_markov"]
+    attitude = {v: k for k, v in INITIAL_ATTITUDE.items()}[bool(o["aligned_prior"])]
+    return {"vertical": o["vertical"], "latency": bool(o["latency"]),
+            "reference_markov": None if mk is None else [float(v) for v in mk],
+            "initial_attitude": attitude}
 
 
 def _markov(head: str, value) -> tuple[float, float, float] | None:
@@ -342,4 +385,5 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
 
 __all__ = ["ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput", "TOPICS",
            "TRUTH_TOPIC", "TYPES", "build_input", "check_topics",
-           "error_model_options", "from_flight", "read_ins3d", "read_truth3d", "truth_from_flight"]
+           "error_model_options", "error_model_used", "from_flight", "model_options_with",
+           "read_ins3d", "read_truth3d", "truth_from_flight", "with_error_model"]

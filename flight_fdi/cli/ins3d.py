@@ -25,6 +25,13 @@ SINGLE_AXIS_ONLY = (("channel", "--channel"), ("nav_frame", "--nav-frame"),
 
 #: the grade presets the CLI offers (core/ins3d/grades.py; "perfect" is for tests)
 PRESETS = ("navigation", "tactical", "mems")
+#: the error-model options: the ``error_model`` key each sets (its dest) and its flag
+ERROR_MODEL_OPTIONS = (("vertical", "--vertical"), ("latency", "--latency/--no-latency"),
+                       ("reference_markov", "--reference-markov"),
+                       ("initial_attitude", "--initial-attitude"))
+#: the options that apply only to --model ins3d (dest, flag)
+INS3D_ONLY = (("grade", "--grade"), ("rows", "--rows"), ("imu_topic", "--imu-topic"),
+              ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS
 
 
 def add_ins3d_options(p: argparse.ArgumentParser) -> None:
@@ -41,6 +48,32 @@ def add_ins3d_options(p: argparse.ArgumentParser) -> None:
                    help="INS attitude and IMU means, sensor_msgs/Imu (default /ins/imu)")
     g.add_argument("--fix-topic", default=None,
                    help="INS latitude and height, sensor_msgs/NavSatFix (default /ins/fix)")
+    add_error_model_options(p)
+
+
+def add_error_model_options(p: argparse.ArgumentParser) -> None:
+    """The error-model options: each sets one key of the bag description's ``error_model``
+    block (docs/ins3d.md, "The contract description"), checked as the bag's block is."""
+    g = p.add_argument_group(
+        "3-D error model (--model ins3d; each option wins over the same key of the bag's "
+        "error_model block, which wins over the defaults; docs/ins3d.md)")
+    g.add_argument("--vertical", default=None, metavar="{damped,free,loop}",
+                   help="the error model's vertical channel: loop (the INS's baro height loop), "
+                        "damped (another height loop: dv_U a Markov state of its own) or free "
+                        "(a free-inertial INS on a short flight) (default: the bag's block, else "
+                        "its description: loop for a baro INS, damped for another, loop "
+                        "without a description)")
+    g.add_argument("--latency", action=argparse.BooleanOptionalAction, default=None,
+                   help="estimate the reference's latency as a state, or not (default: the "
+                        "bag's block, else yes)")
+    g.add_argument("--reference-markov", default=None, metavar="SIGMA_H,SIGMA_V,TAU",
+                   help="the reference's Markov noise states: sigma_h, sigma_v (m/s) and tau "
+                        "(s), all > 0, or 'none' (white reference noise, e.g. differenced RTK) "
+                        "(default: the bag's block, else 0.02,0.03,30)")
+    g.add_argument("--initial-attitude", default=None, metavar="{levelled,independent}",
+                   help="levelled: the INS levelled itself on its own accelerometers (the "
+                        "aligned prior); independent: its attitude came from elsewhere "
+                        "(default: the bag's block, else levelled)")
 
 
 def is_ins3d(args: argparse.Namespace) -> bool:
@@ -53,10 +86,62 @@ def is_ins3d(args: argparse.Namespace) -> bool:
         if args.reference_topic and len(args.reference_topic) > 1:
             raise CliError("--model ins3d takes one --reference-topic")
     else:
-        for opt in ("grade", "rows", "imu_topic", "fix_topic"):
-            if getattr(args, opt, None) is not None:
-                raise CliError(f"--{opt.replace('_', '-')} applies only to --model ins3d")
+        for attr, opt in INS3D_ONLY:
+            if getattr(args, attr, None) is not None:
+                raise CliError(f"{opt} applies only to --model ins3d")
     return ins3d
+
+
+def error_model_block(args: argparse.Namespace) -> dict:
+    """The ``error_model`` block of the error-model options given (ERROR_MODEL_OPTIONS), each
+    value checked by the one check of a bag's block (``bagio.ins3d_input.error_model_options``);
+    CliError, one line naming the option, for a bad one."""
+    from flight_fdi.bagio.errors import BagError
+    from flight_fdi.bagio.ins3d_input import ERROR_MODEL, error_model_options
+
+    block: dict = {}
+    for key, flag in ERROR_MODEL_OPTIONS:
+        raw = getattr(args, key, None)
+        if raw is None:
+            continue
+        value = markov_value(raw) if key == "reference_markov" else raw
+        try:
+            error_model_options({ERROR_MODEL: {key: value}}, "the command line")
+        except BagError as exc:
+            why = str(exc).split(f"{ERROR_MODEL}.{key} ", 1)[-1]
+            hint = " (give SIGMA_H,SIGMA_V,TAU or none)" if key == "reference_markov" else ""
+            raise CliError(f"{flag} {raw!r}: {why}{hint}") from None
+        block[key] = value
+    return block
+
+
+def markov_value(text: str) -> list | None:
+    """``--reference-markov``: ``none`` -> None, ``A,B,C`` -> [A, B, C] (a part that is not a
+    number is kept as text, which the check refuses)."""
+    if text.strip().lower() == "none":
+        return None
+    out: list = []
+    for part in text.split(","):
+        try:
+            out.append(float(part))
+        except ValueError:
+            out.append(part.strip())
+    return out
+
+
+def markov_text(value: list | None) -> str:
+    """The ``--reference-markov`` text of a block's value (``markov_value`` reads it back)."""
+    return "none" if value is None else ",".join(repr(float(v)) for v in value)
+
+
+def recorded_model(options: dict, block: dict) -> dict:
+    """What a result's ``source`` records of the error model: ``error_model``, the complete
+    block of the options the analysis ran with, and ``error_model_overrides``, the keys the
+    command line gave."""
+    from flight_fdi.bagio.ins3d_input import ERROR_MODEL_KEYS, error_model_used
+
+    return {"error_model": error_model_used(options),
+            "error_model_overrides": [k for k in ERROR_MODEL_KEYS if k in block]}
 
 
 def topics(args: argparse.Namespace) -> dict[str, str]:
@@ -94,24 +179,28 @@ def grade_option(value: str) -> str:
     return str(path.resolve())
 
 
-def source(names: dict[str, str], s: dict) -> dict:
+def source(names: dict[str, str], s: dict, model: dict | None = None) -> dict:
+    """A result's ``source``: topics, grade, rows and ``model`` (``recorded_model``)."""
     return {"ins_topic": names["ins_velocity"], "reference_topics": [names["ref_velocity"]],
             "imu_topic": names["ins_imu"], "fix_topic": names["ins_fix"],
-            "grade": s["grade"], "rows": s["rows"]}
+            "grade": s["grade"], "rows": s["rows"], **(model or {})}
 
 
 def analyze_bag(bag: str, args: argparse.Namespace):
     """(result dict, Ins3dAnalysis, Ins3dInput) of one bag."""
-    from flight_fdi.bagio.ins3d_input import check_topics, read_ins3d
+    from flight_fdi.bagio.ins3d_input import check_topics, model_options_with, read_ins3d
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
     from flight_fdi.core.ins3d_result import ins3d_result
 
     s = settings(args)
+    block = error_model_block(args)
     names = check_topics(bag, topics(args))
     inp = read_ins3d(bag, names)
+    options = model_options_with(inp, block, f"bag '{bag}'")
     analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
-                             gate=s["gate"], **inp.model_options())
-    return ins3d_result(analysis, bag, source(names, s)), analysis, inp
+                             gate=s["gate"], **options)
+    return (ins3d_result(analysis, bag, source(names, s, recorded_model(options, block))),
+            analysis, inp)
 
 
 def format_result(res: dict) -> str:
@@ -128,6 +217,8 @@ def format_result(res: dict) -> str:
     if src:
         lines.append(f"input: IMU {src['imu_topic']}, INS {src['ins_topic']}, fix "
                      f"{src['fix_topic']}, reference {', '.join(src['reference_topics'])}")
+    if src.get("error_model"):
+        lines.append(model_line(src["error_model"], src.get("error_model_overrides") or []))
     rows = ", ".join(f"{k} {v:.3f}" for k, v in summ["beta2_row_mean"].items())
     lines += ["",
               f"in flight: beta2 mean {summ['beta2_mean']:.3f} (per row {rows}); gate "
@@ -152,6 +243,16 @@ def format_result(res: dict) -> str:
     if turns:
         lines.append("turns: " + ", ".join(f"{a:.0f}-{b:.0f} s" for a, b, _ in turns))
     return "\n".join(lines)
+
+
+def model_line(used: dict, given: list[str]) -> str:
+    """The table's line of the error-model options used (``recorded_model``)."""
+    mk = used["reference_markov"]
+    return (f"error model: vertical {used['vertical']}, latency state "
+            f"{'yes' if used['latency'] else 'no'}, reference Markov "
+            + ("none" if mk is None else "/".join(f"{v:g}" for v in mk))
+            + f", initial attitude {used['initial_attitude']}"
+            + (f" (from the command line: {', '.join(given)})" if given else ""))
 
 
 def emit(res: dict, args: argparse.Namespace, extra: list[str] = ()) -> int:
@@ -235,6 +336,9 @@ def run_report(args: argparse.Namespace) -> int:
         raise CliError(f"input {str(src)!r} does not exist")
     folder = _run_folder(src)
     if folder is not None:
+        if error_model_block(args):
+            raise CliError(f"{args.input} is a run folder: its recording holds the model "
+                           "options it was filtered with; to change them report the bag")
         index = report_of_run(folder, args.out)
     else:
         if not _is_bag(src):
@@ -270,11 +374,17 @@ def settings_of_result(args: argparse.Namespace, source: dict) -> None:
     refs = source.get("reference_topics") or []
     if not args.reference_topic and len(refs) == 1:
         args.reference_topic = list(refs)
+    used = source.get("error_model") or {}
+    for key in source.get("error_model_overrides") or []:   # the rest: the bag's block again
+        if getattr(args, key, None) is None and key in used:
+            setattr(args, key, markov_text(used[key]) if key == "reference_markov"
+                    else used[key])
 
 
 def run_run(args: argparse.Namespace) -> int:
     """``flight-fdi run BAG --model ins3d``: the node pipeline (nodes/ins3d_pipeline.py)."""
-    from flight_fdi.bagio.ins3d_input import check_topics, error_model_options, sim_description
+    from flight_fdi.bagio.ins3d_input import (check_topics, error_model_options, sim_description,
+                                              with_error_model)
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
     from flight_fdi.nodes.pipeline import PipelineError
@@ -284,12 +394,17 @@ def run_run(args: argparse.Namespace) -> int:
         raise CliError(f"bag {str(bag)!r} does not exist")
     out = Path(args.out) if args.out else Path("out") / bag.resolve().name
     s = settings(args)
+    block = error_model_block(args)
     names = check_topics(bag, topics(args))
-    options = error_model_options(sim_description(bag), f"bag '{bag}'")
+    description = sim_description(bag)
+    error_model_options(description, f"bag '{bag}'")      # the bag's own block, as it is
+    # the filter_node parameters (ins3d_vertical, ...) of these; the others at their defaults
+    options = error_model_options(with_error_model(description, block), f"bag '{bag}'")
     try:
         run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], storage=args.storage, overwrite=True,
-                             source=source(names, s), options=options,
+                             source=source(names, s, recorded_model(options, block)),
+                             options=options,
                              progress=None if args.no_progress else sys.stderr)
     except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None
