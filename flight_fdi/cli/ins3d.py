@@ -6,7 +6,9 @@
 ``run`` replays the bag through the node pipeline with ``filter_node`` in its ins3d mode and the
 smoother analysing the recording (the same verdict); ``report`` draws the per-axis figures
 (``report.figures3d``). The result is the v1 result JSON with ``"model": "ins3d"``
-(``core.ins3d_result``).
+(``core.ins3d_result``). The error-model options (``--vertical``, ``--latency``,
+``--reference-markov``, ``--initial-attitude``) win over the bag description's ``error_model``
+block key by key; ``source`` records the block used and the keys they gave.
 """
 from __future__ import annotations
 
@@ -61,8 +63,7 @@ def add_error_model_options(p: argparse.ArgumentParser) -> None:
                    help="the error model's vertical channel: loop (the INS's baro height loop), "
                         "damped (another height loop: dv_U a Markov state of its own) or free "
                         "(a free-inertial INS on a short flight) (default: the bag's block, else "
-                        "its description: loop for a baro INS, damped for another, loop "
-                        "without a description)")
+                        "as without one: docs/ins3d.md, 'The contract description')")
     g.add_argument("--latency", action=argparse.BooleanOptionalAction, default=None,
                    help="estimate the reference's latency as a state, or not (default: the "
                         "bag's block, else yes)")
