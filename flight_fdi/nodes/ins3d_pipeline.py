@@ -23,7 +23,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .pipeline import Graph, PipelineRun, Progress
+from .pipeline import STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, Graph, PipelineRun, Progress
 
 ACK_WINDOW = 60
 MARGIN = 45         # a sample bag's ~15 messages of look-ahead, three times
@@ -74,11 +74,15 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                    grade: str = "navigation", rows: int = 2, gate: Any = None,
                    storage: str = "mcap", overwrite: bool = False, timeout_s: float = 600.0,
                    executor: str = "events", log_level: str = "warn", source: dict | None = None,
-                   progress: Any = None, options: dict | None = None) -> PipelineRun:
+                   progress: Any = None, options: dict | None = None,
+                   stall_timeout_s: float = STALL_TIMEOUT_S,
+                   teardown_timeout: float | None = TEARDOWN_TIMEOUT_S) -> PipelineRun:
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
     before any node exists (BagError). Leaves ``recording/`` and ``result.json`` in
     ``out_dir``. ``options``: the model options (``filter_parameters3d``; the filter records
-    them, the smoother analyses with them)."""
+    them, the smoother analyses with them). ``timeout_s``, ``stall_timeout_s``,
+    ``teardown_timeout``: the bounds of ``pipeline`` (its module docstring: a stalled stage
+    ends the run with PipelineError; the teardown after the result is bounded)."""
     from flight_fdi.bagio.ins3d_input import check_topics
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.gate import GateConfig
@@ -87,6 +91,7 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
 
+    graph = Graph(executor, log_level, timeout_s, stall_timeout_s, teardown_timeout)
     gate = gate or GateConfig()
     bag = Path(bag)
     names = check_topics(bag, topics)
@@ -96,7 +101,7 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recording, result_json = out / "recording", out / "result.json"
-    with Graph(executor, log_level, timeout_s) as g:
+    with graph as g:
         flt = g.build(FilterNode, filter_parameters3d(names, grade, rows, gate, options))
         rec = g.build(RecorderNode, {"output": str(recording), "storage": storage,
                                      "overwrite": overwrite})
@@ -104,20 +109,20 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                                      "ack_window": ack_window(counts, names["ref_velocity"]),
                                      "publish_clock": False,
                                      "topics": played})
+        state, innov, model = (rec.resolve_topic_name(t) for t in
+                               ("fdi/state", "fdi/innovation", "fdi/model"))
+
+        def owed(c: Any, n: dict[str, int]) -> int:  # the filter's outputs not recorded yet
+            return (max(0, c["published_states"] - n.get(state, 0))
+                    + max(0, c["published"] - n.get(innov, 0)) + max(0, 1 - n.get(model, 0)))
+
+        g.watch(player, flt, rec, owed)
         g.replay(player, tick_progress)
         c = flt.counters
         g.spin_until(lambda: c["received_ins"] + c["received_reference"] >= player.published,
                      "filtering the last inputs")
         flt.ins3d.finish()
-        state, innov, model = (rec.resolve_topic_name(t) for t in
-                               ("fdi/state", "fdi/innovation", "fdi/model"))
-
-        def settled() -> bool:
-            n = rec.counts()
-            return (n.get(state, 0) >= c["published_states"]
-                    and n.get(innov, 0) >= c["published"] and n.get(model, 0) >= 1)
-
-        run = g.finish(player, flt, rec, settled, AnalysisConfig(gate=gate), {
+        run = g.finish(player, flt, rec, AnalysisConfig(gate=gate), {
             "bag": str(recording), "channel": "ins3d", "output_json": str(result_json),
             "publish_smoothed": False}, bag, result_json,
             {} if source is None else {"source": source})

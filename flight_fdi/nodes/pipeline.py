@@ -23,14 +23,34 @@ recording's path, counts and the replay throughput.
 * Executor: rclpy's C++ ``EventsExecutor`` (about four times the throughput of the Python
   SingleThreadedExecutor here); ``executor="single"`` selects the latter.
 
-Errors: a missing or unreadable bag -> BagError; an invalid ``channel`` or ``executor`` ->
-ParameterError (flight_fdi.nodes.errors); a node that refuses its configuration (e.g. a model file
-the filter cannot use, an output folder holding something that is not a bag), a replay that does
-not finish in ``timeout_s`` or an analysis that fails -> PipelineError. Each carries one clear
-sentence.
+Errors: a missing or unreadable bag -> BagError; an invalid ``channel``, ``executor``,
+``timeout_s``, ``stall_timeout_s`` or ``teardown_timeout`` -> ParameterError
+(flight_fdi.nodes.errors); a node that refuses its configuration (e.g. a model file the filter
+cannot use, an output folder holding something that is not a bag), a replay that does not finish
+in ``timeout_s``, a stage that stalls (below), a recording that fails or an analysis that fails ->
+PipelineError. Each carries one clear sentence.
+
+Bounds (docs/hardening.md, "Shutdown and stalls of the node pipeline"):
+
+* Stalls: a stage that has work waiting -- the player messages left to play, the filter played
+  messages it has not taken, the recorder filter outputs it has not recorded -- and does none of
+  it for ``stall_timeout_s`` (default ``STALL_TIMEOUT_S``, 60 s: above the nodes' own bounds,
+  the player's 2-s ack timeout, 15-s drain and 30-s wait for subscribers) ends the run with
+  PipelineError "pipeline stalled while <phase>: <node> made no progress for N s (...)".
+  A recorder that reports an error ends it at once ("recording failed: ...").
+* End: whatever way the run ends, every node's own work is completed first (the recorder
+  closes its bag: what was recorded stays readable), and the result is on disk when the run
+  succeeded; only then is the middleware torn down (nodes, executor, context), bounded by
+  ``teardown_timeout`` (runner.TeardownWatchdog, 10 s): a teardown that blocks (e.g. in
+  ``rcl_node_fini`` deleting the DDS participant) ends the process after one WARN line naming
+  what blocked and every thread's stack, with the pipeline's own status -- 0 after a result,
+  1 after an error, 130 after Ctrl-C. The nodes are destroyed only there, all together, after
+  the smoother (destroying the last node of a context deletes the DDS participant).
+  ``teardown_timeout=None``: no bound (a library caller that must never be ended by it).
 """
 from __future__ import annotations
 
+import math
 import os
 import signal
 import time
@@ -42,7 +62,9 @@ from typing import Any, Iterator
 from flight_fdi.bagio.errors import BagError
 
 from .errors import ParameterError
-from .runner import StopSignals, make_executor
+from .runner import TEARDOWN_TIMEOUT_S, StopSignals, TeardownWatchdog, make_executor
+
+STALL_TIMEOUT_S = 60.0  # a stage with work waiting that does none of it this long: stalled
 
 
 class PipelineError(RuntimeError):
@@ -97,9 +119,12 @@ def _private_context(log_args: list[str]) -> Iterator[Any]:
     try:
         yield ctx
     finally:
-        if ctx.ok():
-            rclpy.shutdown(context=ctx)
-        rclpy.logging.set_logger_level("", default_level)
+        try:
+            if ctx.ok():
+                rclpy.shutdown(context=ctx)
+            ctx.destroy()  # rcl_context_fini now (inside the pipeline's bounded teardown)
+        finally:
+            rclpy.logging.set_logger_level("", default_level)
 
 
 def filter_parameters(config: Any, channel: str, model: str, spec: Any = None,
@@ -164,17 +189,69 @@ class Progress:
                   file=self.stream, flush=True)
 
 
+def seconds(name: str, value: Any, none_ok: bool = False) -> float | None:
+    """``value`` as a finite number of seconds > 0 (None when ``none_ok``); ParameterError."""
+    if value is None and none_ok:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not math.isfinite(value) or value <= 0:
+        raise ParameterError(f"invalid {name} {value!r}; allowed: a number of seconds > 0"
+                             + (" or None (no bound)" if none_ok else ""))
+    return float(value)
+
+
+class StallWatch:
+    """Names a stage that has work waiting and did none of it for ``bound_s`` seconds.
+
+    :meth:`check` (called by the spin loop every ~0.1 s) takes ``(stage, done, waiting)``
+    triples -- ``done`` a count that grows with the stage's work, ``waiting`` how much work waits
+    for it -- and returns the first stage (in pipeline order) whose ``done`` has not changed for
+    ``bound_s`` of watching while ``waiting`` > 0, as one sentence; None when every stage moves
+    or has nothing to do. The time between two checks counts at most ``max_step_s``: a loop
+    held by a long callback (the player's drain) or a process starved of CPU gave no stage a
+    chance to progress, so that is no stage's stall."""
+
+    def __init__(self, bound_s: float, clock: Any = time.monotonic,
+                 max_step_s: float = 0.25) -> None:
+        self.bound_s, self.clock, self.max_step_s = bound_s, clock, max_step_s
+        self._seen: dict[str, tuple[int, float]] = {}   # stage -> (done, seconds without)
+        self._last: float | None = None
+
+    def check(self, stages: list[tuple[str, int, int]]) -> str | None:
+        now = self.clock()
+        step = 0.0 if self._last is None else min(now - self._last, self.max_step_s)
+        self._last = now
+        for name, done, waiting in stages:
+            seen = self._seen.get(name)
+            if waiting <= 0 or seen is None or seen[0] != done:
+                self._seen[name] = (done, 0.0)
+                continue
+            self._seen[name] = (done, seen[1] + step)
+            if seen[1] + step >= self.bound_s:
+                return (f"{name} made no progress for {self.bound_s:g} s ({waiting} messages "
+                        f"waiting for it, {done} done)")
+        return None
+
+
 def _spin_until(executor: Any, done: Any, deadline: float, what: str,
-                stop: StopSignals, tick: Any = None) -> None:
-    """Spin until ``done()``; PipelineError at the deadline, KeyboardInterrupt once Ctrl-C was
-    pressed (raised here, between callbacks, never inside a node's callback). ``tick()`` is
-    called between spins (progress)."""
+                stop: StopSignals, tick: Any = None, stalled: Any = None) -> None:
+    """Spin until ``done()``; PipelineError at the deadline or when ``stalled()`` (called at
+    most every 0.1 s) names a stalled stage, KeyboardInterrupt once Ctrl-C was pressed (raised
+    here, between callbacks, never inside a node's callback). ``tick()`` is called between
+    spins (progress)."""
+    next_check = 0.0
     while not done():
         if tick is not None:
             tick()
         if stop.stop:
             raise KeyboardInterrupt
-        left = deadline - time.monotonic()
+        now = time.monotonic()
+        if stalled is not None and now >= next_check:
+            next_check = now + 0.1
+            stall = stalled()
+            if stall:
+                raise PipelineError(f"pipeline stalled while {what}: {stall}")
+        left = deadline - now
         if left <= 0:
             raise PipelineError(f"pipeline timed out while {what}")
         executor.spin_once(timeout_sec=min(0.05, left))
@@ -182,19 +259,29 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
 
 class Graph:
     """The pipeline's nodes on one executor in a private context (``with Graph(...) as g``):
-    :meth:`build` a node from parameters, :meth:`spin_until` a condition, :meth:`drop` a node
-    once its part is over; on exit every node left is destroyed and the executor shut down.
-    ``timeout_s`` bounds the whole run (PipelineError); Ctrl-C raises KeyboardInterrupt between
-    callbacks."""
+    :meth:`build` a node from parameters, :meth:`spin_until` a condition, :meth:`retire` a node
+    once its part is over. ``timeout_s`` bounds the whole run (PipelineError); Ctrl-C raises
+    KeyboardInterrupt between callbacks; ``stall_timeout_s`` bounds a stage's stall
+    (:meth:`stages`). On exit, in this order: every node's ``finish_work()`` (the recorder
+    closes its bag), then the middleware teardown -- every node destroyed, the executor and the
+    context shut down -- bounded by ``teardown_timeout`` (module docstring). The bounds are
+    validated here (ParameterError), before any ROS object exists."""
+
+    NAME = "flight_fdi_pipeline"
 
     def __init__(self, executor: str = "events", log_level: str = "warn",
-                 timeout_s: float = 600.0) -> None:
-        self.deadline = time.monotonic() + timeout_s
+                 timeout_s: float = 600.0, stall_timeout_s: float = STALL_TIMEOUT_S,
+                 teardown_timeout: float | None = TEARDOWN_TIMEOUT_S) -> None:
+        self.timeout_s = seconds("timeout_s", timeout_s)
+        self.stall = StallWatch(seconds("stall_timeout_s", stall_timeout_s))
+        self.teardown_timeout = seconds("teardown_timeout", teardown_timeout, none_ok=True)
         self.nodes: list[Any] = []
+        self._stages: Any = None   # the watched stages (watch)
         self._kind, self._log_level = executor, log_level
         self._stack = ExitStack()
 
     def __enter__(self) -> "Graph":
+        self.deadline = time.monotonic() + self.timeout_s
         try:
             self.stop = self._stack.enter_context(StopSignals((signal.SIGINT,)))
             self.ctx = self._stack.enter_context(
@@ -205,17 +292,43 @@ class Graph:
             raise
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        try:
-            for node in list(self.nodes):
-                try:
-                    self.ex.remove_node(node)
-                except Exception:
-                    pass
-                node.destroy_node()
-            self.ex.shutdown()
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        failure = exc
+        try:  # the nodes' own work complete (a recording closed) before anything can block
+            for node in self.nodes:
+                if hasattr(node, "finish_work"):
+                    node.finish_work()
+        except BaseException as err:
+            failure = failure or err
+            raise
         finally:
-            self._stack.close()
+            status, after = self._outcome(failure)
+            with TeardownWatchdog(self.NAME, status, self.teardown_timeout, after) as watchdog:
+                self._teardown(watchdog)
+
+    @staticmethod
+    def _outcome(failure: BaseException | None) -> tuple[int, str]:
+        """The pipeline's own exit status (as ``flight-fdi run`` gives it) and what was complete
+        before the teardown, for the watchdog's line."""
+        if failure is None:
+            return 0, "the pipeline's work was complete (recording closed, result written)"
+        if isinstance(failure, KeyboardInterrupt):
+            return 130, "the pipeline was interrupted (recording closed)"
+        return 1, f"the pipeline failed ({failure}; recording closed)"
+
+    def _teardown(self, watchdog: TeardownWatchdog) -> None:
+        for node in list(self.nodes):
+            watchdog.stage = f"destroying node {node.get_name()}"
+            try:
+                self.ex.remove_node(node)
+            except Exception:  # (already retired)
+                pass
+            node.destroy_node()
+            self.nodes.remove(node)
+        watchdog.stage = "shutting down the executor"
+        self.ex.shutdown()
+        watchdog.stage = "shutting down the context"
+        self._stack.close()
 
     def build(self, cls: Any, values: dict[str, Any], **extra: Any) -> Any:
         """A node of class ``cls`` with parameters ``values``, added to the executor
@@ -231,17 +344,45 @@ class Graph:
         self.ex.add_node(node)
         return node
 
-    def drop(self, node: Any) -> None:
-        """Remove and destroy ``node``; its timers are cancelled first (the events executor may
-        still run a removed node's due timer, e.g. /diagnostics)."""
+    def retire(self, node: Any) -> None:
+        """Take ``node`` off the executor once its part is over; its timers are cancelled first
+        (the events executor may still run a removed node's due timer, e.g. /diagnostics). It is
+        destroyed with the others in the bounded teardown at the end."""
         for timer in list(node.timers):
             timer.cancel()
         self.ex.remove_node(node)
-        node.destroy_node()
-        self.nodes.remove(node)
+
+    def watch(self, player: Any, flt: Any, rec: Any, owed: Any) -> None:
+        """From now on :meth:`spin_until` watches the replay's stages for a stall
+        (:class:`StallWatch`): the player (messages left to play), the filter (played messages
+        not taken) and the recorder (``owed(filter counters, recorder counts)``: the filter's
+        outputs not recorded yet). A recorder error ends the run at once (PipelineError)."""
+        def stages() -> list[tuple[str, int, int]]:
+            if rec.error:
+                raise PipelineError(f"recording failed: {rec.error}")
+            c, n = flt.counters, rec.counts()
+            taken = c["received_ins"] + c["received_reference"]
+            # the player's work waits for it unless its window is full (then it waits for the
+            # filter's acknowledgements, a stall downstream)
+            left = (0 if player.done.done() or player.in_flight >= player.params["ack_window"]
+                    else player.source.count - player.published)
+            return [(player.get_name(), player.published, left),
+                    (flt.get_name(), taken, player.published - taken),
+                    (rec.get_name(), sum(n.values()), owed(c, n))]
+
+        self._stages = stages
+
+    def settled(self) -> bool:
+        """No watched stage has work waiting: the filter took every played message and the
+        recorder holds every output the filter published."""
+        return all(waiting <= 0 for _, _, waiting in self._stages())
+
+    def _stalled(self) -> str | None:
+        return self.stall.check(self._stages())
 
     def spin_until(self, done: Any, what: str, tick: Any = None) -> None:
-        _spin_until(self.ex, done, self.deadline, what, self.stop, tick)
+        _spin_until(self.ex, done, self.deadline, what, self.stop, tick,
+                    None if self._stages is None else self._stalled)
 
     def replay(self, player: Any, progress: "Progress") -> None:
         """Spin until ``player`` has published its whole bag (BagError when it failed)."""
@@ -258,21 +399,22 @@ class Graph:
             raise PipelineError(f"recording failed: {rec.error}")
         return rec.counts()
 
-    def finish(self, player: Any, flt: Any, rec: Any, settled: Any, config: Any,
+    def finish(self, player: Any, flt: Any, rec: Any, config: Any,
                params: dict[str, Any], bag: Path, result_json: Path,
                extra: dict[str, Any]) -> "PipelineRun":
-        """The end of every replay: spin until ``settled`` (the recorder holds the filter's last
-        outputs), close the recording, drop the three nodes, run the smoother on the recording
-        with ``params`` (``params['bag']``: the recording) and write its result -- ``bag`` (the input, as analyze names it) and
-        ``extra`` added -- to ``result_json``."""
+        """The end of every replay: spin until :meth:`settled` (the recorder holds the filter's
+        last outputs), close the recording, retire the three nodes, run the smoother on the
+        recording with ``params`` (``params['bag']``: the recording) and write its result --
+        ``bag`` (the input, as analyze names it) and ``extra`` added -- to ``result_json``."""
         from .smoother_node import write_json
 
-        self.spin_until(settled, "recording the filter's last outputs")
+        self.spin_until(self.settled, "recording the filter's last outputs")
         replay_s = time.monotonic() - player.started_at
         recorded = self.close_recording(rec)
+        self._stages = None
         played, ack_timeouts = player.published, player.ack_timeouts
         for node in (player, flt, rec):
-            self.drop(node)
+            self.retire(node)
         t_analysis = time.monotonic()
         result = self.smoother_result(config, params)
         result["bag"] = str(bag)
@@ -300,7 +442,9 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                           config: Any = None, model: str = "ins_channel", storage: str = "mcap",
                           overwrite: bool = False, timeout_s: float = 600.0,
                           executor: str = "events", log_level: str = "warn",
-                          spec: Any = None, progress: Any = None) -> PipelineRun:
+                          spec: Any = None, progress: Any = None,
+                          stall_timeout_s: float = STALL_TIMEOUT_S,
+                          teardown_timeout: float | None = TEARDOWN_TIMEOUT_S) -> PipelineRun:
     """Replay ``bag`` through the node pipeline; see the module docstring.
 
     ``config``: the core's AnalysisConfig (default: its defaults), used by the filter (gate,
@@ -314,6 +458,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     ``channel``). The inputs are checked (:func:`check_inputs`) before any node exists; the
     result carries the same ``input`` and ``source`` as ``flight-fdi analyze``. ``progress``: a
     stream for "replay NN %" lines per 10 % of the messages (None: silent).
+    ``timeout_s``, ``stall_timeout_s``, ``teardown_timeout``: the bounds of the module
+    docstring (validated first: ParameterError).
     """
     from flight_fdi.bagio.inputs import InputSpec
     from flight_fdi.core.analysis import AnalysisConfig
@@ -322,6 +468,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
 
+    graph = Graph(executor, log_level, timeout_s, stall_timeout_s, teardown_timeout)
     if config is None:
         config = AnalysisConfig()
     if spec is None:
@@ -337,27 +484,24 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recording, result_json = out / "recording", out / "result.json"
-    with Graph(executor, log_level, timeout_s) as g:
+    with graph as g:
         flt = g.build(FilterNode, filter_parameters(config, channel, model, spec, flight.topics))
         rec = g.build(RecorderNode, {"output": str(recording), "storage": storage,
                                      "overwrite": overwrite})
         player = g.build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
                                      "publish_clock": False, "topics": played_topics})
-        g.replay(player, tick_progress)
         # the replay is over once the filter has taken every played message and the recorder
         # holds every step the filter published (and its model): exact counts
         topics = [rec.resolve_topic_name(t) for t in ("fdi/state", "fdi/innovation")]
         model_topic = rec.resolve_topic_name("fdi/model")
 
-        def settled() -> bool:
-            c = flt.counters
-            if c["received_ins"] + c["received_reference"] < player.published:
-                return False
-            counts = rec.counts()
-            return (all(counts.get(t, 0) >= c["published"] for t in topics)
-                    and counts.get(model_topic, 0) >= 1)
+        def owed(c: Any, n: dict[str, int]) -> int:
+            return (sum(max(0, c["published"] - n.get(t, 0)) for t in topics)
+                    + max(0, 1 - n.get(model_topic, 0)))
 
-        run = g.finish(player, flt, rec, settled, config, {
+        g.watch(player, flt, rec, owed)
+        g.replay(player, tick_progress)
+        run = g.finish(player, flt, rec, config, {
             "bag": str(recording), "channel": channel, "output_json": str(result_json),
             # analyze's t0: the earliest usable INS / reference stamp
             "flight_start_s": flight.t0_ns * 1e-9, "publish_smoothed": False},

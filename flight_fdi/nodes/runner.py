@@ -153,19 +153,23 @@ class StopSignals:
 
 
 class TeardownWatchdog:
-    """Bounds the middleware teardown that follows a node's completed work.
+    """Bounds the middleware teardown that follows a node's (or the pipeline's) completed work.
 
     Inside ``with TeardownWatchdog(name, status, timeout):`` a daemon thread waits ``timeout``
-    seconds; if the block has not ended by then it writes one line saying so and every thread's
-    stack to stderr and ends the process with ``status`` (``os._exit``: what the node was
-    responsible for is done; only the middleware's goodbye to its peers is lost, and they drop
-    the participant when its lease expires). Should the blocked call hold the GIL (the thread
-    could not run), faulthandler's own watchdog, which needs none, dumps the stacks and exits
-    with status 1 after ``2 * timeout``. ``timeout`` None: no bound.
+    seconds; if the block has not ended by then it writes one line saying so -- naming
+    :attr:`stage`, what the teardown was doing (the block sets it as it goes: "destroying node
+    recorder_node") -- and every thread's stack to stderr and ends the process with ``status``
+    (``os._exit``: what the node was responsible for is done; only the middleware's goodbye to
+    its peers is lost, and they drop the participant when its lease expires). ``after`` says
+    what was complete before the teardown began. Should the blocked call hold the GIL (the
+    thread could not run), faulthandler's own watchdog, which needs none, dumps the stacks and
+    exits with status 1 after ``2 * timeout``. ``timeout`` None: no bound.
     """
 
-    def __init__(self, name: str, status: int, timeout: float | None) -> None:
-        self.name, self.status, self.timeout = name, status, timeout
+    def __init__(self, name: str, status: int, timeout: float | None,
+                 after: str = "the node completed its work") -> None:
+        self.name, self.status, self.timeout, self.after = name, status, timeout, after
+        self.stage = "executor, node, context"
         self._done = threading.Event()
         self.thread = threading.Thread(target=self._watch, name="teardown-watchdog", daemon=True)
 
@@ -183,9 +187,9 @@ class TeardownWatchdog:
     def _watch(self) -> None:
         if self._done.wait(self.timeout):
             return
-        os.write(2, (f"[WARN] [{self.name}]: the middleware teardown (executor, node, context) "
-                     f"did not end within {self.timeout:g} s after the node completed its work; "
-                     f"exiting with status {self.status} without it. Stacks:\n").encode())
+        os.write(2, (f"[WARN] [{self.name}]: the middleware teardown did not end within "
+                     f"{self.timeout:g} s ({self.stage}) after {self.after}; exiting with "
+                     f"status {self.status} without it. Stacks:\n").encode())
         faulthandler.dump_traceback(all_threads=True)
         os._exit(self.status)
 
@@ -251,10 +255,13 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
                     node.finish_work()  # the node's work complete before anything can block
             finally:
                 status = 0 if node is None else exit_status(node)
-                with TeardownWatchdog(name, status, teardown_timeout):
+                with TeardownWatchdog(name, status, teardown_timeout) as watchdog:
                     if executor is not None:
+                        watchdog.stage = "shutting down the executor"
                         executor.shutdown()
                     if node is not None:
+                        watchdog.stage = f"destroying node {name}"
                         node.destroy_node()
+                    watchdog.stage = "shutting down the context"
                     rclpy.try_shutdown()
     return status
