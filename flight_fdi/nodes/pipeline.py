@@ -30,23 +30,12 @@ cannot use, an output folder holding something that is not a bag), a replay that
 in ``timeout_s``, a stage that stalls (below), a recording that fails or an analysis that fails ->
 PipelineError. Each carries one clear sentence.
 
-Bounds (docs/hardening.md, "Shutdown and stalls of the node pipeline"):
-
-* Stalls: a stage that has work waiting -- the player messages left to play, the filter played
-  messages it has not taken, the recorder filter outputs it has not recorded -- and does none of
-  it for ``stall_timeout_s`` (default ``STALL_TIMEOUT_S``, 60 s: above the nodes' own bounds,
-  the player's 2-s ack timeout, 15-s drain and 30-s wait for subscribers) ends the run with
-  PipelineError "pipeline stalled while <phase>: <node> made no progress for N s (...)".
-  A recorder that reports an error ends it at once ("recording failed: ...").
-* End: whatever way the run ends, every node's own work is completed first (the recorder
-  closes its bag: what was recorded stays readable), and the result is on disk when the run
-  succeeded; only then is the middleware torn down (nodes, executor, context), bounded by
-  ``teardown_timeout`` (runner.TeardownWatchdog, 10 s): a teardown that blocks (e.g. in
-  ``rcl_node_fini`` deleting the DDS participant) ends the process after one WARN line naming
-  what blocked and every thread's stack, with the pipeline's own status -- 0 after a result,
-  1 after an error, 130 after Ctrl-C. The nodes are destroyed only there, all together, after
-  the smoother (destroying the last node of a context deletes the DDS participant).
-  ``teardown_timeout=None``: no bound (a library caller that must never be ended by it).
+Bounds (docs/hardening.md, section 5): a stage with work waiting that does none of it for
+``stall_timeout_s`` (60 s) -> PipelineError naming it (:class:`StallWatch`). Whatever ends the run,
+every node's own work is completed first (the recorder closes its bag), then the middleware
+teardown (all nodes, executor, context) is bounded by ``teardown_timeout`` (runner's
+TeardownWatchdog, 10 s; None: unbounded): one WARN line naming what blocked, the stacks, and exit
+with the pipeline's own status (0 after a result, 1 after an error, 130 after Ctrl-C).
 """
 from __future__ import annotations
 
@@ -260,12 +249,10 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
 class Graph:
     """The pipeline's nodes on one executor in a private context (``with Graph(...) as g``):
     :meth:`build` a node from parameters, :meth:`spin_until` a condition, :meth:`retire` a node
-    once its part is over. ``timeout_s`` bounds the whole run (PipelineError); Ctrl-C raises
-    KeyboardInterrupt between callbacks; ``stall_timeout_s`` bounds a stage's stall
-    (:meth:`stages`). On exit, in this order: every node's ``finish_work()`` (the recorder
-    closes its bag), then the middleware teardown -- every node destroyed, the executor and the
-    context shut down -- bounded by ``teardown_timeout`` (module docstring). The bounds are
-    validated here (ParameterError), before any ROS object exists."""
+    once its part is over. ``timeout_s`` bounds the whole run, ``stall_timeout_s`` a watched
+    stage's stall (:meth:`watch`), both PipelineError; Ctrl-C raises KeyboardInterrupt between
+    callbacks. On exit: every node's ``finish_work()``, then the teardown bounded by
+    ``teardown_timeout`` (module docstring). The bounds are validated here (ParameterError)."""
 
     NAME = "flight_fdi_pipeline"
 
