@@ -183,15 +183,13 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:
-            _post_flight(out, diagnosis or diagnosis_config_of(model.grade), signature_error,
-                         gate=gate)
+            _post_flight(out, diagnosis or diagnosis_config_of(model.grade), signature_error)
         out.observability = obs.result() if obs is not None else None
     return out
 
 
 def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
-                 signature_error: float | None = None, check: bool = True,
-                 gate: GateConfig = GateConfig()) -> None:
+                 signature_error: float | None = None) -> None:
     model, steps, refs, fwd = out.model, out.steps, out.refs, out.forward
     out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
     out.seed = seed_method(model, out.backward, cfg)
@@ -204,16 +202,9 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
         out.isolation = out.turn_on.isolation
     else:
         resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
-    if check and needs_check(out.decision_glr, out.isolation, float(steps.t[-1])):
-        def reanalyse(steps_c, refs_c):
-            again = Ins3dAnalysis(model, run_forward(model, steps_c, refs_c, gate=gate,
-                                                     P0=fwd.P0, keep_prior=True, threads=1),
-                                  None, out.manoeuvres, steps_c, refs_c,
-                                  thresholds=out.thresholds)
-            _post_flight(again, cfg, signature_error, check=False, gate=gate)
-            return again.isolation
+    if needs_check(out.decision_glr, out.isolation, float(steps.t[-1])):
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
-                                reanalyse, signature_error_of(model.grade)
+                                signature_error_of(model.grade)
                                 if signature_error is None else signature_error)
 
 

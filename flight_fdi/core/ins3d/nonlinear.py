@@ -25,27 +25,35 @@ and z - dv at the updates (``corrected``).
 
 **The fit** (``fit``): onset and magnitude minimising -2 ln L = sum(nu' S^-1 nu + ln det S) of
 the no-fault forward filter on the corrected flight: the magnitude over a log grid of both
-signs around the linear GLR's estimate, refined (``scipy.optimize.minimize_scalar``); the onset
-over the steps around the linear onsets; then the magnitude again.
+signs around the linear GLR's estimate at the decision's onset, refined
+(``scipy.optimize.minimize_scalar``); then the onset over the steps from two updates before the
+decision's best and rival's linear onsets to one after (at most ``MAX_ONSETS``), and the
+magnitude refined again at the onset found.
 
-**The check** (``confirm``, called by ``analysis.analyze_ins3d`` when the decision names a gyro
-whose fault turns the attitude by more than ``SMALL_ANGLE_RAD`` over the flight, linear
-magnitude x time): the decision's hypotheses and the gyro steps of the three axes are each fitted
-and removed, and the corrected flight analysed again; a hypothesis *explains* the flight when the
-corrected flight has no GLR detection. One explains: it is the answer (``single``, reason
-``nonlinear``, with the fitted onset and magnitude); several: ``ambiguous`` between the two
-best fits; none: ``ambiguous`` (the decision's best and rival) -- a fault beyond the model is
-not named with confidence.
+**The check** (``confirm``, called by ``analysis.analyze_ins3d`` when the decision's best or
+rival is a gyro hypothesis whose linear estimate turns the attitude by more than
+``SMALL_ANGLE_RAD`` by the end of the flight): the decision's best and rival and the gyro steps
+of the three axes are each fitted by exact removal; the best fit (least -2 ln L) and the
+runner-up are the decision's new best and rival (reason ``nonlinear``), ``single`` when the
+runner-up's -2 ln L exceeds the best's by more than the margin plus the model's error allowance
+(``glr3d.settle``'s rule: 9.21 + L sin^2(eps), L the best fit's likelihood ratio against no
+fault), else ``ambiguous``; the fault's onset and magnitude are the fit's. Two hypotheses of the
+same parameter count (onset, magnitude): the -2 ln L difference is their likelihood ratio, as
+the linear GLR gap. The check is evaluated on the flight from two updates before the earlier
+linear onset (``Window``: the forward filter's priors there), so it costs about 45 forward
+passes of that window per hypothesis (two hypotheses at a time on two cores).
 """
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 from scipy.optimize import minimize_scalar
 
+from ..threads import usable_threads
 from .data import NavSteps, RefRows
 from .filter import run_forward
 from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation
@@ -62,7 +70,7 @@ GRID_POINTS = 9
 MAX_ONSETS = 16
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _expm_skew(w, out):
     """out = exp([w x]) (Rodrigues)."""
     th = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
@@ -77,7 +85,7 @@ def _expm_skew(w, out):
             out[i, j] = a * K[i, j] + b * KK[i, j] + (1.0 if i == j else 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _effect(C, f_n, w_b, v, lat, h, dt, t, bias, k0, gyro, axis, ramp, mag, x_out, D_mid):
     """x_out[k] (K+1, n): the error state the fault leaves at boundary k; D_mid[k] (K, 3, 3):
     the body-frame correction at mid-step k (module docstring)."""
@@ -172,7 +180,7 @@ class Window:
 
 @dataclass
 class Fit:
-    """One hypothesis fitted by exact removal (``fit``) and the corrected flight's decision."""
+    """One hypothesis fitted by exact removal (``fit``)."""
 
     name: str
     sensor: str
@@ -180,13 +188,7 @@ class Fit:
     kind: str
     onset: float               # s (the step grid's time)
     magnitude: float           # SI
-    cost: float                # -2 ln L of the corrected flight
-    isolation_after: str = "?"  # the corrected flight's isolation (none: explained)
-    best_after: str | None = None
-
-    @property
-    def explains(self) -> bool:
-        return self.isolation_after == "none"
+    cost: float                # -2 ln L of the corrected flight (on the check's window)
 
 
 def fit(model: Ins3dModel, win: Window, curve: GlrCurve, k_range: tuple[int, int],
@@ -221,7 +223,10 @@ def fit(model: Ins3dModel, win: Window, curve: GlrCurve, k_range: tuple[int, int
     scan = np.array([cost(int(j), b) for j in ks])
     if scan.min() < c:
         k = int(ks[np.argmin(scan)])
-        b, c = magnitude(k, b)
+        lo, hi = sorted((0.5 * b, 2.0 * b))
+        r = minimize_scalar(lambda x: cost(k, x), bounds=(lo, hi), method="bounded",
+                            options={"xatol": 3e-3 * abs(b) + 1e-15})
+        b, c = (float(r.x), float(r.fun)) if r.fun < scan.min() else (b, float(scan.min()))
     return Fit(h.name, h.sensor, h.axis, h.kind, float(win.steps.t[k]), b, c)
 
 
@@ -256,9 +261,6 @@ class NonlinearCheck:
     gap: float = 0.0             # the runner-up's cost - the best's
     allowance: float = 0.0       # the gap a single answer needs: margin + statistic sin^2(eps)
 
-    def explaining(self) -> list[Fit]:
-        return sorted((f for f in self.fits if f.explains), key=lambda f: f.cost)
-
     def fit_of(self, name: str | None) -> Fit | None:
         return next((f for f in self.fits if f.name == name), None)
 
@@ -267,9 +269,8 @@ class NonlinearCheck:
         return {"before": self.before, "after": self.after, "statistic": self.statistic,
                 "gap": self.gap, "allowance": self.allowance,
                 "fits": [{"hypothesis": f.name, "onset_s": f.onset - t0,
-                          "magnitude": f.magnitude, "neg2_log_likelihood": f.cost,
-                          "explains": f.explains, "isolation_after": f.isolation_after,
-                          "best_after": f.best_after} for f in self.fits]}
+                          "magnitude": f.magnitude, "neg2_log_likelihood": f.cost}
+                         for f in self.fits]}
 
 
 def tested(cv: dict[str, GlrCurve], iso: Isolation) -> list[str]:
@@ -280,38 +281,28 @@ def tested(cv: dict[str, GlrCurve], iso: Isolation) -> list[str]:
 
 
 def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
-            cv: dict[str, GlrCurve], iso: Isolation, reanalyse, eps: float,
+            cv: dict[str, GlrCurve], iso: Isolation, eps: float,
             margin: float = AMBIGUITY_MARGIN) -> NonlinearCheck:
     """The nonlinear check (module docstring); ``fwd`` the flight's forward pass (with the
-    priors: ``run_forward(keep_prior=True)``), ``reanalyse(steps, refs) -> Isolation`` the
-    post-flight decision of a corrected flight, ``eps`` the model's relative signature error
+    priors: ``run_forward(keep_prior=True)``), ``eps`` the model's relative signature error
     (``glr3d.settle``). Changes ``iso`` in place."""
     j_of = {float(t): j for j, t in enumerate(refs.t)}
     own = [j_of.get(float(cv[n].t[cv[n].best]), 0) for n in (iso.best, iso.rival) if n]
-    names = tested(cv, iso)
-    spans = {}
-    for name in names:       # two updates before the earliest linear onset to one after the last
-        j = j_of.get(float(cv[name].t[cv[name].best]), min(own))
-        spans[name] = (max(min(j, *own) - 2, 0), min(max(j, *own) + 1, refs.t.size - 1))
-    j0 = min(a for a, _ in spans.values())
+    j0, j1 = max(min(own) - 2, 0), min(max(own) + 1, refs.t.size - 1)
     win = Window.of(steps, refs, fwd, j0)
     check = NonlinearCheck(before=f"{iso.isolation} {iso.best}",
                            cost0=neg2_log_likelihood(model, win.steps, win.refs, win.P0, win.x0))
-    k0 = int(refs.step[j0])
-    for name in names:
-        a, b = spans[name]
-        f = fit(model, win, cv[name], (int(refs.step[a]) - k0, int(refs.step[b]) - k0),
-                float(cv[iso.best].t[cv[iso.best].best]))
-        after = reanalyse(*corrected(model, steps, refs, f.sensor, f.axis, f.kind,
-                                     int(np.searchsorted(steps.t, f.onset)), f.magnitude))
-        f.isolation_after, f.best_after = after.isolation, after.best
-        check.fits.append(f)
+    k_range = (0, int(refs.step[j1] - refs.step[j0]))
+    t_first = float(cv[iso.best].t[cv[iso.best].best])
+    with ThreadPoolExecutor(max_workers=max(1, min(2, usable_threads()))) as pool:
+        check.fits = list(pool.map(lambda n: fit(model, win, cv[n], k_range, t_first),
+                                   tested(cv, iso)))
     best, rival = sorted(check.fits, key=lambda f: f.cost)[:2]
     check.statistic = check.cost0 - best.cost
     check.gap = rival.cost - best.cost
     check.allowance = margin + max(check.statistic, 0.0) * math.sin(eps) ** 2
     iso.best, iso.rival, iso.reason = best.name, rival.name, "nonlinear"
-    iso.isolation = "single" if best.explains and check.gap > check.allowance else "ambiguous"
+    iso.isolation = "single" if check.gap > check.allowance else "ambiguous"
     iso.ambiguity_resolved_s = None
     check.after = f"{iso.isolation} {iso.best}"
     return check

@@ -141,8 +141,8 @@ def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0, check=Non
                          check and check.fit_of(iso.best))
         head = describe(f)
         if iso.reason == "nonlinear":
-            head += (" (beyond the small-angle model: removed exactly, it leaves a nominal "
-                     "flight and explains it best)")
+            head += (" (beyond the small-angle model: removed exactly, it explains the flight "
+                     "best)")
         if iso.ambiguity_resolved_s is not None and iso.rival is not None:
             head += (f" (told from {cv[iso.rival].hypothesis.sensor} "
                      f"{cv[iso.rival].hypothesis.axis} from {iso.ambiguity_resolved_s - t0:.0f} s)")
@@ -154,8 +154,7 @@ def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0, check=Non
                               check and check.fit_of(iso.best)),
                  fault_record(cv, iso.rival, thresholds, t0, iso.best, 0,
                               check and check.fit_of(iso.rival))]
-        head = "ambiguous: " + " or ".join(describe(c) for c in cands) + _why(
-            iso, cands, bool(check and check.fit_of(iso.best).explains))
+        head = "ambiguous: " + " or ".join(describe(c) for c in cands) + _why(iso, cands)
         return {"verdict": "ambiguous", "fault": None, "candidates": cands, "headline": head,
                 "element": None, "onset_s": None, "magnitude": None}
     verdict = seed.verdict
@@ -166,15 +165,12 @@ def _decision(cv, iso: Isolation, seed: SeedDiagnosis, thresholds, t0, check=Non
             "element": seed.element, "onset_s": _rel(seed.onset_t, t0), "magnitude": None}
 
 
-def _why(iso: Isolation, cands: list[dict], explained: bool = False) -> str:
+def _why(iso: Isolation, cands: list[dict]) -> str:
     """Why two candidates are ambiguous (``glr3d`` module docstring)."""
     a, b = (c["statistic"] for c in cands)
     if iso.reason == "nonlinear":
-        if not explained:
-            return (" (beyond the small-angle model: removed exactly, neither leaves a nominal "
-                    "flight)")
-        return (" (beyond the small-angle model: removed exactly, both explain the flight "
-                "within what the model's error allows)")
+        return (" (beyond the small-angle model: each removed exactly, they explain the flight "
+                "alike within what the model's error allows)")
     if iso.reason == "model":
         return (f" (statistics {a:.4g} and {b:.4g}, signatures alike to cos "
                 f"{iso.similarity:.3f}: the gap is within what the model's error allows)")
