@@ -4,7 +4,8 @@
 
 ``core.warmup`` covers the single-axis estimation kernels; this module adds what needs more than the
 core to exercise: the 3-D simulator (a short flight with turns) and the 3-D model's batch analysis
-(forward filter, backward sweep, GLR, both row counts) and its per-message streaming step, on that
+(forward filter, backward sweep, GLR, both row counts, the nonlinear check's exact removal) and
+its per-message streaming step, on that
 flight. The kernels compile for argument types, not values, so a short flight compiles the same
 signatures a 3-hour one uses."""
 from __future__ import annotations
@@ -18,6 +19,7 @@ def warm_ins3d() -> None:
     from .core.ins3d.analysis import analyze_ins3d
     from .core.ins3d.filter import run_forward
     from .core.ins3d.model import Ins3dModel
+    from .core.ins3d.nonlinear import corrected
     from .core.ins3d.stream import Ins3dStream
     from .sim.faults import FaultSpec3D, parse_fault
     from .sim.ins3d import Sim3DConfig, simulate3d
@@ -38,6 +40,9 @@ def warm_ins3d() -> None:
                                                    ref_markov=(0.02, 0.03, 30.0)))
         stream.predict(inp.steps, 0)
         stream.update(inp.refs.z[0], inp.refs.r[0], inp.refs.a[0])
+    # the nonlinear check's exact removal (a large gyro fault, core/ins3d/nonlinear.py)
+    corrected(Ins3dModel.from_grade("navigation"), inp.steps, inp.refs, "gyro", "x", "step", 10,
+              1e-3)
 
 
 def main() -> int:

@@ -1,6 +1,7 @@
 """After ``make setup`` the 3-D analysis only loads compiled code: with and without the
 observability Gramian (the Monte Carlo engine leaves it out), on two threads (the forward
-filter's discretisation then runs ahead on the second one) and on one."""
+filter's discretisation then runs ahead on the second one) and on one; and the nonlinear check's
+exact removal of a large gyro fault."""
 from __future__ import annotations
 
 import os
@@ -11,10 +12,14 @@ _ANALYZE = """
 import sys
 from flight_fdi.bagio.ins3d_input import read_ins3d
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
+from flight_fdi.core.ins3d.model import Ins3dModel
+from flight_fdi.core.ins3d.nonlinear import corrected
 inp = read_ins3d(sys.argv[1])
 print('--- analysis', flush=True)
 for obs in (True, False):
     analyze_ins3d(inp.steps, inp.refs, with_observability=obs).post_flight_dict()
+corrected(Ins3dModel.from_grade("navigation", rows=3, vertical="loop"), inp.steps, inp.refs,
+          "gyro", "z", "ramp", 5, 1e-4)       # the nonlinear check's kernel
 """
 
 

@@ -136,3 +136,20 @@ def test_no_check_without_a_large_gyro_fault(rec, cal):
     for r in (rec, R.Fault("accelerometer", "y", 1.0, 6.0).apply(rec)):
         an = R.analyze(r, *cal)
         assert an.nonlinear is None and an.post_flight_dict()["nonlinear"] is None
+
+
+def test_window_continues_the_forward_filter_exactly(rec, cal):
+    """The check's window (the flight from update j, started from the forward filter's state
+    and covariance before it) gives the full pass's innovations and S from update j on."""
+    from flight_fdi.core.ins3d.filter import run_forward
+    from flight_fdi.core.ins3d.nonlinear import Window
+    steps, refs = _coarse(rec, cal)
+    model = _model()
+    P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]), False)
+    full = run_forward(model, steps, refs, P0=P0, keep_prior=True)
+    j = 6
+    win = Window.of(steps, refs, full, j)
+    part = run_forward(model, win.steps, win.refs, x0=win.x0, P0=win.P0)
+    assert np.allclose(part.nu, full.nu[j:], rtol=1e-9, atol=1e-12)
+    assert np.allclose(part.S, full.S[j:], rtol=1e-9, atol=1e-15)
+    assert win.refs.step[0] == 0 and win.steps.t[0] == steps.t[refs.step[j]]
