@@ -1,7 +1,28 @@
 """Fixtures shared by the ins3d evaluation tests."""
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
+import numpy as np
 import pytest
+
+#: the real excerpt: Xsens DOT unit 1 of straight/path_2 (CC BY 4.0) and its calibration
+EXCERPT = Path(__file__).parent / "data" / "mimu_straight_2"
+
+
+@pytest.fixture(scope="module")
+def rec():
+    """The excerpt's recording (``real3d.Recording``)."""
+    from flight_fdi.eval import real3d as R
+    return R.read_recording(EXCERPT.parent, EXCERPT.name, 1)
+
+
+@pytest.fixture(scope="module")
+def cal():
+    """(gyro bias rad/s, accelerometer bias m/s^2) learnt on the other recordings of its day."""
+    doc = json.loads((EXCERPT / "calibration.json").read_text())
+    return np.array(doc["gyro_bias_rad_s"]), np.array(doc["accel_bias_m_s2"])
 
 
 @pytest.fixture(scope="session")

@@ -6,9 +6,7 @@ with and without the fault through ``sim.strapdown.mechanize`` (second order), a
 correction computed on the analysis' 0.1-s steps from the 40-Hz contract."""
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,20 +16,6 @@ from flight_fdi.core.ins3d.data import coarsen
 from flight_fdi.core.ins3d.model import IBA, IV, Ins3dModel, propagate
 from flight_fdi.core.ins3d.nonlinear import corrected, neg2_log_likelihood
 from flight_fdi.eval import real3d as R
-
-DATA = Path(__file__).parent / "data"
-NAME = "mimu_straight_2"
-
-
-@pytest.fixture(scope="module")
-def rec():
-    return R.read_recording(DATA, NAME, 1)
-
-
-@pytest.fixture(scope="module")
-def cal():
-    doc = json.loads((DATA / NAME / "calibration.json").read_text())
-    return np.array(doc["gyro_bias_rad_s"]), np.array(doc["accel_bias_m_s2"])
 
 
 def _model() -> Ins3dModel:

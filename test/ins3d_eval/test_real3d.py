@@ -16,17 +16,6 @@ DATA = Path(__file__).parent / "data"
 NAME = "mimu_straight_2"
 
 
-@pytest.fixture(scope="module")
-def rec():
-    return R.read_recording(DATA, NAME, 1)
-
-
-@pytest.fixture(scope="module")
-def cal():
-    doc = json.loads((DATA / NAME / "calibration.json").read_text())
-    return np.array(doc["gyro_bias_rad_s"]), np.array(doc["accel_bias_m_s2"])
-
-
 def test_recording_grid_and_frames(rec):
     assert rec.dropped == 0 and rec.t.size == 1800
     assert np.allclose(np.diff(rec.t), 1.0 / 120.0)
