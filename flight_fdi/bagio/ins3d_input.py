@@ -58,14 +58,8 @@ class Ins3dInput:
     description: dict | None = None
 
     def vertical(self) -> dict:
-        """The ``analyze_ins3d`` options of the INS's vertical channel: its baro loop from the
-        description (``vertical="loop"``), ``damped`` when the description says the INS has
-        another vertical channel, nothing (the analysis defaults) without a description."""
-        from ..core.ins3d.vertical import VerticalLoop
-        if self.description is None:
-            return {}
-        loop = VerticalLoop.from_description(self.description)
-        return {"vertical": "damped"} if loop is None else {"vertical": "loop", "loop": loop}
+        """``description_vertical`` of this input's description."""
+        return description_vertical(self.description)
 
     def model_options(self, where: str = "bag") -> dict:
         """The ``analyze_ins3d`` options of this input: ``vertical()``, overridden by the
@@ -76,6 +70,17 @@ class Ins3dInput:
         if given.get("vertical", "loop") != "loop":
             out.pop("loop", None)
         return {**out, **given}
+
+
+def description_vertical(description: dict | None) -> dict:
+    """The ``analyze_ins3d`` options of the INS's vertical channel: its baro loop from the
+    description (``vertical="loop"``), ``damped`` when the description says the INS has
+    another vertical channel, nothing (the analysis defaults) without a description."""
+    from ..core.ins3d.vertical import VerticalLoop
+    if description is None:
+        return {}
+    loop = VerticalLoop.from_description(description)
+    return {"vertical": "damped"} if loop is None else {"vertical": "loop", "loop": loop}
 
 
 def error_model_options(description: dict | None, where: str = "bag") -> dict:
@@ -384,6 +389,6 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
 
 
 __all__ = ["ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput", "TOPICS",
-           "TRUTH_TOPIC", "TYPES", "build_input", "check_topics",
+           "TRUTH_TOPIC", "TYPES", "build_input", "check_topics", "description_vertical",
            "error_model_options", "error_model_used", "from_flight", "model_options_with",
            "read_ins3d", "read_truth3d", "truth_from_flight", "with_error_model"]

@@ -166,6 +166,21 @@ def test_run_passes_the_options_to_the_nodes(bags, tmp_path, capfd):
     assert len(err) == 1 and "is a run folder" in err[0]
 
 
+def test_run_takes_the_vertical_channel_as_analyze_does(bags, tmp_path, capfd):
+    """A bag whose description says the INS is not baro-aided and has no error_model block:
+    ``analyze`` models its vertical channel as ``damped`` (``description_vertical``); ``run``
+    gave filter_node its default ``loop`` (the two disagreed, sessions 12-13); now the same."""
+    bag = _with_description(bags["plain"], tmp_path / "free", {"vertical": "free"})
+    out = tmp_path / "run"
+    res = _cli(capfd, "run", str(bag), "--out", str(out), "--no-report", "--no-progress")
+    ref = _cli(capfd, "analyze", str(bag))
+    assert ref["source"]["error_model"]["vertical"] == "damped"
+    assert res["source"] == ref["source"]
+    for key in ("in_flight", "ins3d", "samples"):
+        _close(res[key], ref[key], key)
+    assert res["post_flight"]["verdict"] == ref["post_flight"]["verdict"]
+
+
 def test_a_result_json_is_reanalysed_with_its_overrides(bags):
     """``report RESULT.json`` takes the options the result was analysed with (only those the
     command line gave: the rest comes from the bag's block again); an option given wins."""
