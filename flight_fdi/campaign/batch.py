@@ -1,7 +1,8 @@
 """``flight-fdi batch``: analyse a fleet's flights on the campaign engine.
 
 Every bag is analysed by the per-bag function of ``flight-fdi analyze``
-(:func:`flight_fdi.cli.analyze.analyze_bag`) with the options of ``analyze``
+(:func:`flight_fdi.cli.analyze.analyze_bag`, or :func:`flight_fdi.cli.ins3d.analyze_bag` for
+``--model ins3d``: :func:`flight_result`) with the options of ``analyze``
 (:func:`~flight_fdi.cli.analyze.add_analysis_options`), one engine task per flight. The output
 folder holds::
 
@@ -130,11 +131,9 @@ def analyze_task(task: FlightTask) -> dict:
     None, "error": str | None, "seconds": float, "cpu_s": float, "page_faults": int}`` (wall
     and CPU time of the worker process, and its minor page faults, during the flight); never
     raises for a bad bag."""
-    from flight_fdi.cli.analyze import analyze_bag
-
     start, usage = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
     try:
-        result, error = analyze_bag(task.bag, task.args), None
+        result, error = flight_result(task.bag, task.args), None
         json.dumps(result, allow_nan=False)  # what analyze --json would refuse
     except Exception as exc:  # a bad bag is a row with its error
         result, error = None, error_text(exc)
@@ -142,6 +141,34 @@ def analyze_task(task: FlightTask) -> dict:
     return {"result": result, "error": error, "seconds": time.perf_counter() - start,
             "cpu_s": end.ru_utime + end.ru_stime - usage.ru_utime - usage.ru_stime,
             "page_faults": end.ru_minflt - usage.ru_minflt}
+
+
+def flight_result(bag: str, args: argparse.Namespace) -> dict:
+    """The result ``flight-fdi analyze BAG --json`` prints with these options: the 3-D
+    model's (``cli.ins3d.analyze_bag``, as ``analyze --model ins3d`` runs it) or the
+    single-axis models' (``cli.analyze.analyze_bag``)."""
+    if getattr(args, "model", None) == "ins3d":
+        from flight_fdi.cli.ins3d import analyze_bag as analyze_bag3d
+
+        return analyze_bag3d(bag, args)[0]
+    from flight_fdi.cli.analyze import analyze_bag
+
+    return analyze_bag(bag, args)
+
+
+def check_model_options(args: argparse.Namespace) -> None:
+    """Refuse what ``flight-fdi analyze`` refuses before it reads a bag, once for the whole
+    batch (CliError, one line): options of the other model (``cli.ins3d.is_ins3d``) and, for
+    ``--model ins3d``, a bad grade, gate or error-model option (``settings``,
+    ``error_model_block``). A grade file becomes its absolute path (the workers' and the
+    fingerprint's)."""
+    from flight_fdi.cli.ins3d import error_model_block, is_ins3d, settings
+
+    if is_ins3d(args):
+        grade = settings(args)["grade"]
+        if args.grade is not None:
+            args.grade = grade
+        error_model_block(args)
 
 
 def error_text(exc: BaseException) -> str:
@@ -181,7 +208,9 @@ def option_flags(args: argparse.Namespace) -> list[str]:
         if value == getattr(defaults, a.dest):
             continue
         flag = a.option_strings[-1]
-        if a.nargs == 0:
+        if isinstance(a, argparse.BooleanOptionalAction):  # --latency / --no-latency
+            out.append(a.option_strings[0] if value else flag)
+        elif a.nargs == 0:
             out.append(flag)
         else:
             for v in value if isinstance(value, (list, tuple)) else [value]:
@@ -219,7 +248,12 @@ class Batch:
         self.args = argparse.Namespace(**{k: v for k, v in vars(args).items()
                                           if k not in ("func", "inputs")})
         self.args.jobs = 1  # parallel over flights, not inside one
+        check_model_options(self.args)
         self.options = analysis_options(self.args)
+        if self.args.model == "ins3d" and self.args.grade and Path(self.args.grade).is_file():
+            # a grade file: its contents, not only its name, decide whether to analyse again
+            self.options["grade_file_sha1"] = hashlib.sha1(
+                Path(self.args.grade).read_bytes()).hexdigest()
         bags, self.problems = find_bags(inputs)
         if not bags and not self.problems:
             raise BatchError("no inputs")

@@ -29,10 +29,14 @@ def report_task(task: ReportTask) -> dict:
 
     try:
         doc = json.loads(Path(task.result).read_text(encoding="utf-8"))
-        res, truth, model = analyse_bag(Path(doc["bag"]), task.args)
-        index = write_report(res, task.out, truth=truth, model=model,
-                             notes=[f"Flight {task.name} of a batch; analysed from the bag "
-                                    f"{doc['bag']}."])
+        notes = [f"Flight {task.name} of a batch; analysed from the bag {doc['bag']}."]
+        if getattr(task.args, "model", None) == "ins3d":  # the 3-D report (cli/ins3d.py)
+            from flight_fdi.cli.ins3d import report_of_bag
+
+            index = report_of_bag(doc["bag"], task.args, task.out, notes)
+        else:
+            res, truth, model = analyse_bag(Path(doc["bag"]), task.args)
+            index = write_report(res, task.out, truth=truth, model=model, notes=notes)
     except Exception as exc:
         return {"index": None, "error": error_text(exc)}
     return {"index": str(index), "error": None}

@@ -330,8 +330,6 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Pat
 def run_report(args: argparse.Namespace) -> int:
     """``flight-fdi report INPUT --model ins3d --out DIR``: INPUT a bag, a ``run`` output folder
     or a result JSON naming its bag."""
-    from flight_fdi.report.figures3d import write_report3d
-
     src = Path(args.input)
     if not src.exists():
         raise CliError(f"input {str(src)!r} does not exist")
@@ -349,9 +347,7 @@ def run_report(args: argparse.Namespace) -> int:
             if not (_is_bag(src) and src.exists()):
                 raise CliError(f"{args.input} names the bag {doc.get('bag')!r}, which does not "
                                "exist; the figures need the flight's data")
-        res, analysis, inp = analyze_bag(str(src), args)
-        index = write_report3d(res, analysis, args.out, truth=_truth(str(src), inp.t0_ns),
-                               notes=[f"Analysed from the bag {src}."])
+        index = report_of_bag(str(src), args, args.out, notes=[f"Analysed from the bag {src}."])
     res = json.loads((Path(index).parent / "summary.json").read_text(encoding="utf-8"))
     if args.json:
         json.dump({"index": str(index), "summary": res}, sys.stdout, allow_nan=False)
@@ -360,6 +356,15 @@ def run_report(args: argparse.Namespace) -> int:
         print(f"{res['post_flight']['verdict'].upper()}: {res['post_flight']['headline']}\n"
               f"report in {index}")
     return 0
+
+
+def report_of_bag(bag: str, args: argparse.Namespace, out: str | Path,
+                  notes: list[str]) -> Path:
+    """Analyse ``bag`` (``analyze_bag``) and write its report in ``out``; the index path."""
+    from flight_fdi.report.figures3d import write_report3d
+
+    res, analysis, inp = analyze_bag(bag, args)
+    return write_report3d(res, analysis, out, truth=_truth(bag, inp.t0_ns), notes=notes)
 
 
 def settings_of_result(args: argparse.Namespace, source: dict) -> None:
