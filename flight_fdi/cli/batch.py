@@ -1,7 +1,8 @@
 """``flight-fdi batch INPUT... --out DIR``: analyse a fleet's flights on Dask.
 
 INPUT: bag folders or files, globs (quoted: 'campaign/**/flight_*'), or folders searched for
-bags. Every flight is analysed as ``flight-fdi analyze`` does, with the same options. DIR gets one
+bags. Every flight is analysed as ``flight-fdi analyze`` does, with the same options (also
+--model ins3d with its options, checked once as analyze checks them). DIR gets one
 result JSON per flight (flights/<flight>.json), summary.csv (flight, bag, duration, verdict,
 sensor, axis, kind, onset, magnitude, unit, confidence, dropped samples, error) and the fleet page
 index.html. A second run analyses only flights whose bag is newer than their result (or all of

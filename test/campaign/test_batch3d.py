@@ -135,3 +135,39 @@ def test_batch_ins3d_on_a_two_worker_cluster(bags3d, tmp_path, dask_cluster):
         assert result["source"]["rows"] == 2 and result["channel"] == "en"
         assert result == json.loads((tmp_path / "inline" / "flights" / f"{name}.json")
                                     .read_text())
+
+
+def test_grade_file_relative_path_and_contents_decide_reanalysis(bags3d, tmp_path, capsys,
+                                                                  monkeypatch):
+    root = pathlib.Path(__file__).resolve().parents[2]
+    grade = tmp_path / "grade.yaml"
+    grade.write_text((root / "config" / "grades" / "navigation_as_file.yaml").read_text())
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
+    code, doc, err = batch_cli(bags3d, out, "--model", "ins3d", "--grade", "grade.yaml",
+                               capsys=capsys)
+    assert (code, doc["analysed"]) == (0, 2), err
+    options = json.loads((out / "batch.json").read_text())["options"]
+    assert options["grade"] == str(grade)  # the workers' path, wherever they run
+    result = json.loads((out / "flights" / "accel_z.json").read_text())
+    assert result == analyze_json(bags3d["accel_z"].resolve(), "--grade", "grade.yaml",
+                                  capsys=capsys)
+    code, doc, _ = batch_cli(bags3d, out, "--model", "ins3d", "--grade", str(grade),
+                             capsys=capsys)
+    assert (doc["analysed"], doc["skipped"]) == (0, 2)
+    grade.write_text(grade.read_text().replace("accel_bias_ug: 30", "accel_bias_ug: 50"))
+    code, doc, _ = batch_cli(bags3d, out, "--model", "ins3d", "--grade", "grade.yaml",
+                             capsys=capsys)
+    assert (code, doc["analysed"], doc["skipped"]) == (0, 2, 0)
+
+
+def test_3d_reports_on_demand(bags3d, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, doc, err = batch_cli(bags3d, out, "--model", "ins3d", "--reports", "faults",
+                               capsys=capsys)
+    assert code == 0 and "flight-fdi batch:" not in err, err
+    assert (out / "reports" / "accel_z" / "index.html").is_file()
+    assert not (out / "reports" / "nominal").exists()
+    summary = json.loads((out / "reports" / "accel_z" / "summary.json").read_text())
+    assert summary["post_flight"]["fault"]["axis"] == "z"
+    assert 'href="reports/accel_z/index.html"' in (out / "index.html").read_text()
