@@ -158,17 +158,23 @@ def flight_result(bag: str, args: argparse.Namespace) -> dict:
 
 def check_model_options(args: argparse.Namespace) -> None:
     """Refuse what ``flight-fdi analyze`` refuses before it reads a bag, once for the whole
-    batch (CliError, one line): options of the other model (``cli.ins3d.is_ins3d``) and, for
-    ``--model ins3d``, a bad grade, gate or error-model option (``settings``,
-    ``error_model_block``). A grade file becomes its absolute path (the workers' and the
-    fingerprint's)."""
+    batch (CliError or CoreError, one line): options of the other model
+    (``cli.ins3d.is_ins3d``); for ``--model ins3d``, a bad grade, gate or error-model option
+    (``settings``, ``error_model_block``); for the single-axis models, a bad gate option
+    (``cli.analyze.analysis_config``) or an unknown model (``core.models.get_model``). A grade
+    file becomes its absolute path (the workers' and the fingerprint's)."""
+    from flight_fdi.cli.analyze import analysis_config
     from flight_fdi.cli.ins3d import error_model_block, is_ins3d, settings
+    from flight_fdi.core.models import get_model
 
     if is_ins3d(args):
         grade = settings(args)["grade"]
         if args.grade is not None:
             args.grade = grade
         error_model_block(args)
+    else:
+        analysis_config(args)
+        get_model(args.model)
 
 
 def error_text(exc: BaseException) -> str:

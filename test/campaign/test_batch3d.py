@@ -120,6 +120,21 @@ def test_bad_3d_options_are_refused_in_one_line_as_analyze_does(bags3d, tmp_path
     assert capsys.readouterr().err.split(": error: ")[1] == err.split(": error: ")[1]
 
 
+@pytest.mark.parametrize("opts, message", [
+    (["--alarm", "x"], "--alarm must look like M/N (e.g. 3/5), got 'x'"),
+    (["--gate-probability", "2"], "GateConfig.probability must be a number in (0, 1)"),
+    (["--model", "no_such_model"], "unknown model 'no_such_model'"),
+])
+def test_bad_single_axis_options_are_refused_in_one_line(tmp_path, capsys, opts, message):
+    """The single-axis model's options are checked once, up front, as analyze checks them
+    (before: every flight an error row and exit status 0)."""
+    bag = pathlib.Path(__file__).resolve().parents[2] / "bags" / "nominal"
+    out = tmp_path / "out"
+    code, doc, err = batch_cli({"nominal": bag}, out, *opts, capsys=capsys)
+    assert code == 1 and doc is None and not out.exists()
+    assert len(err.strip().splitlines()) == 1 and message in err
+
+
 def test_batch_ins3d_on_a_two_worker_cluster(bags3d, tmp_path, dask_cluster):
     out = tmp_path / "out"
     args = build_parser("batch").parse_args(
