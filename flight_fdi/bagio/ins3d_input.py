@@ -21,7 +21,7 @@ analysis options are those of before (``Ins3dInput.vertical``). The command line
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -62,14 +62,8 @@ class Ins3dInput:
         return description_vertical(self.description)
 
     def model_options(self, where: str = "bag") -> dict:
-        """The ``analyze_ins3d`` options of this input: ``vertical()``, overridden by the
-        description's ``error_model`` block (``error_model_options``; BagError for a bad one).
-        A ``loop`` vertical channel takes the description's baro loop when it has one."""
-        out = self.vertical()
-        given = error_model_options(self.description, where)
-        if given.get("vertical", "loop") != "loop":
-            out.pop("loop", None)
-        return {**out, **given}
+        """The ``analyze_ins3d`` options of this input (``description_options``)."""
+        return description_options(self.description, {}, where)
 
 
 def description_vertical(description: dict | None) -> dict:
@@ -128,16 +122,27 @@ def with_error_model(description: dict | None, block: dict) -> dict | None:
                                                  **block}}
 
 
-def model_options_with(inp: Ins3dInput, block: dict, where: str = "bag") -> dict:
-    """``inp.model_options(where)`` with the keys of ``block`` (an ``error_model`` block given
-    elsewhere, e.g. on the command line) winning over the description's block -- the one
-    ``error_model_options`` check for both (BagError). An input without a description keeps
-    the analysis defaults for the keys ``block`` does not give."""
-    error_model_options(inp.description, where)           # the bag's own block, as it is
-    if inp.description is None:
+def description_options(description: dict | None, block: dict, where: str = "bag") -> dict:
+    """The ``analyze_ins3d`` options of a bag's description: its vertical channel
+    (``description_vertical``), overridden by its ``error_model`` block, whose keys ``block``
+    (a block given elsewhere, e.g. on the command line) overrides in turn -- the one
+    ``error_model_options`` check for both (BagError, one line). A ``loop`` vertical channel
+    takes the description's baro loop when it has one. Without a description: the analysis
+    defaults for the keys ``block`` does not give."""
+    error_model_options(description, where)               # the bag's own block, as it is
+    if description is None:
         return error_model_options({ERROR_MODEL: block}, where)
-    return replace(inp, description=with_error_model(inp.description, block)
-                   ).model_options(where)
+    merged = with_error_model(description, block)
+    out = description_vertical(merged)
+    given = error_model_options(merged, where)
+    if given.get("vertical", "loop") != "loop":
+        out.pop("loop", None)
+    return {**out, **given}
+
+
+def model_options_with(inp: Ins3dInput, block: dict, where: str = "bag") -> dict:
+    """``description_options`` of the input's description and ``block``."""
+    return description_options(inp.description, block, where)
 
 
 def error_model_used(options: dict) -> dict:
@@ -389,6 +394,7 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
 
 
 __all__ = ["ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput", "TOPICS",
-           "TRUTH_TOPIC", "TYPES", "build_input", "check_topics", "description_vertical",
+           "TRUTH_TOPIC", "TYPES", "build_input", "check_topics", "description_options",
+           "description_vertical",
            "error_model_options", "error_model_used", "from_flight", "model_options_with",
            "read_ins3d", "read_truth3d", "truth_from_flight", "with_error_model"]

@@ -389,9 +389,7 @@ def settings_of_result(args: argparse.Namespace, source: dict) -> None:
 
 def run_run(args: argparse.Namespace) -> int:
     """``flight-fdi run BAG --model ins3d``: the node pipeline (nodes/ins3d_pipeline.py)."""
-    from flight_fdi.bagio.ins3d_input import (check_topics, description_vertical,
-                                              error_model_options, sim_description,
-                                              with_error_model)
+    from flight_fdi.bagio.ins3d_input import check_topics, description_options, sim_description
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
     from flight_fdi.nodes.pipeline import PipelineError
@@ -403,13 +401,10 @@ def run_run(args: argparse.Namespace) -> int:
     s = settings(args)
     block = error_model_block(args)
     names = check_topics(bag, topics(args))
-    description = sim_description(bag)
-    error_model_options(description, f"bag '{bag}'")      # the bag's own block, as it is
-    # the filter_node parameters (ins3d_vertical, ...) of these, the vertical channel as
-    # ``analyze`` takes it from the description (a baro loop: the node's own, the simulator's
-    # default loop); the others at their defaults
-    options = {"vertical": description_vertical(description).get("vertical", "loop"),
-               **error_model_options(with_error_model(description, block), f"bag '{bag}'")}
+    # the model options as ``analyze`` takes them, as filter_node parameters (ins3d_vertical,
+    # ...; a baro loop is the node's own, the simulator's default loop)
+    options = description_options(sim_description(bag), block, f"bag '{bag}'")
+    options.pop("loop", None)
     try:
         run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], storage=args.storage, overwrite=True,

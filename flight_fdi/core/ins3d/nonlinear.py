@@ -57,7 +57,8 @@ from ..threads import usable_threads
 from .data import NavSteps, RefRows
 from .filter import run_forward
 from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation
-from .model import IBA, IV, Ins3dModel, fill_F, transition
+from ..rotation import qdcm, qexp
+from .model import IV, Ins3dModel, fill_F, transition
 
 #: the attitude a named gyro fault may turn over the flight (rad, |b| (T - onset), a ramp
 #: |b| (T - onset)^2 / 2) before the decision is checked nonlinearly: the linear signature's
@@ -71,51 +72,36 @@ MAX_ONSETS = 16
 
 
 @njit(cache=True, nogil=True)
-def _expm_skew(w, out):
-    """out = exp([w x]) (Rodrigues)."""
-    th = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    if th < 1e-8:
-        a, b = 1.0, 0.5
-    else:
-        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / (th * th)
-    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    KK = K @ K
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = a * K[i, j] + b * KK[i, j] + (1.0 if i == j else 0.0)
-
-
-@njit(cache=True, nogil=True)
 def _effect(C, f_n, w_b, v, lat, h, dt, t, bias, k0, gyro, axis, ramp, mag, x_out, D_mid):
     """x_out[k] (K+1, n): the error state the fault leaves at boundary k; D_mid[k] (K, 3, 3):
     the body-frame correction at mid-step k (module docstring)."""
     n = x_out.shape[1]
     K = dt.size
     F, Phi, F2 = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    x = np.zeros(n)
+    x = np.zeros(n)             # the bias states get no input: they stay zero
     D = np.eye(3)
     A, B = np.empty((3, 3)), np.empty((3, 3))
-    u = np.zeros(3)
+    u_g, u_a = np.zeros(3), np.zeros(3)
+    u = u_g if gyro else u_a
     for k in range(K):
         x_out[k] = x
         if k < k0:
             D_mid[k] = D
             continue
-        b = mag * (0.5 * (t[k] + t[k + 1]) - t[k0]) if ramp else mag
-        u[:] = 0.0
-        u[axis] = b
+        u[axis] = mag * (0.5 * (t[k] + t[k + 1]) - t[k0]) if ramp else mag
         f_b = C[k].T @ f_n[k]
-        _expm_skew(-w_b[k] * dt[k], A)
-        _expm_skew((w_b[k] - u) * dt[k] if gyro else w_b[k] * dt[k], B)
+        a = -w_b[k] * dt[k]
+        qdcm(*qexp(a[0], a[1], a[2]), A)                    # exp([-w dt x])
+        a = (w_b[k] - u_g) * dt[k]
+        qdcm(*qexp(a[0], a[1], a[2]), B)                    # exp([(w - u_g) dt x])
         D1 = A @ D @ B
         Dm = 0.5 * (D + D1)
-        g = C[k] @ (f_b - Dm @ (f_b - (u * 0.0 if gyro else u)))
+        g = C[k] @ (f_b - Dm @ (f_b - u_a))
         fill_F(F, C[k], f_n[k], v[k], lat[k], h[k], bias)
         transition(F, dt[k], Phi, F2)
         x = Phi @ x
         for i in range(3):
             x[IV + i] += g[i] * dt[k]
-        x[IBA:IBA + 6] = 0.0
         D_mid[k] = Dm
         D = D1
     x_out[K] = x
