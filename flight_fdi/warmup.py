@@ -4,7 +4,8 @@
 
 ``core.warmup`` covers the single-axis estimation kernels; this module adds what needs more than the
 core to exercise: the 3-D simulator (a short flight with turns) and the 3-D model's batch analysis
-(forward filter, backward sweep, GLR, both row counts, the nonlinear check's exact removal) and
+(forward filter, backward sweep, GLR, both row counts, the nonlinear check's exact removal, the
+relinearisation about a large attitude error) and
 its per-message streaming step, on that
 flight. The kernels compile for argument types, not values, so a short flight compiles the same
 signatures a 3-hour one uses."""
@@ -13,6 +14,8 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
+
 
 def warm_ins3d() -> None:
     from .bagio.ins3d_input import from_flight
@@ -20,6 +23,7 @@ def warm_ins3d() -> None:
     from .core.ins3d.filter import run_forward
     from .core.ins3d.model import Ins3dModel
     from .core.ins3d.nonlinear import corrected
+    from .core.ins3d.relinearize import relinearized
     from .core.ins3d.stream import Ins3dStream
     from .sim.faults import FaultSpec3D, parse_fault
     from .sim.ins3d import Sim3DConfig, simulate3d
@@ -43,6 +47,9 @@ def warm_ins3d() -> None:
     # the nonlinear check's exact removal (a large gyro fault, core/ins3d/nonlinear.py)
     corrected(Ins3dModel.from_grade("navigation"), inp.steps, inp.refs, "gyro", "x", "step", 10,
               1e-3)
+    # the relinearisation about a large attitude error (core/ins3d/relinearize.py)
+    relinearized(Ins3dModel.from_grade("mems"), inp.steps, inp.refs,
+                 np.full((inp.refs.t.size, 6), 0.1))
 
 
 def main() -> int:

@@ -22,8 +22,11 @@ from .filter import Ins3dForward, run_forward
 from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
 from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade, signature_error_of
 from .grades import ImuGrade
-from .model import IBA, IBG, Ins3dModel
-from .nonlinear import NonlinearCheck, confirm, needs_check
+from .model import IBA, IBG, IPHI, Ins3dModel
+from .nonlinear import NonlinearCheck, confirm, corrected, needs_check
+from .relinearize import (MAX_PASSES, RELINEARIZE_MPS2, RELINEARIZE_RAD, TOLERANCE_RAD,
+                          Relinearization, Validity, largest_attitude, neg2_log_likelihood,
+                          relinearized, velocity_remainder)
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
 from .result3d import post_flight
@@ -50,6 +53,10 @@ class Ins3dAnalysis:
     turn_on: TurnOn | None = None
     #: the nonlinear check of a large gyro fault (``nonlinear.confirm``; None: not needed)
     nonlinear: NonlinearCheck | None = None
+    #: the passes about the smoothed attitude error (``relinearize``; None: small angles)
+    relinearization: Relinearization | None = None
+    #: whether the model may name a sensor on this flight (``relinearize.Validity``)
+    validity: Validity | None = None
 
     @property
     def decision_glr(self) -> dict[str, GlrCurve]:
@@ -83,6 +90,9 @@ class Ins3dAnalysis:
             self.turn_on.records(self.glr, self.thresholds, t0)
         out = post_flight(self.decision_glr, self.isolation, self.seed, self.thresholds, t0,
                           turn_on, self.nonlinear)
+        rel = self.relinearization
+        out["relinearization"] = None if rel is None else rel.record()
+        out["model_validity"] = None if self.validity is None else self.validity.record()
         out["glr"]["joint"] = {k: float(v.max(initial=0.0)) for k, v in self.joint.items()}
         return out
 
@@ -183,15 +193,48 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:
-            _post_flight(out, diagnosis or diagnosis_config_of(model.grade), signature_error)
+            cfg = diagnosis or diagnosis_config_of(model.grade)
+            out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
+            _relinearize(out, gate, aligned_prior, cfg.rank_tol)
+            _post_flight(out, cfg, signature_error)
         out.observability = obs.result() if obs is not None else None
     return out
+
+
+def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
+                 rank_tol: float) -> None:
+    """When the first pass's smoothed attitude error leaves small angles: passes about it
+    (``relinearize``), each kept while it raises the no-fault likelihood; ``out``'s steps,
+    updates, forward filter and backward sweep become the best pass's."""
+    first = largest_attitude(out.backward.x_s)
+    if first <= RELINEARIZE_RAD and velocity_remainder(out.backward.x_s) <= RELINEARIZE_MPS2:
+        return
+    model = out.model
+    rel = Relinearization(out.steps, out.refs, out.forward, [first],
+                          [neg2_log_likelihood(out.forward)])
+    x_s = out.backward.x_s
+    for _ in range(MAX_PASSES):
+        steps, refs = relinearized(model, rel.steps, rel.refs, x_s)
+        P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]),
+                                aligned_prior)
+        fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=True)
+        nll = neg2_log_likelihood(fwd)
+        if nll >= rel.neg2_log_likelihood[-1]:
+            break
+        bwd = run_backward(model, steps, refs, fwd, rank_tol)
+        out.steps, out.refs, out.forward, out.backward = steps, refs, fwd, bwd
+        rel.attitude_max_rad.append(largest_attitude(bwd.x_s))
+        rel.neg2_log_likelihood.append(nll)
+        moved = float(np.abs(bwd.x_s[:, IPHI:IPHI + 3] - x_s[:, IPHI:IPHI + 3]).max())
+        x_s = bwd.x_s
+        if moved <= TOLERANCE_RAD:
+            break
+    out.relinearization = rel
 
 
 def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
                  signature_error: float | None = None) -> None:
     model, steps, refs, fwd = out.model, out.steps, out.refs, out.forward
-    out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
     out.seed = seed_method(model, out.backward, cfg)
     out.glr = glr_curves(model, steps, out.backward)
     out.joint = out.backward.joint
@@ -203,9 +246,32 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
     else:
         resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
     if needs_check(out.decision_glr, out.isolation, float(steps.t[-1])):
+        rel = out.relinearization          # the exact removal: from the flight as recorded
+        if rel is not None:
+            steps, refs, fwd = rel.steps, rel.refs, rel.forward
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
                                 signature_error_of(model.grade)
                                 if signature_error is None else signature_error)
+    out.validity = _validity(out)
+    iso = out.isolation            # beyond the (relinearised) model: no confident name
+    if not out.validity.valid and iso.isolation == "single" and iso.rival is not None \
+            and out.decision_glr[iso.best].hypothesis.kind != "outliers":
+        iso.isolation, iso.reason = "ambiguous", "attitude"
 
+
+def _validity(out: Ins3dAnalysis) -> Validity:
+    """The model's validity on the flight (``relinearize.Validity``): of the smoothed errors, or,
+    when the nonlinear check named a fault, of the forward filter on the flight as recorded with
+    that fault removed exactly (what is left when the fault is not the cause)."""
+    chk, iso = out.nonlinear, out.isolation
+    fit = None if chk is None or iso.isolation != "single" else chk.fit_of(iso.best)
+    if fit is None:
+        return Validity.of(out.backward.x_s)
+    rel = out.relinearization
+    steps, refs, fwd = (out.steps, out.refs, out.forward) if rel is None else \
+        (rel.steps, rel.refs, rel.forward)
+    k0 = int(np.searchsorted(steps.t, fit.onset))
+    s2, r2 = corrected(out.model, steps, refs, fit.sensor, fit.axis, fit.kind, k0, fit.magnitude)
+    return Validity.of(run_forward(out.model, s2, r2, P0=fwd.P0).x)
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d", "initial_covariance"]

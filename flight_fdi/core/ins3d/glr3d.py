@@ -373,7 +373,8 @@ class Isolation:
     gap: np.ndarray | None = None    # (M,) the decision's gap best - rival with the data up to t_j
     rival_gain: float | None = None  # what the rival adds to the best fitted with it (settle)
     similarity: float | None = None  # |cos| of the angle between their signatures (0..1)
-    reason: str | None = None        # ambiguous: "margin" (isolate) or "model" (settle)
+    reason: str | None = None        # ambiguous: "margin" (isolate), "model" (settle), "nonlinear",
+                                     # "attitude" (analysis: beyond the relinearised model)
     pair: float | None = None        # the GLR of the best and the rival fitted together
     offset: float = 0.0              # threshold of the best - the rival's: the decision's gap
                                      # is the raw gap minus it (isolate, compare="excess")

@@ -171,6 +171,9 @@ def _why(iso: Isolation, cands: list[dict]) -> str:
     if iso.reason == "nonlinear":
         return (" (beyond the small-angle model: each removed exactly, they explain the flight "
                 "alike within what the model's error allows)")
+    if iso.reason == "attitude":
+        return (" (the INS's errors are beyond what the linearised model holds, even "
+                "relinearised: no sensor is named with confidence; post_flight.model_validity)")
     if iso.reason == "model":
         return (f" (statistics {a:.4g} and {b:.4g}, signatures alike to cos "
                 f"{iso.similarity:.3f}: the gap is within what the model's error allows)")
