@@ -124,8 +124,41 @@ def _load_json(path: Path) -> dict:
     return doc
 
 
+def report_folder(out: str | Path) -> Path:
+    """``--out``, checked before any analysis: a folder, or one that can be made (the writer
+    makes it); CliError (one line) for a file of that name or a parent that is not a writable
+    folder -- nothing is analysed or written then."""
+    import os
+
+    path = Path(out)
+    parent = path
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    why = None
+    if path.exists() and not path.is_dir():
+        why = "a file of that name exists"
+    elif not parent.is_dir():
+        why = f"{str(parent)!r} is not a folder"
+    elif not os.access(parent, os.W_OK | os.X_OK):
+        why = f"{str(parent)!r} is not writable"
+    if why:
+        raise CliError(f"--out {str(path)!r}: cannot make the report folder there ({why})")
+    return path
+
+
+def written(write, *args, **kwargs) -> Path:
+    """``write(*args, **kwargs)`` (a report writer; its index path), an OSError as a CliError
+    (one line: a full disk, a folder made read-only meanwhile)."""
+    try:
+        return write(*args, **kwargs)
+    except OSError as exc:
+        where = f" {exc.filename}" if exc.filename else ""
+        raise CliError(f"cannot write the report{where}: {exc.strerror or exc}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from flight_fdi.cli import ins3d
+    from flight_fdi.cli.analyze import exit_status
     from flight_fdi.report import write_report
 
     if ins3d.wants_ins3d(args):  # the 3-D model (cli/ins3d.py)
@@ -133,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
     src = Path(args.input)
     if not src.exists():
         raise CliError(f"input {str(src)!r} does not exist")
+    report_folder(args.out)
     notes: list[str] = []
     if _is_bag(src):
         res, truth, model = analyse_bag(src, args)
@@ -154,11 +188,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         raise CliError(f"{src} is neither a bag, a 'flight-fdi run' output folder nor a result "
                        "JSON file")
-    index = write_report(res, args.out, truth=truth, model=model, notes=notes)
+    index = written(write_report, res, args.out, truth=truth, model=model, notes=notes)
     post = res.summary["post_flight"]
     if args.json:
         json.dump({"index": str(index), "summary": res.summary}, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     else:
         print(f"{post['verdict'].upper()}: {post.get('headline', '')}\nreport in {index}")
-    return 0
+    return exit_status(res.summary, args)
