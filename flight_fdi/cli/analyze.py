@@ -83,7 +83,7 @@ def add_input_options(p: argparse.ArgumentParser) -> None:
                         "(default child)")
     p.add_argument("--fail-on-fault", action="store_true",
                    help="exit status 3 when a fault was declared (verdict failure, glitch or "
-                        "ambiguous); 0 otherwise, 1 on an error")
+                        "ambiguous); 0 otherwise, 1 on an error, 2 on a malformed command line")
 
 
 def input_spec(args: argparse.Namespace):
@@ -117,6 +117,26 @@ def add_gate_options(p: argparse.ArgumentParser) -> None:
                    help="per-sample false-alarm probability of the chi2 gate (default 1e-3)")
     p.add_argument("--alarm", default="3/5", metavar="M/N",
                    help="alarm when M of the last N samples exceed the gate (default 3/5)")
+
+
+#: the gate options (dest, flag) of add_gate_options and --gate-action
+GATE_OPTIONS = (("gate_rule", "--gate-rule"), ("gate_probability", "--gate-probability"),
+                ("alarm", "--alarm"), ("gate_action", "--gate-action"))
+
+
+def gate_defaults() -> dict:
+    """The defaults of the gate options (GATE_OPTIONS), as the parser declares them."""
+    probe = argparse.ArgumentParser(add_help=False)
+    add_analysis_options(probe)
+    return {d: probe.get_default(d) for d, _ in GATE_OPTIONS}
+
+
+def gate_flags_given(args: argparse.Namespace) -> list[str]:
+    """The gate options of ``args`` not at their defaults (they have defaults: a gate option
+    given with its default value cannot be told from one not given)."""
+    defaults = gate_defaults()
+    return [flag for dest, flag in GATE_OPTIONS
+            if getattr(args, dest, defaults[dest]) != defaults[dest]]
 
 
 def analysis_config(args: argparse.Namespace):

@@ -17,7 +17,7 @@ import json
 import sys
 from pathlib import Path
 
-from flight_fdi.cli.analyze import exit_status
+from flight_fdi.cli.analyze import exit_status, gate_defaults, gate_flags_given
 from flight_fdi.cli.errors import CliError
 
 #: the single-axis input options that mean nothing to the 3-D model
@@ -339,28 +339,12 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Pat
 RUN_FIXED = (("grade", "--grade"), ("rows", "--rows"), ("ins_topic", "--ins-topic"),
              ("reference_topic", "--reference-topic"), ("imu_topic", "--imu-topic"),
              ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS
-#: the gate options (dest, flag; they have defaults: given = not at the default)
-GATE_OPTIONS = (("gate_rule", "--gate-rule"), ("gate_probability", "--gate-probability"),
-                ("alarm", "--alarm"), ("gate_action", "--gate-action"))
-
-
-def gate_defaults() -> dict:
-    """The defaults of the gate options (GATE_OPTIONS), as the parser declares them."""
-    from flight_fdi.cli.analyze import add_analysis_options
-
-    probe = argparse.ArgumentParser(add_help=False)
-    add_analysis_options(probe)
-    return {d: probe.get_default(d) for d, _ in GATE_OPTIONS}
-
-
 def refuse_for_run(args: argparse.Namespace, folder: Path, bag: str | None) -> None:
     """``report RUN_FOLDER``: the recording holds what the filter ran with (grade, rows,
     topics, gate, error model); an option that would change it is refused, one line naming
     it (before: silently ignored)."""
     given = [flag for dest, flag in RUN_FIXED if getattr(args, dest, None) is not None]
-    defaults = gate_defaults()
-    given += [flag for dest, flag in GATE_OPTIONS
-              if getattr(args, dest, defaults[dest]) != defaults[dest]]
+    given += gate_flags_given(args)
     if given:
         raise CliError(f"{folder} is a run folder: its recording holds the analysis it was "
                        "filtered with (grade, rows, topics, gate, error model); "

@@ -156,6 +156,20 @@ def written(write, *args, **kwargs) -> Path:
         raise CliError(f"cannot write the report{where}: {exc.strerror or exc}") from None
 
 
+def _no_gate(folder: Path, args: argparse.Namespace) -> Path:
+    """``folder``; CliError (one line) when a gate option is given for a run folder whose
+    recording holds the gate it was filtered with (before: silently ignored)."""
+    from flight_fdi.cli.analyze import gate_flags_given
+
+    given = gate_flags_given(args)
+    if given and (folder / "recording").exists():
+        bag = _load_json(folder / "result.json").get("bag")
+        raise CliError(f"{folder} is a run folder: its recording holds the gate it was filtered "
+                       f"with; {', '.join(given)} cannot change it -- report the bag {bag!r} "
+                       "with them instead")
+    return folder
+
+
 def run(args: argparse.Namespace) -> int:
     from flight_fdi.cli import ins3d
     from flight_fdi.cli.analyze import exit_status
@@ -172,10 +186,10 @@ def run(args: argparse.Namespace) -> int:
         res, truth, model = analyse_bag(src, args)
         notes.append(f"Analysed from the bag {src}.")
     elif src.is_dir() and (src / "result.json").exists():
-        res, truth, model, notes = analyse_run_folder(src, args)
+        res, truth, model, notes = analyse_run_folder(_no_gate(src, args), args)
     elif src.is_file() and src.suffix == ".json":
         if (src.parent / "recording").exists() and src.name == "result.json":
-            res, truth, model, notes = analyse_run_folder(src.parent, args)
+            res, truth, model, notes = analyse_run_folder(_no_gate(src.parent, args), args)
         else:
             doc = _load_json(src)
             bag = Path(doc.get("bag") or "")

@@ -155,3 +155,17 @@ def test_report_of_a_result_takes_its_gate(bag, tmp_path, capsys):
     mine = json.loads(capsys.readouterr().out)["summary"]
     assert mine["source"]["gate"] == {**res["source"]["gate"], "alarm": "3/4"}
     assert mine["in_flight"]["gate_threshold"] == res["in_flight"]["gate_threshold"]
+
+
+def test_a_single_axis_run_folder_refuses_a_gate(tmp_path, capsys):
+    """The single-axis models' run folder too: the recording holds the gate (before: a gate
+    option was silently ignored). Refused before the recording is read (an empty one here)."""
+    run = tmp_path / "run"
+    (run / "recording").mkdir(parents=True)
+    (run / "result.json").write_text(json.dumps({"post_flight": {}, "bag": "bags/nominal"}))
+    for src in (run, run / "result.json"):
+        assert main(["report", str(src), "--out", str(tmp_path / "rep"), "--gate-rule", "seed",
+                     "--gate-action", "reject"]) == 1
+        line = _one_line(capsys.readouterr().err, "report")
+        assert "is a run folder" in line and "--gate-rule, --gate-action cannot change it" in line
+    assert not (tmp_path / "rep").exists()
