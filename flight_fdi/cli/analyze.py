@@ -145,7 +145,7 @@ def analysis_config(args: argparse.Namespace):
     from flight_fdi.core.kalman import GateConfig
 
     try:
-        m_txt, n_txt = args.alarm.split("/")
+        m_txt, n_txt = str(args.alarm).split("/")
         alarm_m, alarm_n = int(m_txt), int(n_txt)
     except ValueError:
         raise CliError(f"--alarm must look like M/N (e.g. 3/5), got {args.alarm!r}") from None

@@ -368,7 +368,7 @@ def run_report(args: argparse.Namespace) -> int:
     else:
         if not _is_bag(src):
             doc = _load_result(src)
-            settings_of_result(args, doc.get("source") or {})
+            options_of_result(args, doc)
             src = Path(doc.get("bag") or "")
             if not (_is_bag(src) and src.exists()):
                 raise CliError(f"{args.input} names the bag {doc.get('bag')!r}, which does not "
@@ -396,29 +396,54 @@ def report_of_bag(bag: str, args: argparse.Namespace, out: str | Path,
                    notes=notes)
 
 
+def options_of_result(args: argparse.Namespace, doc: dict) -> None:
+    """``settings_of_result`` of a result JSON ``doc``, checked: a ``source`` that is not an
+    object, or options in it that ``analyze`` would refuse, are one line naming the result."""
+    from flight_fdi.core.errors import CoreError
+
+    src = doc.get("source") or {}
+    if not isinstance(src, dict):
+        raise CliError(f"{args.input}: its 'source' is not an object: not a result of "
+                       "flight-fdi analyze / run")
+    settings_of_result(args, src)
+    try:
+        settings(args)
+        error_model_block(args)
+    except (CliError, CoreError) as exc:
+        raise CliError(f"{args.input}: analysing its bag again as the result was made: "
+                       f"{exc}") from None
+
+
 def settings_of_result(args: argparse.Namespace, source: dict) -> None:
     """``report RESULT.json``: the bag is analysed again as the result was made -- its grade,
     reference rows, contract topics, gate and error-model overrides (``source``) for every
     option the command leaves unset (an option given on the command line wins; a gate option
-    at its default counts as unset)."""
-    given = {"grade": source.get("grade"), "rows": source.get("rows"),
-             "ins_topic": source.get("ins_topic"), "imu_topic": source.get("imu_topic"),
-             "fix_topic": source.get("fix_topic")}
-    for attr, value in given.items():
+    at its default counts as unset). A part of ``source`` of the wrong type is left out (the
+    checks of ``options_of_result`` see the values)."""
+    def part(key: str, kind: type):
+        value = source.get(key)
+        return value if isinstance(value, kind) else kind()
+
+    for attr in ("grade", "rows", "ins_topic", "imu_topic", "fix_topic"):
+        value = source.get(attr)
         if getattr(args, attr, None) is None and value:
             setattr(args, attr, value)
-    refs = source.get("reference_topics") or []
+    refs = part("reference_topics", list)
     if not args.reference_topic and len(refs) == 1:
         args.reference_topic = list(refs)
     defaults = gate_defaults()
-    for attr, value in (source.get("gate") or {}).items():   # at its default: the result's
+    for attr, value in part("gate", dict).items():          # at its default: the result's
         if attr in defaults and getattr(args, attr, defaults[attr]) == defaults[attr]:
             setattr(args, attr, value)
-    used = source.get("error_model") or {}
-    for key in source.get("error_model_overrides") or []:   # the rest: the bag's block again
-        if getattr(args, key, None) is None and key in used:
-            setattr(args, key, markov_text(used[key]) if key == "reference_markov"
-                    else used[key])
+    used = part("error_model", dict)
+    for key in part("error_model_overrides", list):         # the rest: the bag's block again
+        if key in dict(ERROR_MODEL_OPTIONS) and getattr(args, key, None) is None \
+                and key in used:
+            value = used[key]
+            if key == "reference_markov":               # the option's text (checked as one)
+                value = markov_text(value) if value is None or (isinstance(value, list) and all(
+                    isinstance(v, (int, float)) for v in value)) else str(value)
+            setattr(args, key, value)
 
 
 def run_run(args: argparse.Namespace) -> int:

@@ -169,3 +169,22 @@ def test_a_single_axis_run_folder_refuses_a_gate(tmp_path, capsys):
         line = _one_line(capsys.readouterr().err, "report")
         assert "is a run folder" in line and "--gate-rule, --gate-action cannot change it" in line
     assert not (tmp_path / "rep").exists()
+
+
+def test_a_malformed_result_is_one_line_naming_it(bag, tmp_path, capsys):
+    """``report RESULT.json`` with a ``source`` of the wrong shape, or options in it that
+    ``analyze`` refuses: one line naming the result, before the bag is read (before: an
+    AttributeError traceback for the first two)."""
+    good = {"post_flight": {}, "model": "ins3d", "bag": str(bag)}
+    for source, needle in (
+            ("junk", "its 'source' is not an object"),
+            ({"gate": {"alarm": 7}}, "--alarm must look like M/N (e.g. 3/5), got 7"),
+            ({"grade": str(tmp_path / "gone.yaml")}, "gone.yaml"),
+            ({"error_model_overrides": ["reference_markov"],
+              "error_model": {"reference_markov": ["a", 1, 2]}}, "--reference-markov")):
+        doc = tmp_path / "res.json"
+        doc.write_text(json.dumps({**good, "source": source}))
+        assert main(["report", str(doc), "--out", str(tmp_path / "r")]) == 1
+        line = _one_line(capsys.readouterr().err, "report")
+        assert line.startswith(f"flight-fdi report: error: {doc}: ") and needle in line, line
+    assert not (tmp_path / "r").exists()
