@@ -11,6 +11,7 @@ import json
 import math
 import os
 import sys
+from typing import NoReturn
 
 from flight_fdi.cli.errors import CliError
 
@@ -41,12 +42,12 @@ def one_line_errors(p: argparse.ArgumentParser) -> None:
     """A malformed command line of ``p`` (``--latency=yes``, ``--rows 4``, an option without
     its value, an unknown option, a missing BAG) is one line on stderr, ``flight-fdi CMD:
     error: <argparse's message>``, and exit 2 -- its usage text (15 lines) left out: ``--help``
-    has it.
-    Unknown options are refused here too: the subcommand's parser would hand them to the
-    top-level parser, whose error is two lines."""
+    has it. Unknown options are refused here too: the subcommand's parser would hand them to
+    the top-level parser, whose error has the usage line. (The parser's class is argparse's:
+    ``run``'s and ``batch``'s parsers get this through ``add_analysis_options``.)"""
     cls = type(p)
 
-    def error(message: str) -> None:
+    def error(message: str) -> NoReturn:
         p.exit(EXIT_USAGE, f"{p.prog}: error: {message}\n")
 
     def parse_known_args(args=None, namespace=None):

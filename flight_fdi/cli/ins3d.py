@@ -339,6 +339,8 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Pat
 RUN_FIXED = (("grade", "--grade"), ("rows", "--rows"), ("ins_topic", "--ins-topic"),
              ("reference_topic", "--reference-topic"), ("imu_topic", "--imu-topic"),
              ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS
+
+
 def refuse_for_run(args: argparse.Namespace, folder: Path, bag: str | None) -> None:
     """``report RUN_FOLDER``: the recording holds what the filter ran with (grade, rows,
     topics, gate, error model); an option that would change it is refused, one line naming
@@ -424,8 +426,9 @@ def settings_of_result(args: argparse.Namespace, source: dict) -> None:
         value = source.get(key)
         return value if isinstance(value, kind) else kind()
 
-    for attr in ("grade", "rows", "ins_topic", "imu_topic", "fix_topic"):
-        value = source.get(attr)
+    for attr, kind in (("grade", str), ("rows", int), ("ins_topic", str), ("imu_topic", str),
+                       ("fix_topic", str)):
+        value = part(attr, kind)
         if getattr(args, attr, None) is None and value:
             setattr(args, attr, value)
     refs = part("reference_topics", list)

@@ -11,6 +11,11 @@ INPUT is one of
 * a result JSON file (``flight-fdi analyze --json`` / ``run``'s result.json): the bag it names is
   analysed again (the JSON alone holds no time series to draw).
 
+A run folder's recording holds what its filter ran with: options that would change it (the gate;
+with --model ins3d also grade, rows, topics and error model) are refused, one line. With
+--fail-on-fault the exit status is 3 when the verdict declares a fault. --out must be a folder
+or one that can be made (checked before the analysis).
+
 DIR receives index.html (the verdict on top), summary.json and the PNG figures: per state element
 the true error, filtered and smoothed estimates with the chi-square and Fisher statistics and
 their thresholds (like figures 7.2 / 7.3 of seed 000), the beta^2 gate with the alarms, the total
