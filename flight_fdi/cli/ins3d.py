@@ -452,6 +452,7 @@ def settings_of_result(args: argparse.Namespace, source: dict) -> None:
 def run_run(args: argparse.Namespace) -> int:
     """``flight-fdi run BAG --model ins3d``: the node pipeline (nodes/ins3d_pipeline.py)."""
     from flight_fdi.bagio.ins3d_input import check_topics, description_options, sim_description
+    from flight_fdi.cli.report import report_folder
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
     from flight_fdi.nodes.pipeline import PipelineError
@@ -459,7 +460,7 @@ def run_run(args: argparse.Namespace) -> int:
     bag = Path(args.bag)
     if not bag.exists():
         raise CliError(f"bag {str(bag)!r} does not exist")
-    out = Path(args.out) if args.out else Path("out") / bag.resolve().name
+    out = report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
     s = settings(args)
     block = error_model_block(args)
     names = check_topics(bag, topics(args))

@@ -129,10 +129,11 @@ def _load_json(path: Path) -> dict:
     return doc
 
 
-def report_folder(out: str | Path) -> Path:
+def report_folder(out: str | Path, what: str = "report folder") -> Path:
     """``--out``, checked before any analysis: a folder, or one that can be made (the writer
     makes it); CliError (one line) for a file of that name or a parent that is not a writable
-    folder -- nothing is analysed or written then."""
+    folder -- nothing is analysed or written then. (Also ``run --model ins3d``'s output folder:
+    ``what``.)"""
     import os
 
     path = Path(out)
@@ -147,7 +148,7 @@ def report_folder(out: str | Path) -> Path:
     elif not os.access(parent, os.W_OK | os.X_OK):
         why = f"{str(parent)!r} is not writable"
     if why:
-        raise CliError(f"--out {str(path)!r}: cannot make the report folder there ({why})")
+        raise CliError(f"--out {str(path)!r}: cannot make the {what} there ({why})")
     return path
 
 

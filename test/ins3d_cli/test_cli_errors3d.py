@@ -188,3 +188,15 @@ def test_a_malformed_result_is_one_line_naming_it(bag, tmp_path, capsys):
         line = _one_line(capsys.readouterr().err, "report")
         assert line.startswith(f"flight-fdi report: error: {doc}: ") and needle in line, line
     assert not (tmp_path / "r").exists()
+
+
+def test_run_out_must_be_a_folder(bag, tmp_path, capfd):
+    """``run --model ins3d --out FILE``: one line before any node (before: a FileExistsError
+    traceback from the pipeline)."""
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert main(["run", str(bag), "--model", "ins3d", "--out", str(afile), "--no-progress"]) == 1
+    line = _one_line(capfd.readouterr().err, "run")
+    assert line.endswith(f"--out {str(afile)!r}: cannot make the output folder there (a file of "
+                         "that name exists)")
+    assert afile.read_text() == "x"
