@@ -11,6 +11,7 @@ import json
 import math
 import os
 import sys
+from typing import NoReturn
 
 from flight_fdi.cli.errors import CliError
 
@@ -29,6 +30,34 @@ def add_analysis_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gate-action", default="flag", choices=("flag", "reject"),
                    help="fuse (flag) or drop (reject) a gated sample (default flag)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    one_line_errors(p)
+
+
+#: exit status of a malformed command line (argparse's usage status; a bad value that parses is
+#: a CliError, exit 1)
+EXIT_USAGE = 2
+
+
+def one_line_errors(p: argparse.ArgumentParser) -> None:
+    """A malformed command line of ``p`` (``--latency=yes``, ``--rows 4``, an option without
+    its value, an unknown option, a missing BAG) is one line on stderr, ``flight-fdi CMD:
+    error: <argparse's message>``, and exit 2 -- its usage text (15 lines) left out: ``--help``
+    has it. Unknown options are refused here too: the subcommand's parser would hand them to
+    the top-level parser, whose error has the usage line. (The parser's class is argparse's:
+    ``run``'s and ``batch``'s parsers get this through ``add_analysis_options``.)"""
+    cls = type(p)
+
+    def error(message: str) -> NoReturn:
+        p.exit(EXIT_USAGE, f"{p.prog}: error: {message}\n")
+
+    def parse_known_args(args=None, namespace=None):
+        ns, extra = cls.parse_known_args(p, args, namespace)
+        if extra:
+            error(f"unrecognized arguments: {' '.join(extra)}")
+        return ns, extra
+
+    p.error = error                                    # type: ignore[method-assign]
+    p.parse_known_args = parse_known_args              # type: ignore[method-assign]
 
 
 def add_input_options(p: argparse.ArgumentParser) -> None:
@@ -55,7 +84,7 @@ def add_input_options(p: argparse.ArgumentParser) -> None:
                         "(default child)")
     p.add_argument("--fail-on-fault", action="store_true",
                    help="exit status 3 when a fault was declared (verdict failure, glitch or "
-                        "ambiguous); 0 otherwise, 1 on an error")
+                        "ambiguous); 0 otherwise, 1 on an error, 2 on a malformed command line")
 
 
 def input_spec(args: argparse.Namespace):
@@ -91,13 +120,33 @@ def add_gate_options(p: argparse.ArgumentParser) -> None:
                    help="alarm when M of the last N samples exceed the gate (default 3/5)")
 
 
+#: the gate options (dest, flag) of add_gate_options and --gate-action
+GATE_OPTIONS = (("gate_rule", "--gate-rule"), ("gate_probability", "--gate-probability"),
+                ("alarm", "--alarm"), ("gate_action", "--gate-action"))
+
+
+def gate_defaults() -> dict:
+    """The defaults of the gate options (GATE_OPTIONS), as the parser declares them."""
+    probe = argparse.ArgumentParser(add_help=False)
+    add_analysis_options(probe)
+    return {d: probe.get_default(d) for d, _ in GATE_OPTIONS}
+
+
+def gate_flags_given(args: argparse.Namespace) -> list[str]:
+    """The gate options of ``args`` not at their defaults (they have defaults: a gate option
+    given with its default value cannot be told from one not given)."""
+    defaults = gate_defaults()
+    return [flag for dest, flag in GATE_OPTIONS
+            if getattr(args, dest, defaults[dest]) != defaults[dest]]
+
+
 def analysis_config(args: argparse.Namespace):
     """AnalysisConfig from the shared options (validated by the core)."""
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.kalman import GateConfig
 
     try:
-        m_txt, n_txt = args.alarm.split("/")
+        m_txt, n_txt = str(args.alarm).split("/")
         alarm_m, alarm_n = int(m_txt), int(n_txt)
     except ValueError:
         raise CliError(f"--alarm must look like M/N (e.g. 3/5), got {args.alarm!r}") from None

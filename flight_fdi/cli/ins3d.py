@@ -17,6 +17,7 @@ import json
 import sys
 from pathlib import Path
 
+from flight_fdi.cli.analyze import exit_status, gate_defaults, gate_flags_given
 from flight_fdi.cli.errors import CliError
 
 #: the single-axis input options that mean nothing to the 3-D model
@@ -181,10 +182,18 @@ def grade_option(value: str) -> str:
 
 
 def source(names: dict[str, str], s: dict, model: dict | None = None) -> dict:
-    """A result's ``source``: topics, grade, rows and ``model`` (``recorded_model``)."""
+    """A result's ``source``: topics, grade, rows, the gate (``gate_options``) and ``model``
+    (``recorded_model``)."""
     return {"ins_topic": names["ins_velocity"], "reference_topics": [names["ref_velocity"]],
             "imu_topic": names["ins_imu"], "fix_topic": names["ins_fix"],
-            "grade": s["grade"], "rows": s["rows"], **(model or {})}
+            "grade": s["grade"], "rows": s["rows"], "gate": gate_options(s["gate"]),
+            **(model or {})}
+
+
+def gate_options(gate) -> dict:
+    """The gate options (GATE_OPTIONS' dests) that give ``gate`` (a ``GateConfig``)."""
+    return {"gate_rule": gate.rule, "gate_probability": float(gate.probability),
+            "alarm": f"{gate.alarm_m}/{gate.alarm_n}", "gate_action": gate.action}
 
 
 def analyze_bag(bag: str, args: argparse.Namespace):
@@ -257,8 +266,6 @@ def model_line(used: dict, given: list[str]) -> str:
 
 
 def emit(res: dict, args: argparse.Namespace, extra: list[str] = ()) -> int:
-    from flight_fdi.cli.analyze import exit_status
-
     if args.json:
         json.dump(res, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
@@ -315,6 +322,7 @@ def _truth(bag: str | None, t0_ns: int):
 
 def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Path:
     """The report of a ``run --model ins3d`` folder, rebuilt from its recording."""
+    from flight_fdi.cli.report import written
     from flight_fdi.nodes.ins3d_recording import analyze_recording3d
     from flight_fdi.report.figures3d import write_report3d
 
@@ -323,31 +331,52 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Pat
     if doc.get("source"):
         res["source"] = doc["source"]
     notes = [f"Rebuilt from the recording {folder / 'recording'} of the node pipeline."]
-    return write_report3d(res, analysis, out, truth=_truth(doc.get("bag"), rec["t0_ns"]),
-                          notes=notes)
+    return written(write_report3d, res, analysis, out,
+                   truth=_truth(doc.get("bag"), rec["t0_ns"]), notes=notes)
+
+
+#: the options a run folder's recording fixes (dest, flag): what its filter ran with
+RUN_FIXED = (("grade", "--grade"), ("rows", "--rows"), ("ins_topic", "--ins-topic"),
+             ("reference_topic", "--reference-topic"), ("imu_topic", "--imu-topic"),
+             ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS
+
+
+def refuse_for_run(args: argparse.Namespace, folder: Path, bag: str | None) -> None:
+    """``report RUN_FOLDER``: the recording holds what the filter ran with (grade, rows,
+    topics, gate, error model); an option that would change it is refused, one line naming
+    it (before: silently ignored)."""
+    given = [flag for dest, flag in RUN_FIXED if getattr(args, dest, None) is not None]
+    given += gate_flags_given(args)
+    if given:
+        raise CliError(f"{folder} is a run folder: its recording holds the analysis it was "
+                       "filtered with (grade, rows, topics, gate, error model); "
+                       f"{', '.join(given)} cannot change it -- report the bag {bag!r} with "
+                       "them instead")
 
 
 def run_report(args: argparse.Namespace) -> int:
     """``flight-fdi report INPUT --model ins3d --out DIR``: INPUT a bag, a ``run`` output folder
     or a result JSON naming its bag."""
+    from flight_fdi.cli.report import report_folder
+
     src = Path(args.input)
     if not src.exists():
         raise CliError(f"input {str(src)!r} does not exist")
     folder = _run_folder(src)
     if folder is not None:
-        if error_model_block(args):
-            raise CliError(f"{args.input} is a run folder: its recording holds the model "
-                           "options it was filtered with; to change them report the bag")
-        index = report_of_run(folder, args.out)
+        doc = _load_result(folder / "result.json")
+        refuse_for_run(args, folder, doc.get("bag"))
+        index = report_of_run(folder, report_folder(args.out), doc)
     else:
         if not _is_bag(src):
             doc = _load_result(src)
-            settings_of_result(args, doc.get("source") or {})
+            options_of_result(args, doc)
             src = Path(doc.get("bag") or "")
             if not (_is_bag(src) and src.exists()):
                 raise CliError(f"{args.input} names the bag {doc.get('bag')!r}, which does not "
                                "exist; the figures need the flight's data")
-        index = report_of_bag(str(src), args, args.out, notes=[f"Analysed from the bag {src}."])
+        index = report_of_bag(str(src), args, report_folder(args.out),
+                              notes=[f"Analysed from the bag {src}."])
     res = json.loads((Path(index).parent / "summary.json").read_text(encoding="utf-8"))
     if args.json:
         json.dump({"index": str(index), "summary": res}, sys.stdout, allow_nan=False)
@@ -355,41 +384,75 @@ def run_report(args: argparse.Namespace) -> int:
     else:
         print(f"{res['post_flight']['verdict'].upper()}: {res['post_flight']['headline']}\n"
               f"report in {index}")
-    return 0
+    return exit_status(res, args)
 
 
 def report_of_bag(bag: str, args: argparse.Namespace, out: str | Path,
                   notes: list[str]) -> Path:
     """Analyse ``bag`` (``analyze_bag``) and write its report in ``out``; the index path."""
+    from flight_fdi.cli.report import written
     from flight_fdi.report.figures3d import write_report3d
 
     res, analysis, inp = analyze_bag(bag, args)
-    return write_report3d(res, analysis, out, truth=_truth(bag, inp.t0_ns), notes=notes)
+    return written(write_report3d, res, analysis, out, truth=_truth(bag, inp.t0_ns),
+                   notes=notes)
+
+
+def options_of_result(args: argparse.Namespace, doc: dict) -> None:
+    """``settings_of_result`` of a result JSON ``doc``, checked: a ``source`` that is not an
+    object, or options in it that ``analyze`` would refuse, are one line naming the result."""
+    from flight_fdi.core.errors import CoreError
+
+    src = doc.get("source") or {}
+    if not isinstance(src, dict):
+        raise CliError(f"{args.input}: its 'source' is not an object: not a result of "
+                       "flight-fdi analyze / run")
+    settings_of_result(args, src)
+    try:
+        settings(args)
+        error_model_block(args)
+    except (CliError, CoreError) as exc:
+        raise CliError(f"{args.input}: analysing its bag again as the result was made: "
+                       f"{exc}") from None
 
 
 def settings_of_result(args: argparse.Namespace, source: dict) -> None:
     """``report RESULT.json``: the bag is analysed again as the result was made -- its grade,
-    reference rows and contract topics (``source``) for every option the command leaves unset
-    (an option given on the command line wins)."""
-    given = {"grade": source.get("grade"), "rows": source.get("rows"),
-             "ins_topic": source.get("ins_topic"), "imu_topic": source.get("imu_topic"),
-             "fix_topic": source.get("fix_topic")}
-    for attr, value in given.items():
+    reference rows, contract topics, gate and error-model overrides (``source``) for every
+    option the command leaves unset (an option given on the command line wins; a gate option
+    at its default counts as unset). A part of ``source`` of the wrong type is left out (the
+    checks of ``options_of_result`` see the values)."""
+    def part(key: str, kind: type):
+        value = source.get(key)
+        return value if isinstance(value, kind) else kind()
+
+    for attr, kind in (("grade", str), ("rows", int), ("ins_topic", str), ("imu_topic", str),
+                       ("fix_topic", str)):
+        value = part(attr, kind)
         if getattr(args, attr, None) is None and value:
             setattr(args, attr, value)
-    refs = source.get("reference_topics") or []
+    refs = part("reference_topics", list)
     if not args.reference_topic and len(refs) == 1:
         args.reference_topic = list(refs)
-    used = source.get("error_model") or {}
-    for key in source.get("error_model_overrides") or []:   # the rest: the bag's block again
-        if getattr(args, key, None) is None and key in used:
-            setattr(args, key, markov_text(used[key]) if key == "reference_markov"
-                    else used[key])
+    defaults = gate_defaults()
+    for attr, value in part("gate", dict).items():          # at its default: the result's
+        if attr in defaults and getattr(args, attr, defaults[attr]) == defaults[attr]:
+            setattr(args, attr, value)
+    used = part("error_model", dict)
+    for key in part("error_model_overrides", list):         # the rest: the bag's block again
+        if key in dict(ERROR_MODEL_OPTIONS) and getattr(args, key, None) is None \
+                and key in used:
+            value = used[key]
+            if key == "reference_markov":               # the option's text (checked as one)
+                value = markov_text(value) if value is None or (isinstance(value, list) and all(
+                    isinstance(v, (int, float)) for v in value)) else str(value)
+            setattr(args, key, value)
 
 
 def run_run(args: argparse.Namespace) -> int:
     """``flight-fdi run BAG --model ins3d``: the node pipeline (nodes/ins3d_pipeline.py)."""
     from flight_fdi.bagio.ins3d_input import check_topics, description_options, sim_description
+    from flight_fdi.cli.report import report_folder
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
     from flight_fdi.nodes.pipeline import PipelineError
@@ -397,7 +460,7 @@ def run_run(args: argparse.Namespace) -> int:
     bag = Path(args.bag)
     if not bag.exists():
         raise CliError(f"bag {str(bag)!r} does not exist")
-    out = Path(args.out) if args.out else Path("out") / bag.resolve().name
+    out = report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
     s = settings(args)
     block = error_model_block(args)
     names = check_topics(bag, topics(args))

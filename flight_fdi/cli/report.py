@@ -11,6 +11,11 @@ INPUT is one of
 * a result JSON file (``flight-fdi analyze --json`` / ``run``'s result.json): the bag it names is
   analysed again (the JSON alone holds no time series to draw).
 
+A run folder's recording holds what its filter ran with: options that would change it (the gate;
+with --model ins3d also grade, rows, topics and error model) are refused, one line. With
+--fail-on-fault the exit status is 3 when the verdict declares a fault. --out must be a folder
+or one that can be made (checked before the analysis).
+
 DIR receives index.html (the verdict on top), summary.json and the PNG figures: per state element
 the true error, filtered and smoothed estimates with the chi-square and Fisher statistics and
 their thresholds (like figures 7.2 / 7.3 of seed 000), the beta^2 gate with the alarms, the total
@@ -124,8 +129,56 @@ def _load_json(path: Path) -> dict:
     return doc
 
 
+def report_folder(out: str | Path, what: str = "report folder") -> Path:
+    """``--out``, checked before any analysis: a folder, or one that can be made (the writer
+    makes it); CliError (one line) for a file of that name or a parent that is not a writable
+    folder -- nothing is analysed or written then. (Also ``run --model ins3d``'s output folder:
+    ``what``.)"""
+    import os
+
+    path = Path(out)
+    parent = path
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    why = None
+    if path.exists() and not path.is_dir():
+        why = "a file of that name exists"
+    elif not parent.is_dir():
+        why = f"{str(parent)!r} is not a folder"
+    elif not os.access(parent, os.W_OK | os.X_OK):
+        why = f"{str(parent)!r} is not writable"
+    if why:
+        raise CliError(f"--out {str(path)!r}: cannot make the {what} there ({why})")
+    return path
+
+
+def written(write, *args, **kwargs) -> Path:
+    """``write(*args, **kwargs)`` (a report writer; its index path), an OSError as a CliError
+    (one line: a full disk, a folder made read-only meanwhile)."""
+    try:
+        return write(*args, **kwargs)
+    except OSError as exc:
+        where = f" {exc.filename}" if exc.filename else ""
+        raise CliError(f"cannot write the report{where}: {exc.strerror or exc}") from None
+
+
+def _no_gate(folder: Path, args: argparse.Namespace) -> Path:
+    """``folder``; CliError (one line) when a gate option is given for a run folder whose
+    recording holds the gate it was filtered with (before: silently ignored)."""
+    from flight_fdi.cli.analyze import gate_flags_given
+
+    given = gate_flags_given(args)
+    if given and (folder / "recording").exists():
+        bag = _load_json(folder / "result.json").get("bag")
+        raise CliError(f"{folder} is a run folder: its recording holds the gate it was filtered "
+                       f"with; {', '.join(given)} cannot change it -- report the bag {bag!r} "
+                       "with them instead")
+    return folder
+
+
 def run(args: argparse.Namespace) -> int:
     from flight_fdi.cli import ins3d
+    from flight_fdi.cli.analyze import exit_status
     from flight_fdi.report import write_report
 
     if ins3d.wants_ins3d(args):  # the 3-D model (cli/ins3d.py)
@@ -133,15 +186,16 @@ def run(args: argparse.Namespace) -> int:
     src = Path(args.input)
     if not src.exists():
         raise CliError(f"input {str(src)!r} does not exist")
+    report_folder(args.out)
     notes: list[str] = []
     if _is_bag(src):
         res, truth, model = analyse_bag(src, args)
         notes.append(f"Analysed from the bag {src}.")
     elif src.is_dir() and (src / "result.json").exists():
-        res, truth, model, notes = analyse_run_folder(src, args)
+        res, truth, model, notes = analyse_run_folder(_no_gate(src, args), args)
     elif src.is_file() and src.suffix == ".json":
         if (src.parent / "recording").exists() and src.name == "result.json":
-            res, truth, model, notes = analyse_run_folder(src.parent, args)
+            res, truth, model, notes = analyse_run_folder(_no_gate(src.parent, args), args)
         else:
             doc = _load_json(src)
             bag = Path(doc.get("bag") or "")
@@ -154,11 +208,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         raise CliError(f"{src} is neither a bag, a 'flight-fdi run' output folder nor a result "
                        "JSON file")
-    index = write_report(res, args.out, truth=truth, model=model, notes=notes)
+    index = written(write_report, res, args.out, truth=truth, model=model, notes=notes)
     post = res.summary["post_flight"]
     if args.json:
         json.dump({"index": str(index), "summary": res.summary}, sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
     else:
         print(f"{post['verdict'].upper()}: {post.get('headline', '')}\nreport in {index}")
-    return 0
+    return exit_status(res.summary, args)

@@ -8,7 +8,8 @@ JSON) and the PNG figures:
   bias estimated by the forward filter and after the flight by the two-filter smoother (with its
   1-sigma band), and the true total systematic error of that sensor axis when the bag carries the
   simulator's /sim/truth (``accel_error_*``, ``gyro_error_*``: bias + scale factor and
-  misalignment on the true input + fault);
+  misalignment on the true input + fault), and the result's fault (or ambiguous candidates) on
+  that axis: its step or ramp from its onset, as the result reports them (``fault_profiles``);
 * ``gate.png``: beta^2 over time against the chi-square gate, total and per reference row, the
   alarms;
 * ``post_flight.png``: the two-filter chi-square J over time against its bound, and the GLR
@@ -59,16 +60,26 @@ def _finish(fig: Any, axes: tuple, res: dict, path: Path) -> Path:
     return save(fig, path)
 
 
-def _glr_step(ax: Any, res: dict, sensor: str, axis: str, unit: str, t: np.ndarray) -> None:
-    """The step GLR isolated (or one of the ambiguous candidates) on this sensor axis."""
-    post = res["post_flight"]
-    for f in [post.get("fault")] + list(post.get("candidates") or []):
-        if not f or f["sensor"] != sensor or f["axis"] != axis or f["kind"] != "step" \
-                or f.get("unit_eng") != unit or f.get("magnitude_eng") is None:
+def fault_profiles(res: dict, sensor: str, axis: str, t_start: float,
+                   t_end: float) -> list[tuple[str, list[float], list[float]]]:
+    """(label, times, values SI) of the result's fault, or of each ambiguous candidate, on this
+    sensor axis: its step or ramp from its onset, drawn from the record (onset and magnitude as
+    the result reports them: the exact fit's after the nonlinear check of a large gyro fault,
+    ``Ins3dAnalysis.bias_estimates``'s ``*_fault`` too)."""
+    post, out = res["post_flight"], []
+    fault = post.get("fault")
+    for f in ([fault] if fault else []) + list(post.get("candidates") or []):
+        if f["sensor"] != sensor or f["axis"] != axis or f["kind"] not in ("step", "ramp") \
+                or f.get("magnitude") is None or f.get("onset_s") is None:
             continue
-        on = f["onset_s"]
-        ax.plot([t[0], on, on, t[-1]], [0.0, 0.0, f["magnitude_eng"], f["magnitude_eng"]],
-                color="#d62728", lw=1.4, label=f"GLR step {f['magnitude_eng']:+.3g} {unit}")
+        on, m = f["onset_s"], f["magnitude"]
+        what = "isolated" if f is fault else "candidate"
+        label = f"{what} {f['kind']} {f['magnitude_eng']:+.3g} {f['unit_eng']}"
+        if f["kind"] == "step":
+            out.append((label, [t_start, on, on, t_end], [0.0, 0.0, m, m]))
+        else:
+            out.append((label, [t_start, on, t_end], [0.0, 0.0, m * (t_end - on)]))
+    return out
 
 
 def axis_figure(analysis: Any, res: dict, axis: str, path: Path,
@@ -96,7 +107,10 @@ def axis_figure(analysis: Any, res: dict, axis: str, path: Path,
         if truth is not None and key in truth:
             tt, y = stride(truth["t"], truth[key] / scale)
             ax.plot(tt, y, color="k", lw=1, ls=":", label="true (bias + SF/misalignment + fault)")
-        _glr_step(ax, res, sensor, axis, unit, fwd.t)
+        for label, tf, yf in fault_profiles(res, sensor, axis, float(fwd.t[0]),
+                                            float(fwd.t[-1])):
+            ax.plot(tf, np.asarray(yf) / scale, lw=1.4, label=label,
+                    color="#d62728" if label.startswith("isolated") else "#ff7f0e")
         _onset(ax, res)
         ax.set_ylabel(f"{sensor} {axis} [{unit}]")
         ax.legend(loc="upper left", fontsize=8)

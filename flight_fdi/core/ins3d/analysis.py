@@ -110,24 +110,27 @@ class Ins3dAnalysis:
     def bias_estimates(self) -> dict[str, np.ndarray]:
         """At the update times (SI): the smoothed body-axis bias states of the no-fault model
         with their sd (``accelerometer``, ``gyro``, ``*_sd``: the slow bias model follows a
-        step only partly) and the isolated fault's profile per axis (``*_fault``: the GLR step
-        or ramp from its onset, zero elsewhere and without an isolated IMU fault)."""
+        step only partly) and the isolated fault's profile per axis (``*_fault``: the step or
+        ramp of the result's ``fault`` record (``post_flight_dict``) from its onset, zero
+        elsewhere and without an isolated IMU fault). The record is the one source: its onset
+        and magnitude are the linear GLR's, or the exact fit's when the nonlinear check of a
+        large gyro fault named it (``nonlinear.confirm``), so the figures draw what the result
+        says."""
         b = self.backward
         out = {"t": b.t, "accelerometer": b.x_s[:, IBA:IBA + 3],
                "accelerometer_sd": b.sd_s[:, IBA:IBA + 3], "gyro": b.x_s[:, IBG:IBG + 3],
                "gyro_sd": b.sd_s[:, IBG:IBG + 3],
                "accelerometer_fault": np.zeros((b.t.size, 3)),
                "gyro_fault": np.zeros((b.t.size, 3))}
-        iso = self.isolation
-        if iso is not None and iso.isolation == "single":
-            c = self.decision_glr[iso.best]
-            h = c.hypothesis
-            if h.sensor in ("accelerometer", "gyro"):
-                t0, m = float(c.t[c.best]), float(c.mag[c.best])
-                on = b.t >= t0
-                shape = np.where(on, 1.0, 0.0) if h.kind == "step" else \
-                    np.where(on, b.t - t0, 0.0)
-                out[h.sensor + "_fault"][:, "xyz".index(h.axis)] = m * shape
+        f = self.post_flight_dict()["fault"] if self.seed is not None and \
+            self.isolation is not None else None
+        if f and f["sensor"] in ("accelerometer", "gyro") and f["kind"] in ("step", "ramp") \
+                and f["onset_s"] is not None and f["magnitude"] is not None:
+            t0 = f["onset_s"]                           # t0 = 0: the times of b.t
+            on = b.t >= t0
+            shape = np.where(on, 1.0, 0.0) if f["kind"] == "step" else \
+                np.where(on, b.t - t0, 0.0)
+            out[f["sensor"] + "_fault"][:, "xyz".index(f["axis"])] = f["magnitude"] * shape
         return out
 
     def turns(self) -> list[tuple[float, float]]:
