@@ -23,7 +23,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .pipeline import STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, Graph, PipelineRun, Progress
+from .pipeline_graph import STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, Graph, PipelineRun, Progress
 
 ACK_WINDOW = 60
 MARGIN = 45         # a sample bag's ~15 messages of look-ahead, three times
