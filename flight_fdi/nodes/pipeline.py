@@ -35,7 +35,9 @@ Bounds (docs/hardening.md, section 5): a stage with work waiting that does none 
 every node's own work is completed first (the recorder closes its bag), then the middleware
 teardown (all nodes, executor, context) is bounded by ``teardown_timeout`` (runner's
 TeardownWatchdog, 10 s; None: unbounded): one WARN line naming what blocked, the stacks, and exit
-with the pipeline's own status (0 after a result, 1 after an error, 130 after Ctrl-C).
+with the pipeline's own status (0 after a result, 1 after an error, 130 after Ctrl-C). After a
+result, ``on_teardown_timeout(result)`` (when given) comes first: what the caller still had to do
+with it (``flight-fdi run`` prints it and writes the report); its return value is the status.
 """
 from __future__ import annotations
 
@@ -102,7 +104,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                           executor: str = "events", log_level: str = "warn",
                           spec: Any = None, progress: Any = None,
                           stall_timeout_s: float = STALL_TIMEOUT_S,
-                          teardown_timeout: float | None = TEARDOWN_TIMEOUT_S) -> PipelineRun:
+                          teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
+                          on_teardown_timeout: Any = None) -> PipelineRun:
     """Replay ``bag`` through the node pipeline; see the module docstring.
 
     ``config``: the core's AnalysisConfig (default: its defaults), used by the filter (gate,
@@ -117,7 +120,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     result carries the same ``input`` and ``source`` as ``flight-fdi analyze``. ``progress``: a
     stream for "replay NN %" lines per 10 % of the messages (None: silent).
     ``timeout_s``, ``stall_timeout_s``, ``teardown_timeout``: the bounds of the module
-    docstring (validated first: ParameterError).
+    docstring (validated first: ParameterError); ``on_teardown_timeout``: called with the result
+    when the teardown after it times out, returns the exit status (module docstring).
     """
     from flight_fdi.bagio.inputs import InputSpec
     from flight_fdi.core.analysis import AnalysisConfig
@@ -126,7 +130,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
 
-    graph = Graph(executor, log_level, timeout_s, stall_timeout_s, teardown_timeout)
+    graph = Graph(executor, log_level, timeout_s, stall_timeout_s, teardown_timeout,
+                  on_teardown_timeout)
     if config is None:
         config = AnalysisConfig()
     if spec is None:

@@ -15,7 +15,7 @@ import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 from flight_fdi.bagio.errors import BagError
 
@@ -176,16 +176,22 @@ class Graph:
     stage's stall (:meth:`watch`), both PipelineError; Ctrl-C raises KeyboardInterrupt between
     callbacks. On exit: every node's ``finish_work()``, then the teardown bounded by
     ``teardown_timeout`` (``pipeline``'s module docstring). The bounds are validated here
-    (ParameterError)."""
+    (ParameterError). ``on_teardown_timeout(result)``: what the caller still does with the
+    result (:meth:`finish`'s) should the teardown after it time out -- the watchdog calls it and
+    exits with the status it returns (runner.TeardownWatchdog's ``on_timeout``); None: exit
+    with status 0 at once."""
 
     NAME = "flight_fdi_pipeline"
 
     def __init__(self, executor: str = "events", log_level: str = "warn",
                  timeout_s: float = 600.0, stall_timeout_s: float = STALL_TIMEOUT_S,
-                 teardown_timeout: float | None = TEARDOWN_TIMEOUT_S) -> None:
+                 teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
+                 on_teardown_timeout: Callable[[dict], int] | None = None) -> None:
         self.timeout_s = seconds("timeout_s", timeout_s)
         self.stall = StallWatch(seconds("stall_timeout_s", stall_timeout_s))
         self.teardown_timeout = seconds("teardown_timeout", teardown_timeout, none_ok=True)
+        self.on_teardown_timeout = on_teardown_timeout
+        self.result: dict | None = None   # finish's, once written
         self.nodes: list[Any] = []
         self._stages: Any = None   # the watched stages (watch)
         self._kind, self._log_level = executor, log_level
@@ -214,7 +220,8 @@ class Graph:
             raise
         finally:
             status, after = self._outcome(failure)
-            with TeardownWatchdog(self.NAME, status, self.teardown_timeout, after) as watchdog:
+            with TeardownWatchdog(self.NAME, status, self.teardown_timeout, after,
+                                  self._on_timeout(failure)) as watchdog:
                 self._teardown(watchdog)
 
     @staticmethod
@@ -226,6 +233,14 @@ class Graph:
         if isinstance(failure, KeyboardInterrupt):
             return 130, "the pipeline was interrupted (recording closed)"
         return 1, f"the pipeline failed ({failure}; recording closed)"
+
+    def _on_timeout(self, failure: BaseException | None) -> Callable[[], int] | None:
+        """The watchdog's ``on_timeout``: ``on_teardown_timeout`` of the result, when the run
+        gave one."""
+        then, result = self.on_teardown_timeout, self.result
+        if failure is not None or result is None or then is None:
+            return None
+        return lambda: then(result)
 
     def _teardown(self, watchdog: TeardownWatchdog) -> None:
         for node in list(self.nodes):
@@ -331,6 +346,7 @@ class Graph:
         result["bag"] = str(bag)
         result.update(extra)
         write_json(result, result_json)
+        self.result = result
         return PipelineRun(result=result, recording=Path(params["bag"]), result_json=result_json,
                            messages_played=played, recorded=recorded, replay_s=replay_s,
                            analysis_s=time.monotonic() - t_analysis, ack_timeouts=ack_timeouts)
