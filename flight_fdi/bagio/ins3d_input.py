@@ -56,6 +56,9 @@ class Ins3dInput:
     t0_ns: int = 0         # the stamp times are relative to (a bag: the earliest first stamp)
     #: the simulator's description of the flight (bag metadata ``flight_fdi.sim3d``), if any
     description: dict | None = None
+    #: read from a bag: the contract topics ({role: topic}) and the messages read per topic
+    topics: dict | None = None
+    messages: dict | None = None
 
     def vertical(self) -> dict:
         """``description_vertical`` of this input's description."""
@@ -278,7 +281,32 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dI
     inp.t0_ns = t0
     inp.description = sim_description(path)
     error_model_options(inp.description, f"bag '{path}'")     # a bad block: said here, once
+    inp.topics, inp.messages = dict(names), {v: len(by_topic[v]) for v in names.values()}
     return inp
+
+
+#: why the 3-D input leaves a message out (``input_section3d``)
+DROP_REASONS3D = ("outside_imu_record",)
+
+
+def input_section3d(inp: Ins3dInput) -> dict | None:
+    """The ``input`` section of a 3-D result, in the form of the single-axis one
+    (``bagio.inputs.input_section``): per contract topic its role, type, messages read, samples
+    used and the messages dropped per reason (``DROP_REASONS3D``). The 3-D input drops one kind
+    only: reference rows outside the IMU record (no step for them: ``core.ins3d.data.ref_rows``;
+    a simulated bag's first reference, at 0 s, before the first IMU message). It refuses nothing
+    else -- messages are sorted by stamp, a non-finite value or a repeated IMU stamp is not
+    dropped (the latter fails the analysis). None for an input not read from a bag."""
+    if inp.topics is None or inp.messages is None:
+        return None
+    out = {}
+    for role, topic in inp.topics.items():
+        n = int(inp.messages[topic])
+        used = int(inp.refs.t.size) if role == "ref_velocity" else n
+        out[topic] = {"role": role, "type": TYPES[role], "messages": n, "used": used,
+                      "dropped": {"outside_imu_record": n - used}
+                      if role == "ref_velocity" else {}}
+    return out
 
 
 def sim_description(path: str | Path) -> dict | None:
@@ -396,5 +424,6 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
 __all__ = ["ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput", "TOPICS",
            "TRUTH_TOPIC", "TYPES", "build_input", "check_topics", "description_options",
            "description_vertical",
-           "error_model_options", "error_model_used", "from_flight", "model_options_with",
+           "error_model_options", "error_model_used", "from_flight", "input_section3d",
+           "model_options_with",
            "read_ins3d", "read_truth3d", "truth_from_flight", "with_error_model"]

@@ -73,3 +73,19 @@ def warm_analysis() -> None:
     from flight_fdi.core.warmup import warm
 
     warm()
+
+
+def warm_analysis3d() -> None:
+    """The ``warm`` of ``batch --model ins3d``: import the 3-D analysis and load its compiled
+    kernels (``flight_fdi.warmup.warm_ins3d``, what ``make setup`` compiles them with: a short
+    simulated 3-D flight analysed both ways; ~2 s from numba's cache), which
+    :func:`warm_analysis` (the single-axis kernels) leaves to the worker's first flight."""
+    import flight_fdi.cli.ins3d  # noqa: F401
+    from flight_fdi.warmup import warm_ins3d
+
+    warm_ins3d()
+
+
+def warm_for(model: str | None) -> Callable[[], None]:
+    """The workers' ``warm`` for a batch of ``model`` (``--model``)."""
+    return warm_analysis3d if model == "ins3d" else warm_analysis

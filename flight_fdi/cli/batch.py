@@ -65,13 +65,13 @@ def run(args: argparse.Namespace) -> int:
     from flight_fdi.campaign.batch import Batch, BatchError
     from flight_fdi.campaign.engine import Engine, EngineError
     from flight_fdi.campaign.reports import make_reports
-    from flight_fdi.campaign.worker import warm_analysis
+    from flight_fdi.campaign.worker import warm_for
 
     spec = engine_spec(args)
     say = (lambda s: None) if args.json else (lambda s: print(s, file=sys.stderr))
     try:
         batch = Batch(args.inputs, args.out, args, force=args.force)
-        with Engine(spec, warm=warm_analysis) as engine:
+        with Engine(spec, warm=warm_for(args.model)) as engine:
             if spec.scheduler:
                 engine.wait_for_workers(1)
             res = batch.run(engine, progress=not args.no_progress, say=say)

@@ -23,7 +23,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .pipeline import STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, Graph, PipelineRun, Progress
+from .pipeline_graph import STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, Graph, PipelineRun, Progress
 
 ACK_WINDOW = 60
 MARGIN = 45         # a sample bag's ~15 messages of look-ahead, three times
@@ -76,13 +76,15 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                    executor: str = "events", log_level: str = "warn", source: dict | None = None,
                    progress: Any = None, options: dict | None = None,
                    stall_timeout_s: float = STALL_TIMEOUT_S,
-                   teardown_timeout: float | None = TEARDOWN_TIMEOUT_S) -> PipelineRun:
+                   teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
+                   on_teardown_timeout: Any = None) -> PipelineRun:
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
     before any node exists (BagError). Leaves ``recording/`` and ``result.json`` in
     ``out_dir``. ``options``: the model options (``filter_parameters3d``; the filter records
     them, the smoother analyses with them). ``timeout_s``, ``stall_timeout_s``,
     ``teardown_timeout``: the bounds of ``pipeline`` (its module docstring: a stalled stage
-    ends the run with PipelineError; the teardown after the result is bounded)."""
+    ends the run with PipelineError; the teardown after the result is bounded), and
+    ``on_teardown_timeout`` what is done with the result should that bound be reached."""
     from flight_fdi.bagio.ins3d_input import check_topics
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.gate import GateConfig
@@ -91,7 +93,8 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     from .filter_node import FilterNode
     from .recorder_node import RecorderNode
 
-    graph = Graph(executor, log_level, timeout_s, stall_timeout_s, teardown_timeout)
+    graph = Graph(executor, log_level, timeout_s, stall_timeout_s, teardown_timeout,
+                  on_teardown_timeout)
     gate = gate or GateConfig()
     bag = Path(bag)
     names = check_topics(bag, topics)

@@ -49,6 +49,7 @@ from .errors import ParameterError
 
 EXECUTORS = ("single", "events")
 TEARDOWN_TIMEOUT_S = 10.0  # bound on the middleware teardown once the node's work is complete
+ON_TIMEOUT_BOUND_S = 300.0  # bound on what a process still does after its teardown timed out
 
 
 def make_executor(kind: str, context: Any = None) -> Any:
@@ -164,13 +165,24 @@ class TeardownWatchdog:
     what was complete before the teardown began. Should the blocked call hold the GIL (the
     thread could not run), faulthandler's own watchdog, which needs none, dumps the stacks and
     exits with status 1 after ``2 * timeout``. ``timeout`` None: no bound.
+
+    ``on_timeout``: what the process still has to do once its work is complete, e.g. ``flight-fdi
+    run``'s printing of the result and its report. Called in the watchdog's thread after the
+    line and the stacks, bounded by faulthandler's watchdog (``ON_TIMEOUT_BOUND_S``: stacks and
+    status 1 when it does not return); its return value is the exit status (an exception: a line
+    and ``status``); a second line says the status. Once the watchdog has fired, a teardown that
+    ends after all does not let the block's thread go on: the watchdog ends the process.
     """
 
     def __init__(self, name: str, status: int, timeout: float | None,
-                 after: str = "the node completed its work") -> None:
+                 after: str = "the node completed its work",
+                 on_timeout: Callable[[], int] | None = None) -> None:
         self.name, self.status, self.timeout, self.after = name, status, timeout, after
+        self.on_timeout = on_timeout
         self.stage = "executor, node, context"
         self._done = threading.Event()
+        self._fired = False
+        self._lock = threading.Lock()
         self.thread = threading.Thread(target=self._watch, name="teardown-watchdog", daemon=True)
 
     def __enter__(self) -> "TeardownWatchdog":
@@ -180,18 +192,53 @@ class TeardownWatchdog:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self._done.set()
+        with self._lock:
+            self._done.set()
+            fired = self._fired
+        if fired:  # too late: the watchdog is ending the process (after on_timeout)
+            self.thread.join()
         if self.timeout is not None:
             faulthandler.cancel_dump_traceback_later()
 
     def _watch(self) -> None:
         if self._done.wait(self.timeout):
             return
+        with self._lock:
+            if self._done.is_set():
+                return
+            self._fired = True
+        then = (f"exiting with status {self.status} without it" if self.on_timeout is None
+                else "completing the command without it")
         os.write(2, (f"[WARN] [{self.name}]: the middleware teardown did not end within "
-                     f"{self.timeout:g} s ({self.stage}) after {self.after}; exiting with "
-                     f"status {self.status} without it. Stacks:\n").encode())
+                     f"{self.timeout:g} s ({self.stage}) after {self.after}; {then}. "
+                     "Stacks:\n").encode())
         faulthandler.dump_traceback(all_threads=True)
-        os._exit(self.status)
+        status = self.status
+        if self.on_timeout is not None:
+            status = self._complete()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(status)
+
+    def _complete(self) -> int:
+        """``on_timeout()``, bounded (class docstring); the exit status."""
+        faulthandler.cancel_dump_traceback_later()
+        faulthandler.dump_traceback_later(ON_TIMEOUT_BOUND_S, exit=True)
+        status = self.status
+        try:
+            status = int(self.on_timeout())
+        except BaseException as exc:  # said, and the status stays
+            os.write(2, f"[ERROR] [{self.name}]: {type(exc).__name__}: {exc}\n".encode())
+        try:
+            sys.stdout.flush()  # (the command's output before the last line)
+        except (OSError, ValueError):
+            pass
+        os.write(2, f"[WARN] [{self.name}]: exiting with status {status} without the middleware "
+                    "teardown\n".encode())
+        return status
 
 
 def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = None,
