@@ -52,12 +52,12 @@ def _cli(capture, *args: str) -> tuple[int, dict]:
 def _assert_close(a, b, where="post_flight", rel=1e-9):
     """Equal structure, strings and flags; numbers to ``rel`` (times: the bag's stamps are whole
     nanoseconds, latitudes go through degrees). The seed method's Fisher ratios amplify that
-    rounding (measured: F_peak to 4e-8 relative even with the very same grade object), so its
-    section is compared to 1e-6."""
+    rounding (measured: F_peak to 4e-8 relative even with the very same grade object; 2e-6
+    after a relinearised pass, core/ins3d/relinearize.py), so its section is compared to 1e-5."""
     if isinstance(a, dict):
         assert isinstance(b, dict) and a.keys() == b.keys(), where
         for k in a:
-            _assert_close(a[k], b[k], f"{where}.{k}", 1e-6 if k == "seed_method" else rel)
+            _assert_close(a[k], b[k], f"{where}.{k}", 1e-5 if k == "seed_method" else rel)
     elif isinstance(a, (list, tuple)):
         assert isinstance(b, (list, tuple)) and len(a) == len(b), where
         for i, (x, y) in enumerate(zip(a, b)):

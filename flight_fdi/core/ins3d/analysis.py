@@ -263,18 +263,26 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
 
 
 def _validity(out: Ins3dAnalysis) -> Validity:
-    """The model's validity on the flight (``relinearize.Validity``): of the smoothed errors, or,
-    when the nonlinear check named a fault, of the forward filter on the flight as recorded with
-    that fault removed exactly (what is left when the fault is not the cause)."""
-    chk, iso = out.nonlinear, out.isolation
-    fit = None if chk is None or iso.isolation != "single" else chk.fit_of(iso.best)
-    if fit is None:
-        return Validity.of(out.backward.x_s)
+    """The model's validity on the flight (``relinearize.Validity``): of the smoothed errors;
+    when those are beyond it and an IMU fault is named, of the forward filter on the flight as
+    recorded with that fault removed exactly (``nonlinear.corrected``; the check's fit, else the
+    GLR's onset and magnitude) -- a large fault leaves a large attitude error in the no-fault
+    model's estimate; what matters is what is left if it is the cause."""
+    valid = Validity.of(out.backward.x_s)
+    iso = out.isolation
+    if valid.valid or iso.isolation != "single":
+        return valid
+    c = out.decision_glr[iso.best]
+    h = c.hypothesis
+    if h.sensor not in ("accelerometer", "gyro") or h.kind not in ("step", "ramp"):
+        return valid
+    fit = None if out.nonlinear is None else out.nonlinear.fit_of(iso.best)
+    onset, mag = (fit.onset, fit.magnitude) if fit else (float(c.t[c.best]), float(c.mag[c.best]))
     rel = out.relinearization
     steps, refs, fwd = (out.steps, out.refs, out.forward) if rel is None else \
         (rel.steps, rel.refs, rel.forward)
-    k0 = int(np.searchsorted(steps.t, fit.onset))
-    s2, r2 = corrected(out.model, steps, refs, fit.sensor, fit.axis, fit.kind, k0, fit.magnitude)
+    k0 = int(np.searchsorted(steps.t, onset))
+    s2, r2 = corrected(out.model, steps, refs, h.sensor, h.axis, h.kind, k0, mag)
     return Validity.of(run_forward(out.model, s2, r2, P0=fwd.P0).x)
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d", "initial_covariance"]
