@@ -197,8 +197,10 @@ def gate_options(gate) -> dict:
 
 
 def analyze_bag(bag: str, args: argparse.Namespace):
-    """(result dict, Ins3dAnalysis, Ins3dInput) of one bag."""
-    from flight_fdi.bagio.ins3d_input import check_topics, model_options_with, read_ins3d
+    """(result dict, Ins3dAnalysis, Ins3dInput) of one bag; the result's ``input`` section
+    counts each contract topic's messages, used and dropped (``input_section3d``)."""
+    from flight_fdi.bagio.ins3d_input import (check_topics, input_section3d,
+                                              model_options_with, read_ins3d)
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
     from flight_fdi.core.ins3d_result import ins3d_result
 
@@ -209,8 +211,11 @@ def analyze_bag(bag: str, args: argparse.Namespace):
     options = model_options_with(inp, block, f"bag '{bag}'")
     analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], **options)
-    return (ins3d_result(analysis, bag, source(names, s, recorded_model(options, block))),
-            analysis, inp)
+    res = ins3d_result(analysis, bag, source(names, s, recorded_model(options, block)))
+    section = input_section3d(inp)    # what was read and left out (batch's dropped_samples)
+    if section is not None:
+        res["input"] = section
+    return res, analysis, inp
 
 
 def format_result(res: dict) -> str:
