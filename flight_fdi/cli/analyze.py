@@ -11,7 +11,6 @@ import json
 import math
 import os
 import sys
-from typing import NoReturn
 
 from flight_fdi.cli.errors import CliError
 
@@ -30,34 +29,6 @@ def add_analysis_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gate-action", default="flag", choices=("flag", "reject"),
                    help="fuse (flag) or drop (reject) a gated sample (default flag)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    one_line_errors(p)
-
-
-#: exit status of a malformed command line (argparse's usage status; a bad value that parses is
-#: a CliError, exit 1)
-EXIT_USAGE = 2
-
-
-def one_line_errors(p: argparse.ArgumentParser) -> None:
-    """A malformed command line of ``p`` (``--latency=yes``, ``--rows 4``, an option without
-    its value, an unknown option, a missing BAG) is one line on stderr, ``flight-fdi CMD:
-    error: <argparse's message>``, and exit 2 -- its usage text (15 lines) left out: ``--help``
-    has it. Unknown options are refused here too: the subcommand's parser would hand them to
-    the top-level parser, whose error has the usage line. (The parser's class is argparse's:
-    ``run``'s and ``batch``'s parsers get this through ``add_analysis_options``.)"""
-    cls = type(p)
-
-    def error(message: str) -> NoReturn:
-        p.exit(EXIT_USAGE, f"{p.prog}: error: {message}\n")
-
-    def parse_known_args(args=None, namespace=None):
-        ns, extra = cls.parse_known_args(p, args, namespace)
-        if extra:
-            error(f"unrecognized arguments: {' '.join(extra)}")
-        return ns, extra
-
-    p.error = error                                    # type: ignore[method-assign]
-    p.parse_known_args = parse_known_args              # type: ignore[method-assign]
 
 
 def add_input_options(p: argparse.ArgumentParser) -> None:

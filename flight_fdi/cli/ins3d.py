@@ -3,9 +3,9 @@
 /reference/velocity; docs/sim3d.md).
 
 ``analyze`` reads the bag (``bagio.ins3d_input``) and runs ``core.ins3d.analysis.analyze_ins3d``;
-``run`` replays the bag through the node pipeline with ``filter_node`` in its ins3d mode and the
-smoother analysing the recording (the same verdict); ``report`` draws the per-axis figures
-(``report.figures3d``). The result is the v1 result JSON with ``"model": "ins3d"``
+``run`` (``cli.run.run3d``) replays the bag through the node pipeline with ``filter_node`` in its
+ins3d mode and the smoother analysing the recording (the same verdict); ``report`` draws the
+per-axis figures (``report.figures3d``). The result is the v1 result JSON with ``"model": "ins3d"``
 (``core.ins3d_result``). The error-model options (``--vertical``, ``--latency``,
 ``--reference-markov``, ``--initial-attitude``) win over the bag description's ``error_model``
 block key by key; ``source`` records the block used and the keys they gave.
@@ -197,8 +197,10 @@ def gate_options(gate) -> dict:
 
 
 def analyze_bag(bag: str, args: argparse.Namespace):
-    """(result dict, Ins3dAnalysis, Ins3dInput) of one bag."""
-    from flight_fdi.bagio.ins3d_input import check_topics, model_options_with, read_ins3d
+    """(result dict, Ins3dAnalysis, Ins3dInput) of one bag; the result's ``input`` section
+    counts each contract topic's messages, used and dropped (``input_section3d``)."""
+    from flight_fdi.bagio.ins3d_input import (check_topics, input_section3d,
+                                              model_options_with, read_ins3d)
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
     from flight_fdi.core.ins3d_result import ins3d_result
 
@@ -209,8 +211,11 @@ def analyze_bag(bag: str, args: argparse.Namespace):
     options = model_options_with(inp, block, f"bag '{bag}'")
     analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], **options)
-    return (ins3d_result(analysis, bag, source(names, s, recorded_model(options, block))),
-            analysis, inp)
+    res = ins3d_result(analysis, bag, source(names, s, recorded_model(options, block)))
+    section = input_section3d(inp)    # what was read and left out (batch's dropped_samples)
+    if section is not None:
+        res["input"] = section
+    return res, analysis, inp
 
 
 def format_result(res: dict) -> str:
@@ -447,36 +452,3 @@ def settings_of_result(args: argparse.Namespace, source: dict) -> None:
                 value = markov_text(value) if value is None or (isinstance(value, list) and all(
                     isinstance(v, (int, float)) for v in value)) else str(value)
             setattr(args, key, value)
-
-
-def run_run(args: argparse.Namespace) -> int:
-    """``flight-fdi run BAG --model ins3d``: the node pipeline (nodes/ins3d_pipeline.py)."""
-    from flight_fdi.bagio.ins3d_input import check_topics, description_options, sim_description
-    from flight_fdi.cli.report import report_folder
-    from flight_fdi.nodes.errors import ParameterError
-    from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
-    from flight_fdi.nodes.pipeline import PipelineError
-
-    bag = Path(args.bag)
-    if not bag.exists():
-        raise CliError(f"bag {str(bag)!r} does not exist")
-    out = report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
-    s = settings(args)
-    block = error_model_block(args)
-    names = check_topics(bag, topics(args))
-    # the model options as ``analyze`` takes them, as filter_node parameters (ins3d_vertical,
-    # ...; a baro loop is the node's own, the simulator's default loop)
-    options = description_options(sim_description(bag), block, f"bag '{bag}'")
-    options.pop("loop", None)
-    try:
-        run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
-                             gate=s["gate"], storage=args.storage, overwrite=True,
-                             source=source(names, s, recorded_model(options, block)),
-                             options=options,
-                             progress=None if args.no_progress else sys.stderr)
-    except (PipelineError, ParameterError) as exc:
-        raise CliError(str(exc)) from None
-    extra = ["", f"recording and result.json in {out}/"]
-    if not args.no_report:
-        extra.append(f"report (figures and verdict): {report_of_run(out, out / 'report')}")
-    return emit(run.result, args, extra)

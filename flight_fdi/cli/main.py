@@ -63,8 +63,12 @@ def _command_of(argv: list[str]) -> str | None:
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The parser with every subcommand, or with ``only`` that one: importing a subcommand's
-    module can be slow (SciPy's statistics for the IMU voter), and ``analyze`` is timed."""
-    parser = argparse.ArgumentParser(
+    module can be slow (SciPy's statistics for the IMU voter), and ``analyze`` is timed. Every
+    parser in it is a ``cli.errors.OneLineParser``: a malformed command line is one line, exit
+    2."""
+    from flight_fdi.cli.errors import OneLineParser
+
+    parser = OneLineParser(  # (its subcommands' parsers take its class: one-line errors)
         prog="flight-fdi",
         description="INS fault detection in flight and fault isolation after the flight.",
     )

@@ -10,7 +10,9 @@ Bounds (docs/hardening.md, section 5): a stage with work waiting that makes no p
 --stall-timeout seconds ends the run with one line naming it (exit 1). The middleware teardown
 after the run's work is bounded by --teardown-timeout: past it a WARN line and the threads'
 stacks go to stderr, the result is still printed and the report written, and the process exits
-with the status it would have had (0, or 3 with --fail-on-fault) without the teardown.
+with the status it would have had (0, or 3 with --fail-on-fault) without the teardown. The same
+for ``--model ins3d`` (:func:`run3d`). --out must be a folder or one that can be made: else one
+line before any node.
 """
 from __future__ import annotations
 
@@ -78,44 +80,91 @@ def pipeline_bounds(args: argparse.Namespace) -> dict[str, float]:
 
 def run(args: argparse.Namespace) -> int:
     from flight_fdi.cli import ins3d
+    from flight_fdi.cli.report import report_folder
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.pipeline import PipelineError, run_pipeline
 
     bounds = pipeline_bounds(args)
-    if ins3d.is_ins3d(args):  # the 3-D model (cli/ins3d.py)
-        if bounds:  # (ins3d.run_run does not pass them to run_pipeline3d yet: not ignored)
-            raise CliError("--stall-timeout and --teardown-timeout apply to the single-axis "
-                           "models only (not yet to --model ins3d)")
-        return ins3d.run_run(args)
+    if ins3d.is_ins3d(args):  # the 3-D model
+        return run3d(args, bounds)
     bag = Path(args.bag)
     if not bag.exists():
         raise CliError(f"bag {str(bag)!r} does not exist")
-    out = Path(args.out) if args.out else Path("out") / bag.resolve().name
+    out = report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
     config = analysis_config(args)
     spec = input_spec(args)
     try:
         res = run_pipeline(bag, out, config=config, model=args.model, storage=args.storage,
                            overwrite=True, spec=spec,
                            progress=None if args.no_progress else sys.stderr,
-                           on_teardown_timeout=after_blocked_teardown(out, args), **bounds)
+                           on_teardown_timeout=after_blocked_teardown(out, args, complete),
+                           **bounds)
     except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None
     return complete(res, out, args)
 
 
-def after_blocked_teardown(out: Path, args: argparse.Namespace):
-    """The pipeline's ``on_teardown_timeout``: :func:`complete` of the result, in the
-    watchdog's thread, with the one-line error of ``main`` for a user error (status 1)."""
+def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
+    """``flight-fdi run BAG --model ins3d``: the node pipeline of the 3-D model
+    (nodes/ins3d_pipeline.py), with the options of ``analyze --model ins3d`` (cli/ins3d.py)
+    and the run's ``bounds`` (:func:`pipeline_bounds`)."""
+    from flight_fdi.bagio.ins3d_input import check_topics, description_options, sim_description
+    from flight_fdi.cli.ins3d import (error_model_block, recorded_model, settings, source,
+                                      topics)
+    from flight_fdi.cli.report import report_folder
+    from flight_fdi.nodes.errors import ParameterError
+    from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
+    from flight_fdi.nodes.pipeline import PipelineError
+
+    bag = Path(args.bag)
+    if not bag.exists():
+        raise CliError(f"bag {str(bag)!r} does not exist")
+    out = report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
+    s = settings(args)
+    block = error_model_block(args)
+    names = check_topics(bag, topics(args))
+    # the model options as ``analyze`` takes them, as filter_node parameters (ins3d_vertical,
+    # ...; a baro loop is the node's own, the simulator's default loop)
+    options = description_options(sim_description(bag), block, f"bag '{bag}'")
+    options.pop("loop", None)
+    try:
+        run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
+                             gate=s["gate"], storage=args.storage, overwrite=True,
+                             source=source(names, s, recorded_model(options, block)),
+                             options=options,
+                             progress=None if args.no_progress else sys.stderr,
+                             on_teardown_timeout=after_blocked_teardown(out, args, complete3d),
+                             **bounds)
+    except (PipelineError, ParameterError) as exc:
+        raise CliError(str(exc)) from None
+    return complete3d(run.result, out, args)
+
+
+def after_blocked_teardown(out: Path, args: argparse.Namespace, then):
+    """The pipeline's ``on_teardown_timeout``: ``then(result, out, args)`` (:func:`complete`
+    or :func:`complete3d`), in the watchdog's thread, with the one-line error of ``main`` for
+    a user error (status 1)."""
     def finish(res: dict) -> int:
         from flight_fdi.cli.main import EXIT_ERROR, _user_errors
 
         try:
-            return complete(res, out, args)
+            return then(res, out, args)
         except _user_errors() as exc:
             print(f"flight-fdi run: error: {exc}", file=sys.stderr, flush=True)
             return EXIT_ERROR
 
     return finish
+
+
+def complete3d(res: dict, out: Path, args: argparse.Namespace) -> int:
+    """:func:`complete` of the 3-D model: the report rebuilt from the recording (unless
+    --no-report, ``cli.ins3d.report_of_run``), the result printed; the exit status."""
+    from flight_fdi.cli.ins3d import emit, report_of_run
+
+    extra = ["", f"recording and result.json in {out}/"]
+    if not args.no_report:
+        extra.append(f"report (figures and verdict): {report_of_run(out, out / 'report')}")
+    return emit(res, args, extra)
 
 
 def complete(res: dict, out: Path, args: argparse.Namespace) -> int:

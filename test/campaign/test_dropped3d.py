@@ -48,13 +48,37 @@ def test_the_3d_input_counts_the_references_it_leaves_out(bag3d):
     assert input_section3d(Ins3dInput(inp.steps, inp.refs, inp.q)) is None
 
 
-@pytest.mark.xfail(strict=True, reason="needs the 3-D result's input section: one line in "
-                   "cli/ins3d.analyze_bag (the CLI helper's file), result['input'] = "
-                   "input_section3d(inp), so that analyze --json and batch keep one result")
-def test_batch_fills_dropped_samples_for_3d_flights(bag3d, tmp_path):
+def test_batch_fills_dropped_samples_for_3d_flights(bag3d, tmp_path, capsys):
+    """batch's summary.csv counts the dropped reference (before: empty for 3-D flights), and
+    the flight's result is still analyze --json's, schema-valid with its input section."""
+    import json
+
+    from flight_fdi.bagio.ins3d_input import input_section3d, read_ins3d
+    from flight_fdi.schema import validate_result
+
     out = tmp_path / "out"
     assert main(["batch", str(bag3d), "--out", str(out), "--model", "ins3d", "--workers", "1",
                  "--no-progress", "--json"]) == 0
     with open(out / "summary.csv", newline="") as f:
         (row,) = list(csv.DictReader(f))
     assert row["error"] == "" and row["dropped_samples"] == "1"
+    (flight,) = (out / "flights").glob("*.json")
+    result = json.loads(flight.read_text())
+    assert result["input"] == input_section3d(read_ins3d(bag3d))
+    validate_result(result)
+    capsys.readouterr()
+    assert main(["analyze", str(bag3d.resolve()), "--model", "ins3d", "--json", "--jobs",
+                 "1"]) == 0
+    assert json.loads(capsys.readouterr().out) == result
+
+
+def test_the_schema_knows_every_role_and_drop_reason():
+    """The result schema's ``topic_input`` accepts the roles and drop reasons of both input
+    sections (single-axis and 3-D), and nothing else."""
+    from flight_fdi.bagio.inputs import DROP_REASONS
+    from flight_fdi.bagio.ins3d_input import DROP_REASONS3D, TOPICS
+    from flight_fdi.schema import load
+
+    entry = load()["$defs"]["topic_input"]["properties"]
+    assert set(entry["role"]["enum"]) == {"ins", "reference", *TOPICS}
+    assert set(entry["dropped"]["propertyNames"]["enum"]) == {*DROP_REASONS, *DROP_REASONS3D}

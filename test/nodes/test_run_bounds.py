@@ -94,15 +94,6 @@ def test_the_bounds_reach_the_pipeline(tmp_path, monkeypatch, capsys):
     assert capsys.readouterr().err.count("flight-fdi run: error: stopped here\n") == 2
 
 
-def test_the_bounds_are_not_ignored_by_the_3d_model(tmp_path, capsys):
-    bag = tmp_path / "bag"
-    bag.mkdir()
-    assert main(["run", str(bag), "--model", "ins3d", "--stall-timeout", "5"]) == 1
-    assert capsys.readouterr().err == (
-        "flight-fdi run: error: --stall-timeout and --teardown-timeout apply to the single-axis "
-        "models only (not yet to --model ins3d)\n")
-
-
 def test_the_stall_timeout_option_ends_a_stalled_run(small_bag, tmp_path,  # noqa: F811
                                                      monkeypatch, capfd):
     from flight_fdi.nodes.recorder_node import RecorderNode
