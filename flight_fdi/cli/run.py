@@ -80,17 +80,13 @@ def pipeline_bounds(args: argparse.Namespace) -> dict[str, float]:
 
 def run(args: argparse.Namespace) -> int:
     from flight_fdi.cli import ins3d
-    from flight_fdi.cli.report import report_folder
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.pipeline import PipelineError, run_pipeline
 
     bounds = pipeline_bounds(args)
     if ins3d.is_ins3d(args):  # the 3-D model
         return run3d(args, bounds)
-    bag = Path(args.bag)
-    if not bag.exists():
-        raise CliError(f"bag {str(bag)!r} does not exist")
-    out = report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
+    bag, out = bag_and_folder(args)
     config = analysis_config(args)
     spec = input_spec(args)
     try:
@@ -104,6 +100,17 @@ def run(args: argparse.Namespace) -> int:
     return complete(res, out, args)
 
 
+def bag_and_folder(args: argparse.Namespace) -> tuple[Path, Path]:
+    """The run's input bag (it must exist) and its output folder (``--out``, default
+    out/<bag name>; checked by ``report_folder``: one line when it names a file)."""
+    from flight_fdi.cli.report import report_folder
+
+    bag = Path(args.bag)
+    if not bag.exists():
+        raise CliError(f"bag {str(bag)!r} does not exist")
+    return bag, report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
+
+
 def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
     """``flight-fdi run BAG --model ins3d``: the node pipeline of the 3-D model
     (nodes/ins3d_pipeline.py), with the options of ``analyze --model ins3d`` (cli/ins3d.py)
@@ -111,15 +118,11 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
     from flight_fdi.bagio.ins3d_input import check_topics, description_options, sim_description
     from flight_fdi.cli.ins3d import (error_model_block, recorded_model, settings, source,
                                       topics)
-    from flight_fdi.cli.report import report_folder
     from flight_fdi.nodes.errors import ParameterError
     from flight_fdi.nodes.ins3d_pipeline import run_pipeline3d
     from flight_fdi.nodes.pipeline import PipelineError
 
-    bag = Path(args.bag)
-    if not bag.exists():
-        raise CliError(f"bag {str(bag)!r} does not exist")
-    out = report_folder(args.out or Path("out") / bag.resolve().name, "output folder")
+    bag, out = bag_and_folder(args)
     s = settings(args)
     block = error_model_block(args)
     names = check_topics(bag, topics(args))
