@@ -287,23 +287,31 @@ def _topic_entry(role: str, s: Series, used: int, reasons: tuple) -> dict:
             else "message"}
 
 
-def warnings(section: dict) -> list[str]:
-    """One line per topic and reason that occurred (and per reordered topic)."""
-    what = {"non_finite": "non-finite velocity (dropped)",
-            "zero_stamp": "header stamp 0 (dropped)",
-            "duplicate_stamp": "repeated header stamp (dropped; the first kept)",
-            "out_of_order": "header stamp older than the reorder window (dropped; a clock "
-                            "jumping back? raise reorder_window_s to sort them)",
-            "outside_ins_record": "outside the INS record (not used)",
-            "ins_gap": "in an INS gap longer than max_gap_s (not used)",
-            "invalid_covariance_replaced": "invalid covariance (used with the model's R)"}
+#: the words of ``warnings`` for each reason of ``DROP_REASONS``
+REASON_TEXT = {
+    "non_finite": "non-finite velocity (dropped)",
+    "zero_stamp": "header stamp 0 (dropped)",
+    "duplicate_stamp": "repeated header stamp (dropped; the first kept)",
+    "out_of_order": "header stamp older than the reorder window (dropped; a clock jumping "
+                    "back? raise reorder_window_s to sort them)",
+    "outside_ins_record": "outside the INS record (not used)",
+    "ins_gap": "in an INS gap longer than max_gap_s (not used)",
+    "invalid_covariance_replaced": "invalid covariance (used with the model's R)"}
+
+
+def warnings(section: dict, texts: dict | None = None) -> list[str]:
+    """One line per topic and reason that occurred (and per reordered topic), in the words of
+    ``REASON_TEXT`` with ``texts`` (another input's reasons, e.g. the 3-D model's
+    ``bagio.ins3d_input.REASON_TEXT3D``) over them; a reason without words is named as it is."""
+    what = {**REASON_TEXT, **(texts or {})}
     lines = []
     for topic, e in section.items():
         if not isinstance(e, dict) or "dropped" not in e:
             continue
         for k, n in e["dropped"].items():
             if n:
-                lines.append(f"warning: {topic}: {n} of {e['messages']} messages: {what[k]}")
+                lines.append(f"warning: {topic}: {n} of {e['messages']} messages: "
+                             f"{what.get(k, k.replace('_', ' '))}")
         if e.get("reordered"):
             lines.append(f"warning: {topic}: {e['reordered']} messages arrived out of header-"
                          "stamp order and were sorted by header stamp")

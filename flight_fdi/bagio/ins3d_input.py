@@ -285,8 +285,21 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dI
     return inp
 
 
-#: why the 3-D input leaves a message out (``input_section3d``)
-DROP_REASONS3D = ("outside_imu_record",)
+#: why the 3-D input leaves a message out (``input_section3d``): the first; the others only the
+#: node pipeline's filter (``flight-fdi run --model ins3d``: nodes/ins3d_mode.py, its
+#: ``Ins3dAssembler``), which takes the messages one by one -- a reference whose step was taken
+#: before it came (``late``: it waited longer than ``ins3d_wait_s``), a variance not > 0, a
+#: value the filter refused (``core_error``); and as the single-axis input (DROP_REASONS)
+#: non_finite, duplicate_stamp, out_of_order
+DROP_REASONS3D = ("outside_imu_record", "late", "invalid_covariance", "core_error")
+#: the words of the input warnings (``bagio.inputs.warnings``) for the 3-D model's reasons
+REASON_TEXT3D = {
+    "outside_imu_record": "outside the IMU record (no step for it; not used)",
+    "late": "came after its step was taken (waited longer than ins3d_wait_s; not used)",
+    "invalid_covariance": "a variance not > 0 (dropped)",
+    "core_error": "refused by the filter (dropped)",
+    "non_finite": "non-finite value (dropped)",
+    "out_of_order": "header stamp older than the previous one (dropped)"}
 
 
 def input_section3d(inp: Ins3dInput) -> dict | None:
@@ -299,13 +312,23 @@ def input_section3d(inp: Ins3dInput) -> dict | None:
     dropped (the latter fails the analysis). None for an input not read from a bag."""
     if inp.topics is None or inp.messages is None:
         return None
+    n_ref = int(inp.messages[inp.topics["ref_velocity"]])
+    return section3d(inp.topics, inp.messages,
+                     {"ref_velocity": {"outside_imu_record": n_ref - int(inp.refs.t.size)}})
+
+
+def section3d(topics: dict[str, str], messages: dict[str, int],
+              dropped: dict[str, dict[str, int]]) -> dict:
+    """The ``input`` section of ``input_section3d`` from counts: ``topics`` {role: topic},
+    ``messages`` {topic: messages read}, ``dropped`` {role: {reason: count}} (a role left out:
+    none dropped); a topic's ``used``: its messages less its drops. One form for ``analyze``
+    and for the node pipeline (``nodes.ins3d_pipeline.input_section_of_run``)."""
     out = {}
-    for role, topic in inp.topics.items():
-        n = int(inp.messages[topic])
-        used = int(inp.refs.t.size) if role == "ref_velocity" else n
-        out[topic] = {"role": role, "type": TYPES[role], "messages": n, "used": used,
-                      "dropped": {"outside_imu_record": n - used}
-                      if role == "ref_velocity" else {}}
+    for role, topic in topics.items():
+        n = int(messages[topic])
+        gone = {k: int(v) for k, v in (dropped.get(role) or {}).items()}
+        out[topic] = {"role": role, "type": TYPES[role], "messages": n,
+                      "used": n - sum(gone.values()), "dropped": gone}
     return out
 
 
@@ -421,9 +444,10 @@ def _decode(got: dict[str, list], names: dict[str, str], path) -> tuple:
     return t_imu, q, f, w, t_vel, v, t_fix, lat, h, t_ref, v_ref, r_ref, t0_ns
 
 
-__all__ = ["ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput", "TOPICS",
+__all__ = ["DROP_REASONS3D", "ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput",
+           "REASON_TEXT3D", "TOPICS",
            "TRUTH_TOPIC", "TYPES", "build_input", "check_topics", "description_options",
            "description_vertical",
            "error_model_options", "error_model_used", "from_flight", "input_section3d",
            "model_options_with",
-           "read_ins3d", "read_truth3d", "truth_from_flight", "with_error_model"]
+           "read_ins3d", "read_truth3d", "section3d", "truth_from_flight", "with_error_model"]

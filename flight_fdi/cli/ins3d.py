@@ -219,7 +219,10 @@ def analyze_bag(bag: str, args: argparse.Namespace):
 
 
 def format_result(res: dict) -> str:
-    """A short table of a 3-D result."""
+    """A short table of a 3-D result; one warning per topic and drop reason (the single-axis
+    table's, ``bagio.inputs.warnings``)."""
+    from flight_fdi.bagio.inputs import warnings
+    from flight_fdi.bagio.ins3d_input import REASON_TEXT3D
     from flight_fdi.core.ins3d_result import fault_line
 
     post, inf, summ = res["post_flight"], res["in_flight"], res["ins3d"]
@@ -234,6 +237,7 @@ def format_result(res: dict) -> str:
                      f"{src['fix_topic']}, reference {', '.join(src['reference_topics'])}")
     if src.get("error_model"):
         lines.append(model_line(src["error_model"], src.get("error_model_overrides") or []))
+    lines += warnings(res.get("input") or {}, REASON_TEXT3D)  # what was left out, as 1-axis
     rows = ", ".join(f"{k} {v:.3f}" for k, v in summ["beta2_row_mean"].items())
     lines += ["",
               f"in flight: beta2 mean {summ['beta2_mean']:.3f} (per row {rows}); gate "

@@ -80,7 +80,8 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                    on_teardown_timeout: Any = None) -> PipelineRun:
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
     before any node exists (BagError). Leaves ``recording/`` and ``result.json`` in
-    ``out_dir``. ``options``: the model options (``filter_parameters3d``; the filter records
+    ``out_dir``; the result's ``input`` section is the filter's count of the messages it
+    received and dropped (``input_section_of_run``: that of ``analyze``, no second read). ``options``: the model options (``filter_parameters3d``; the filter records
     them, the smoother analyses with them). ``timeout_s``, ``stall_timeout_s``,
     ``teardown_timeout``: the bounds of ``pipeline`` (its module docstring: a stalled stage
     ends the run with PipelineError; the teardown after the result is bounded), and
@@ -125,11 +126,35 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
         g.spin_until(lambda: c["received_ins"] + c["received_reference"] >= player.published,
                      "filtering the last inputs")
         flt.ins3d.finish()
+        extra = {"input": input_section_of_run(flt.ins3d, names)}
         run = g.finish(player, flt, rec, AnalysisConfig(gate=gate), {
             "bag": str(recording), "channel": "ins3d", "output_json": str(result_json),
             "publish_smoothed": False}, bag, result_json,
-            {} if source is None else {"source": source})
+            extra if source is None else {**extra, "source": source})
     return run
 
 
-__all__ = ["ACK_WINDOW", "ack_window", "filter_parameters3d", "run_pipeline3d"]
+def input_section_of_run(mode: Any, names: dict[str, str]) -> dict:
+    """The result's ``input`` section (``bagio.ins3d_input.section3d``, the form of ``analyze
+    --model ins3d``'s) from what the filter's ins3d mode (``mode``, flushed) counted -- the bag
+    is not read again: the messages it received per topic, those it dropped per topic and
+    reason (``dropped_<role>_<reason>``), the references outside the IMU record (always
+    given, as analyze does) and those that came late. ``names``: {role: the bag's topic}."""
+    from flight_fdi.bagio.ins3d_input import section3d
+
+    counters = dict(mode.counters.items())
+    dropped: dict[str, dict[str, int]] = {}
+    for role in names:
+        head = f"dropped_{role}_"
+        dropped[role] = {k[len(head):]: int(n) for k, n in counters.items()
+                         if k.startswith(head) and n}
+    ref = dropped["ref_velocity"]
+    ref["outside_imu_record"] = int(mode.asm.outside)
+    if mode.asm.late:
+        ref["late"] = int(mode.asm.late)
+    received = {names[role]: mode.inputs.count(mode.names[role]) for role in names}
+    return section3d(names, received, dropped)
+
+
+__all__ = ["ACK_WINDOW", "ack_window", "filter_parameters3d", "input_section_of_run",
+           "run_pipeline3d"]
