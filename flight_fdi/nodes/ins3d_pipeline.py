@@ -57,13 +57,16 @@ def ack_window(counts: dict[str, int], reference_topic: str) -> int:
 def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any,
                         options: dict | None = None) -> dict:
     """filter_node parameters of the ins3d mode for a replay (reliable inputs); ``options``: the
-    model options of the bag's description (``bagio.ins3d_input.error_model_options``)."""
+    model options of the bag's description (``bagio.ins3d_input.error_model_options``). The
+    end-of-input idle flush is off (``ins3d_end_idle_s`` 0): the pipeline flushes at the end of
+    its bag itself, and a replay starved of CPU for 2 s must not split the record in two."""
     from .ins3d_mode import option_parameters
 
     return {**option_parameters(options or {}), "model": "ins3d",
             "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
             "fix_topic": names["ins_fix"], "reference_topic": names["ref_velocity"],
             "ins3d_grade": grade, "ins3d_rows": int(rows), "ins3d_wait_s": WAIT_S,
+            "ins3d_end_idle_s": 0.0,
             "input_qos": "reliable",
             "gate_rule": gate.rule, "gate_probability": float(gate.probability),
             "alarm_m": int(gate.alarm_m), "alarm_n": int(gate.alarm_n),

@@ -117,3 +117,14 @@ def test_the_player_window_covers_a_sparse_reference():
     real = {"/ins/velocity": 600, "/ins/imu": 600, "/ins/fix": 600, "/reference/velocity": 14}
     assert ack_window(real, "/reference/velocity") == 2 * 129 + 45
     assert ack_window({}, "/reference/velocity") == ACK_WINDOW
+
+
+def test_a_replay_never_ends_its_record_on_an_idle_pause():
+    """The pipeline flushes at the end of its bag itself; its filter's idle flush is off, so a
+    replay starved of CPU for longer than the node's default 2 s is not split in two records."""
+    from flight_fdi.core.gate import GateConfig
+    from flight_fdi.nodes.ins3d_mode import INS3D_PARAMS
+    names = {"ins_imu": "/i", "ins_velocity": "/v", "ins_fix": "/f", "ref_velocity": "/r"}
+    spec = next(s for s in INS3D_PARAMS if s.name == "ins3d_end_idle_s")
+    assert spec.default > 0
+    assert filter_parameters3d(names, "mems", 2, GateConfig())["ins3d_end_idle_s"] == 0.0
