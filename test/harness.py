@@ -15,6 +15,9 @@ from typing import Any, Callable, Iterable
 os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 100)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_STATIC_PEERS", None)
+#: a second private domain, for a test that runs two ROS graphs side by side (test_graph.py);
+#: outside 100-199, so no test process's own domain
+SECOND_DOMAIN_ID = 200 + os.getpid() % 32
 
 import rclpy  # noqa: E402
 from rclpy.context import Context  # noqa: E402
@@ -33,9 +36,9 @@ class SpinTimeout(AssertionError):
 class RosHarness:
     """A private context + executor, and the nodes created in it (destroyed on ``close``)."""
 
-    def __init__(self) -> None:
+    def __init__(self, domain_id: int | None = None) -> None:
         self.context = Context()
-        rclpy.init(context=self.context)
+        rclpy.init(context=self.context, domain_id=domain_id)   # None: ROS_DOMAIN_ID
         self.executor: Executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Node] = []
 

@@ -25,15 +25,18 @@ DASK = Path(sys.executable).parent / "dask"
 
 
 def _stop(procs: list[subprocess.Popen]) -> None:
-    for p in reversed(procs):  # workers first, then the scheduler
-        if p.poll() is None:
-            p.terminate()
-    for p in procs:
-        try:
-            p.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(timeout=20)
+    """The workers (procs[1:]) first, then the scheduler (procs[0]) once they have ended: a
+    worker whose scheduler went first waits for it until its nanny kills it after 8 s."""
+    for group in (procs[1:], procs[:1]):
+        for p in group:
+            if p.poll() is None:
+                p.terminate()
+        for p in group:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=20)
 
 
 @pytest.fixture(scope="module")

@@ -1,16 +1,22 @@
-"""Short simulated 3-D flights shared by the ins3d tests (seconds to simulate)."""
+"""Short simulated 3-D flights shared by the ins3d tests (seconds to simulate), and the bundled
+sample bags' decoded inputs (decoded once per session: ~5 s per 1800-s bag)."""
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
+from pathlib import Path
 
 import pytest
 
+from flight_fdi.bagio.ins3d_input import Ins3dInput, read_ins3d
 from flight_fdi.sim.faults import FaultSpec3D, parse_fault
 from flight_fdi.sim.gnss import GnssConfig
 from flight_fdi.sim.imu3d import GRADES
 from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d
 from flight_fdi.sim.trajectory import TrajectoryConfig
+
+BAGS = Path(__file__).resolve().parents[2] / "bags"
 
 
 @functools.lru_cache(maxsize=8)
@@ -34,3 +40,14 @@ def flight(profile: str = "cruise_turns", duration_s: float = 1500.0, grade: str
 @pytest.fixture
 def sim_flight():
     return flight
+
+
+@functools.lru_cache(maxsize=3)
+def _decoded(name: str) -> Ins3dInput:
+    return read_ins3d(BAGS / name)
+
+
+def sample_input(name: str) -> Ins3dInput:
+    """``read_ins3d`` of the bundled sample bag ``bags/<name>``, decoded once per session; each
+    call gets its own copy (no test sees another's changes)."""
+    return copy.deepcopy(_decoded(name))

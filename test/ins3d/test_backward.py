@@ -152,6 +152,9 @@ def _information_filter_combination(a):
     Wv, ref, Lam, vt, dd = (np.empty(n) for _ in range(5))
     inf = np.empty(n, dtype=np.bool_)
     A, work = np.empty((n, 2 * n + 1)), np.empty((2, n, n))
+    # the forward priors in scaled units, once (x_prior, P_prior are properties that scale
+    # the whole (M, n, n) array at every access)
+    xf_all, Pf_all = fwd.x_prior / s, fwd.P_prior / np.outer(s, s)
     j1 = M
     for k in range(len(steps), -1, -1):
         j0 = j1
@@ -162,8 +165,7 @@ def _information_filter_combination(a):
             Y += Hs.T @ np.diag(1.0 / R[j, :rows]) @ Hs
             y += Hs.T @ (refs.z[j, :rows] / R[j, :rows])
         if j0 < j1:
-            xf = fwd.x_prior[j0] / s
-            Pf = fwd.P_prior[j0] / np.outer(s, s)
+            xf, Pf = xf_all[j0], Pf_all[j0]
             terms, dof, norm = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n)
             assert combine_step(Y, y, xf, Pf, 1e-9, W, Wv, x_s, P_s, ref, Lam, inf, vt, dd,
                                 terms, dof, norm, A, work)

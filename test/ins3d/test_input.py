@@ -14,14 +14,14 @@ from flight_fdi.core.errors import CoreError
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
 from flight_fdi.core.ins3d.data import nav_steps
 
-from .conftest import flight
+from .conftest import flight, sample_input
 
 BAGS = Path(__file__).resolve().parents[2] / "bags"
 
 
 @pytest.fixture(scope="module")
 def nominal_bag():
-    return read_ins3d(BAGS / "ins3d_nominal")
+    return sample_input("ins3d_nominal")       # read_ins3d of the bag, decoded once
 
 
 @pytest.mark.slow
@@ -48,12 +48,12 @@ def test_analyze_the_bundled_samples(nominal_bag):
     assert nom["final_state"]["latency"] == pytest.approx(0.02, abs=2e-3)
     assert nom["observability"]["phi_u"] == pytest.approx(310.0, abs=20.0)   # the first turn
     json.dumps(nom)
-    fault = read_ins3d(BAGS / "ins3d_accel_y_step")                # 0.5 mg on body y at 480 s
+    fault = sample_input("ins3d_accel_y_step")                     # 0.5 mg on body y at 480 s
     acc = analyze_ins3d(fault.steps, fault.refs).summary()
     # absorbed by the bias state (no forward alarm): the post-flight isolator's job
     assert acc["final_state"]["ba_y"] / 9.80665e-6 == pytest.approx(500.0, abs=100.0)
     assert abs(acc["final_state"]["ba_x"]) / 9.80665e-6 < 100.0
-    fault = read_ins3d(BAGS / "ins3d_gyro_x_step")                 # 1 deg/h on body x at 480 s
+    fault = sample_input("ins3d_gyro_x_step")                      # 1 deg/h on body x at 480 s
     gyr = analyze_ins3d(fault.steps, fault.refs).summary()
     assert gyr["alarms_raised_s"] and gyr["alarms_raised_s"][0] > 480.0
     assert np.degrees(gyr["final_state"]["bg_x"]) * 3600 > 0.3

@@ -10,12 +10,12 @@ import jsonschema
 import numpy as np
 import pytest
 
-from flight_fdi.bagio.ins3d_input import from_flight, read_ins3d
+from flight_fdi.bagio.ins3d_input import from_flight
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
 from flight_fdi.core.ins3d.data import RefRows
 
-from .conftest import flight
+from .conftest import flight, sample_input
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -31,7 +31,7 @@ def validate(pf: dict) -> None:
 def bag_results():
     out = {}
     for name in ("ins3d_nominal", "ins3d_accel_y_step", "ins3d_gyro_x_step"):
-        inp = read_ins3d(ROOT / "bags" / name)
+        inp = sample_input(name)                # read_ins3d of bags/<name>, decoded once
         out[name] = analyze_ins3d(inp.steps, inp.refs, with_observability=False)
     return out
 

@@ -28,11 +28,22 @@ relinearized(Ins3dModel.from_grade("mems", rows=3, vertical="loop"), inp.steps, 
 
 
 def test_analysis_compiles_nothing_after_setup(bag3d):
-    for threads in ("2", "1"):
-        env = {**os.environ, "NUMBA_DEBUG_CACHE": "1", "FLIGHT_FDI_THREADS": threads}
-        proc = subprocess.run([sys.executable, "-c", _ANALYZE, str(bag3d)], capture_output=True,
-                              text=True, timeout=300, env=env)
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        after = proc.stdout.split("--- analysis")[1]
+    procs = [subprocess.Popen([sys.executable, "-c", _ANALYZE, str(bag3d)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, "NUMBA_DEBUG_CACHE": "1",
+                                   "FLIGHT_FDI_THREADS": threads})
+             for threads in ("2", "1")]      # the two processes at once (independent)
+    outputs = []
+    try:
+        for proc in procs:
+            outputs.append(proc.communicate(timeout=300))
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    for proc, (out, err) in zip(procs, outputs):
+        assert proc.returncode == 0, err[-2000:]
+        after = out.split("--- analysis")[1]
         assert "data loaded" in after
         assert "saved" not in after, [ln for ln in after.splitlines() if "saved" in ln]

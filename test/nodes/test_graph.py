@@ -15,6 +15,7 @@ import os
 import signal
 import subprocess
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import harness  # noqa: F401  (private ROS domain, inherited by the subprocesses)
@@ -34,14 +35,16 @@ def bag40(tmp_path_factory):
     return path
 
 
-def start(exe: str, cwd: Path, *ros_args: str) -> subprocess.Popen:
-    """An installed node executable, started through install/setup.bash as a user does."""
+def start(exe: str, cwd: Path, *ros_args: str, domain: int | None = None) -> subprocess.Popen:
+    """An installed node executable, started through install/setup.bash as a user does; in ROS
+    domain ``domain`` (default: the test's)."""
     path = EXE_DIR / exe
     assert path.exists(), "run make setup first (install/ is missing)"
     cmd = ["bash", "-c", 'source "$0" >/dev/null && exec "$@"',
            str(REPO / "install" / "setup.bash"), str(path), "--ros-args", *ros_args]
+    env = None if domain is None else {**os.environ, "ROS_DOMAIN_ID": str(domain)}
     return subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+                            text=True, env=env)
 
 
 def stop(procs: list[subprocess.Popen]) -> list[str]:
@@ -108,21 +111,35 @@ def wait_inputs(ros, probe, f: str, ins: int, reference: int, timeout: float = 2
                                   f"{probe.values.get(f'{f}: inputs')}") from None
 
 
+def start_consumers(tmp_path: Path, run: int, domain: int | None = None) -> list:
+    """recorder_<run> (recording to tmp_path/rec<run>) and filter_<run>, in ROS domain
+    ``domain``."""
+    return [start("recorder_node", tmp_path, "-r", f"__node:=recorder_{run}",
+                  "-p", f"output:={tmp_path / f'rec{run}'}", domain=domain),
+            start("filter_node", tmp_path, "-r", f"__node:=filter_{run}",
+                  "-p", "diagnostics_period_s:=0.25", domain=domain)]
+
+
 def one_replay(ros, probe, bag, tmp_path, run: int, stall_s: float = 0.0,
-               ack_topic: str = "/fdi/state") -> dict:
-    """One fast replay through three processes; returns the counts to compare."""
+               ack_topic: str = "/fdi/state", domain: int | None = None, consumers=None,
+               while_playing=None, stopper: ThreadPoolExecutor | None = None):
+    """One fast replay through three processes -- the recorder and the filter (started here
+    unless ``consumers`` were, by ``start_consumers``), then the player -- in ROS domain
+    ``domain`` (``ros`` and ``probe`` in it too); ``while_playing()`` is called once the player
+    has started. Returns the counts to compare (``finish_replay``); with ``stopper``, a future
+    of them: the processes are stopped on that thread, while the caller goes on."""
     f, r = f"filter_{run}", f"recorder_{run}"
-    out = tmp_path / f"rec{run}"
-    procs = [start("recorder_node", tmp_path, "-r", f"__node:={r}", "-p", f"output:={out}"),
-             start("filter_node", tmp_path, "-r", f"__node:={f}",
-                   "-p", "diagnostics_period_s:=0.25")]
+    procs = consumers or start_consumers(tmp_path, run, domain)
     try:
         # the recorder has matched the filter once it recorded the filter's latched models
         ros.spin_until(lambda: probe.get(f"{r}: recording", "/fdi/model count") == "2",
                        timeout=60, what="the recorder recording the filter's models")
         player = start("bag_player", tmp_path, "-p", f"bag:={bag}", "-p", "fast:=true",
-                       "-p", f"ack_topic:={ack_topic}", "-p", "publish_clock:=false")
+                       "-p", f"ack_topic:={ack_topic}", "-p", "publish_clock:=false",
+                       domain=domain)
         procs.append(player)
+        if while_playing is not None:
+            while_playing()
         if stall_s:
             ros.spin_until(lambda: int(probe.get(f"{f}: inputs", "published", "0")) > 0,
                            timeout=60, what="the replay starting")
@@ -141,24 +158,59 @@ def one_replay(ros, probe, bag, tmp_path, run: int, stall_s: float = 0.0,
         ros.spin_until(lambda: probe.get(f"{r}: recording", "/fdi/state count") ==
                        probe.get(f"{r}: recording", "/fdi/innovation count") == str(published),
                        timeout=20, what="the recorder catching up")
-    finally:
-        logs = stop(procs)
+    except BaseException:
+        stop(procs)
+        raise
+    v = probe.values[f"{f}: inputs"]
+    counts = dict(published=published, received_ins=int(v["received_ins"]),
+                  received_reference=int(v["received_reference"]),
+                  dropped=sum(int(x) for k, x in v.items() if k.startswith("dropped_")))
+    if stopper is None:
+        return finish_replay(procs, tmp_path / f"rec{run}", counts)
+    return stopper.submit(finish_replay, procs, tmp_path / f"rec{run}", counts)
+
+
+def finish_replay(procs: list, out: Path, counts: dict) -> dict:
+    """Stops a replay's processes -- the recorder and the filter must exit 0 -- and adds what
+    the recorder's bag ``out`` holds to ``counts``."""
+    logs = stop(procs)
     if [p.returncode for p in procs[:2]] != [0, 0]:
         print("\n".join(logs))                 # whole (the assertion message is shortened)
     assert [p.returncode for p in procs[:2]] == [0, 0], logs
-    v = probe.values[f"{f}: inputs"]
-    return dict(published=published, received_ins=int(v["received_ins"]),
-                received_reference=int(v["received_reference"]),
-                dropped=sum(int(x) for k, x in v.items() if k.startswith("dropped_")),
-                bag=bag_counts(out))
+    return dict(counts, bag=bag_counts(out))
 
 
 @pytest.mark.slow
 def test_fast_replay_across_processes_records_every_message_ten_times(ros, bag40, tmp_path):
-    probe = DiagnosticsProbe(ros)
+    """Ten replays, one after the other, each through three new processes. The recorder and the
+    filter of the next replay start while one plays -- in the other of two private ROS domains,
+    so that they hear nothing of it -- and are ready when it ends (their start-up and discovery,
+    ~5 s, were half of a replay's time); a replay's processes are stopped (and its bag read)
+    while the next one starts."""
+    other = harness.RosHarness(domain_id=harness.SECOND_DOMAIN_ID)
+    graphs = [(ros, DiagnosticsProbe(ros), None),
+              (other, DiagnosticsProbe(other), harness.SECOND_DOMAIN_ID)]
+    ready = [start_consumers(tmp_path, 0)]
+
+    def start_next(run: int) -> None:
+        if run < 10:
+            ready.append(start_consumers(tmp_path, run, graphs[run % 2][2]))
+
+    replays = []
+    try:
+        with ThreadPoolExecutor(max_workers=1) as stopper:   # (waits for every stop)
+            for run in range(10):
+                h, probe, domain = graphs[run % 2]
+                replays.append(one_replay(h, probe, bag40, tmp_path, run, domain=domain,
+                                          consumers=ready.pop(), stopper=stopper,
+                                          while_playing=lambda: start_next(run + 1)))
+    finally:
+        for procs in ready:                    # the next replay's, after a failure
+            stop(procs)
+        other.close()
     missing = []
-    for run in range(10):
-        c = one_replay(ros, probe, bag40, tmp_path, run)
+    for replay in replays:
+        c = replay.result()
         assert c["received_ins"] == 2000 and c["received_reference"] == 400
         assert c["dropped"] == 0
         missing.append((c["published"] - c["bag"].get("/fdi/state", 0),
