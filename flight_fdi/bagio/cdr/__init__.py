@@ -9,7 +9,8 @@ and the per-message codecs 1-4 us. So the project keeps one hand-written codec, 
 * :mod:`.series` -- whole series with numpy: TwistStamped / TwistWithCovarianceStamped
   (decode and encode), any header-plus-doubles type (``encode_doubles`` / ``decode_doubles``:
   sensor_msgs/Imu),
-  NavSatFix (encode), :class:`Payloads` (messages stored back to back);
+  NavSatFix (encode; ``decode_doubles`` reads it), :class:`Payloads` (messages stored back to
+  back);
 * :mod:`.variable` -- the variable-layout messages read or written in series: std_msgs/String,
   flight_fdi_msgs/FilterState (leading fields, or every field), nav_msgs/Odometry;
 * :mod:`.message` -- one message at a time for the nodes: the filter node's inputs and outputs

@@ -19,8 +19,11 @@ doubles are 8-byte aligned relative to the payload start)::
 Both encapsulations are decoded: CDR_LE (``00 01``) and CDR_BE (``00 00``). Encoding writes CDR_LE.
 The tests check both directions against rosbags' own serializer.
 
-Encoding only (the 3-D simulator's topics): ``encode_doubles`` for any type that is a header
-followed by doubles (``sensor_msgs/Imu``: 37), ``encode_navsatfix`` for ``sensor_msgs/NavSatFix``.
+The 3-D simulator's topics: ``encode_doubles`` / ``decode_doubles`` for any type that is a
+header followed by doubles (``sensor_msgs/Imu``: 37), ``encode_navsatfix`` for
+``sensor_msgs/NavSatFix``, which ``decode_doubles`` also reads (its 12 doubles: latitude,
+longitude, altitude, position_covariance[9]; they follow ``status``: int8 status at ``12 + L``,
+uint16 service 2-aligned after it, then the doubles 8-aligned, then uint8 covariance_type).
 """
 from __future__ import annotations
 
@@ -39,6 +42,8 @@ NAVSATFIX = "sensor_msgs/msg/NavSatFix"
 _DOUBLES = {TWIST_STAMPED: 6, TWIST_COV_STAMPED: 6 + 36}
 #: other types made of a header and doubles (encode_doubles / decode_doubles only)
 _HEADER_DOUBLES = {IMU: 4 + 9 + 3 + 9 + 3 + 9}
+#: types whose doubles follow a sensor_msgs/NavSatStatus (decode_doubles only): number of doubles
+_AFTER_STATUS = {NAVSATFIX: 3 + 9}
 _NS = 1_000_000_000
 
 
@@ -216,9 +221,10 @@ def decode(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryview]",
 def decode_doubles(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryview]",
                    cols: Sequence[int], what: str = "message") -> tuple[np.ndarray, np.ndarray]:
     """(stamp_ns (N,) int64, the doubles at ``cols`` (N, len(cols))) of a series of a type made
-    of a header and doubles (the twists, sensor_msgs/Imu: 37 doubles in declaration order).
-    Raises BagError naming ``what`` when a message is too short or malformed."""
-    ndouble = _DOUBLES.get(msgtype, _HEADER_DOUBLES.get(msgtype))
+    of a header and doubles (the twists, sensor_msgs/Imu: 37 doubles in declaration order), or
+    of sensor_msgs/NavSatFix (its 12 doubles). Each message has its own frame_id, so its own
+    offsets. Raises BagError naming ``what`` when a message is too short or malformed."""
+    ndouble = _ndouble(msgtype)
     if ndouble is None:
         raise BagError(f"fast CDR decoding does not support {msgtype!r}")
     cols = [int(c) for c in cols]
@@ -242,11 +248,24 @@ def decode_doubles(msgtype: str, payloads: "Payloads | Sequence[bytes | memoryvi
 _BLOCK = 65536
 
 
+def _ndouble(msgtype: str) -> int | None:
+    return _DOUBLES.get(msgtype, _HEADER_DOUBLES.get(msgtype, _AFTER_STATUS.get(msgtype)))
+
+
+def _first_double(msgtype: str, strlen: np.ndarray) -> tuple[np.ndarray, int]:
+    """(offset in the payload of the first double, bytes the message has after the doubles) of
+    messages whose frame_ids take ``strlen`` bytes (with the NUL)."""
+    end = 12 + strlen
+    if msgtype in _AFTER_STATUS:       # int8 status, uint16 service (2-aligned); uint8 after
+        return 4 + align8(((end + 2) & ~1) + 2), 1
+    return 4 + align8(end), 0
+
+
 def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
                   cols: list[int], what: str, first: int) -> tuple[np.ndarray, np.ndarray]:
     """(stamp_ns, the doubles at ``cols``) of messages ``first`` ... of a series."""
     n = starts.size
-    ndouble = _DOUBLES.get(msgtype, _HEADER_DOUBLES.get(msgtype))
+    ndouble = _ndouble(msgtype)
     if n == 0:
         return np.zeros(0, np.int64), np.zeros((0, len(cols)))
     if lengths.min() < 16:
@@ -265,8 +284,8 @@ def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np
     words = np.ascontiguousarray(head[:, 4:16]).view("<u4").reshape(n, 3).astype(np.int64)
     sec = np.where(words[:, 0] >= 2**31, words[:, 0] - 2**32, words[:, 0])
     nsec, strlen = words[:, 1], words[:, 2]
-    off = 4 + align8(12 + strlen)
-    short = off + 8 * ndouble > lengths
+    off, tail = _first_double(msgtype, strlen)
+    short = off + 8 * ndouble + tail > lengths
     if np.any(short):
         bad = int(np.flatnonzero(short)[0])
         raise BagError(f"{what} #{first + bad}: {lengths[bad]} bytes is too short for {msgtype} "
