@@ -85,7 +85,7 @@ from ..core.errors import CoreError
 from ..core.kalman import GateConfig
 from ..core.models import BUILTIN_MODELS, LinearModel, get_model
 from ..core.timeline import StampLine
-from . import attitude_mode, convert, filter_diag, ins3d_mode
+from . import attitude_mode, convert, filter_diag, ins3d_params
 from .convert import VELOCITY_TYPES
 from .filter_parts import Channel as _Channel, reference_topics  # noqa: F401 (re-exported)
 from .filter_velocity import VelocityMode
@@ -274,7 +274,7 @@ FILTER_PARAMS = (
               min=0.0, min_exclusive=True),
     ParamSpec("rate_window_s", "double", 5.0, "Window of the input rate estimate", "s",
               min=0.0, max=3600.0, min_exclusive=True),
-) + ins3d_mode.INS3D_PARAMS  # --- the ins3d mode's own (nodes/ins3d_mode.py)
+) + ins3d_params.INS3D_PARAMS  # --- the ins3d mode's own (nodes/ins3d_params.py)
 
 _DEFAULTS = {s.name: s.default for s in FILTER_PARAMS}
 
@@ -302,9 +302,11 @@ def build_model(values: dict[str, Any]) -> Any:
     A model with a control input B runs the attitude mode (``attitude_mode``), any other the
     INS velocity mode."""
     name = values["model"]
-    if name == ins3d_mode.MODEL:  # the 3-D INS error model (nodes/ins3d_mode.py)
+    if name == ins3d_params.MODEL:  # the 3-D INS error model (nodes/ins3d_mode.py)
+        from . import ins3d_mode  # imported only for this mode: the 3-D core, numba, scipy
+
         return ins3d_mode.build_model(values, _DEFAULTS)
-    ins3d_mode.refuse_in_other_modes(values, _DEFAULTS)
+    ins3d_params.refuse_in_other_modes(values, _DEFAULTS)
     if attitude_mode.is_attitude_model(name):
         _only_defaults(values, INS_ONLY, "INS velocity")
         return attitude_mode.build_attitude_model(values, _DEFAULTS)
@@ -382,7 +384,9 @@ class FilterNode(VelocityMode, Node):
             raise ParameterError(f"invalid gate parameters: {exc}") from None
         qos = input_profile(p["input_qos"], p["input_queue_depth"])
         self.ins3d = None
-        if ins3d_mode.is_ins3d(self.model):  # the ins3d mode (nodes/ins3d_mode.py)
+        if p["model"] == ins3d_params.MODEL:  # the ins3d mode (nodes/ins3d_mode.py)
+            from . import ins3d_mode  # already imported by build_model
+
             self.attitude = None
             self.ins3d = ins3d_mode.Ins3dMode(self, self.model, self.gate, qos)
             return

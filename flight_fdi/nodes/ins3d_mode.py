@@ -44,63 +44,21 @@ from ..core.gate import ALARM_CLEARED, ALARM_RAISED, GateConfig
 from ..core.ins3d.analysis import analyze_ins3d, initial_covariance
 from ..core.ins3d.grade_file import is_grade_file, resolve_grade
 from ..core.ins3d.grades import GRADES as PRESETS
-from ..core.ins3d.model import VERTICAL, Ins3dModel
+from ..core.ins3d.model import Ins3dModel
 from ..core.ins3d.stream import Boundary, Ins3dAssembler, Ins3dStream
 from . import diagnostics as diag
 from .convert import header
 from .ins3d_recording import (CHANNEL, ROW_NAMES, grade_params, option_params, pack_step,
                               state_units, t0_params)
-from .params import ParamSpec, fail
+from .ins3d_params import (INS3D_ONLY, INS3D_PARAMS, MODEL, USED,  # noqa: F401 (re-exported)
+                           refuse_in_other_modes)
+from .params import fail
 
-MODEL = "ins3d"
 #: the grade presets an analysis takes (core/ins3d/grades.py; "perfect" is for tests)
 GRADES = tuple(g for g in PRESETS if g != "perfect")
-#: the model options of ``analyze_ins3d`` (one set of defaults for the node and the CLI)
+#: the defaults of ``analyze_ins3d`` (the parameters' copies of its model options:
+#: ``ins3d_params.ANALYZE_DEFAULTS``)
 _ANALYZE = {k: v.default for k, v in inspect.signature(analyze_ins3d).parameters.items()}
-
-INS3D_PARAMS = (
-    ParamSpec("imu_topic", "string", "/ins/imu",
-              "ins3d mode: INS attitude and mean IMU rate / specific force (sensor_msgs/Imu)",
-              non_empty=True),
-    ParamSpec("fix_topic", "string", "/ins/fix",
-              "ins3d mode: INS latitude and height (sensor_msgs/NavSatFix)", non_empty=True),
-    ParamSpec("ins3d_grade", "string", "navigation",
-              "ins3d mode: IMU grade of the bias models, a preset (navigation, tactical, mems) "
-              "or the path of a YAML grade file (docs/ins3d.md, 'IMU grade from a file')",
-              non_empty=True),
-    ParamSpec("ins3d_rows", "int", 3,
-              "ins3d mode: reference rows, 2 (east, north) or 3 (with up)", "rows",
-              min=2, max=3),
-    ParamSpec("ins3d_vertical", "string", _ANALYZE["vertical"],
-              "ins3d mode: the error model's vertical channel -- loop (the INS's baro height "
-              "loop), damped (an unknown height loop: dv_U a Markov state of its own) or free "
-              "(a free-inertial INS on a short flight); a bag's description says which "
-              "(docs/ins3d.md, 'The contract description')", choices=VERTICAL),
-    ParamSpec("ins3d_latency", "bool", _ANALYZE["latency"],
-              "ins3d mode: estimate the reference's latency (a state)"),
-    ParamSpec("ins3d_reference_markov", "double_array", list(_ANALYZE["ref_markov"]),
-              "ins3d mode: the reference's Markov noise states, [sigma_h m/s, sigma_v m/s, tau "
-              "s] (all > 0), or [0, 0, 0]: none (white reference noise)", min=0.0),
-    ParamSpec("ins3d_aligned_prior", "bool", _ANALYZE["aligned_prior"],
-              "ins3d mode: the initial covariance of an INS levelled on its own accelerometers "
-              "(the tilt cancels the horizontal accelerometer bias); false: independent states "
-              "(its attitude came from elsewhere)"),
-    ParamSpec("ins3d_wait_s", "double", 1.0,
-              "ins3d mode: longest wait (in IMU stamps) of a step for the reference stream to "
-              "pass it; after that a late reference sample is dropped", "s",
-              min=0.0, max=60.0, min_exclusive=True),
-    ParamSpec("ins3d_end_idle_s", "double", 2.0,
-              "ins3d mode: end of input -- after this long without a message on any of the four "
-              "inputs (steady clock) the waiting steps and reference rows are flushed and the "
-              "record ends; the next message starts a new record (0: never)", "s",
-              min=0.0, max=3600.0),
-)
-INS3D_ONLY = tuple(s.name for s in INS3D_PARAMS)
-#: filter_node parameters the ins3d mode uses besides its own
-USED = INS3D_ONLY + (
-    "model", "ins_topic", "reference_topic", "input_qos", "input_queue_depth", "gate_rule",
-    "gate_probability", "alarm_m", "alarm_n", "gate_action", "frame_id",
-    "diagnostics_period_s", "stale_after_s", "rate_window_s")
 
 
 def build_model(values: dict[str, Any], defaults: dict[str, Any]) -> Ins3dModel:
@@ -151,13 +109,6 @@ def option_parameters(options: dict[str, Any]) -> dict[str, Any]:
     if "aligned_prior" in options:
         out["ins3d_aligned_prior"] = bool(options["aligned_prior"])
     return out
-
-
-def refuse_in_other_modes(values: dict[str, Any], defaults: dict[str, Any]) -> None:
-    """A changed ins3d-only parameter with another model would be ignored: refuse it."""
-    for k in INS3D_ONLY:
-        if values[k] != defaults[k]:
-            fail(k, values[k], f"its default ({defaults[k]!r}): it applies only to model ins3d")
 
 
 def is_ins3d(model: Any) -> bool:
