@@ -85,6 +85,16 @@ def test_the_relinearised_velocity_error_rate_follows_the_strapdown_simulator(me
     assert r_rel[2] < 0.5 * r_lin[2]
 
 
+def _schema_valid(post: dict) -> None:
+    """The relinearisation and validity records as the result schema describes them."""
+    import jsonschema
+
+    from flight_fdi.schema import load
+    props = load()["properties"]["post_flight"]["properties"]
+    for key in ("relinearization", "model_validity"):
+        jsonschema.validate(post[key], props[key])
+
+
 def _named(post: dict) -> tuple | None:
     f = post["fault"]
     return None if post["isolation"] != "single" or f is None else (f["sensor"], f["axis"])
@@ -99,6 +109,7 @@ def test_nominal_mems_flights_name_no_sensor(monkeypatch):
     assert [_named(p) for p in posts] == [None, None, None]
     assert all(p["relinearization"]["passes"] >= 1 for p in posts)
     assert all(p["model_validity"]["valid"] for p in posts)
+    _schema_valid(posts[0])
     monkeypatch.setattr(analysis, "RELINEARIZE_RAD", np.inf)
     monkeypatch.setattr(analysis, "RELINEARIZE_MPS2", np.inf)
     linear = [analyze_ins3d(i.steps, i.refs, grade="mems", with_observability=False,
@@ -120,6 +131,7 @@ def test_beyond_the_relinearised_model_no_sensor_is_named_with_confidence(seed):
     assert post["model_validity"]["attitude_error_max_deg"] > 20.0
     assert post["isolation"] == "ambiguous" and post["fault"] is None
     assert "beyond" in post["headline"]
+    _schema_valid(post)
 
 
 def test_a_navigation_grade_flight_is_not_relinearised(mems300):
@@ -132,3 +144,4 @@ def test_a_navigation_grade_flight_is_not_relinearised(mems300):
     assert post["relinearization"] is None
     assert post["model_validity"]["valid"]
     assert post["model_validity"]["attitude_error_max_deg"] < 0.5
+    _schema_valid(post)
