@@ -25,8 +25,8 @@ from .grades import ImuGrade
 from .model import IBA, IBG, IPHI, Ins3dModel
 from .nonlinear import NonlinearCheck, confirm, corrected, needs_check
 from .relinearize import (MAX_PASSES, RELINEARIZE_MPS2, RELINEARIZE_RAD, TOLERANCE_RAD,
-                          Relinearization, Validity, largest_attitude, neg2_log_likelihood,
-                          relinearized, velocity_remainder)
+                          Relinearization, Validity, largest_attitude, relinearized,
+                          velocity_remainder)
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
 from .result3d import post_flight
@@ -133,6 +133,13 @@ class Ins3dAnalysis:
             out[f["sensor"] + "_fault"][:, "xyz".index(f["axis"])] = f["magnitude"] * shape
         return out
 
+    def as_recorded(self) -> tuple[NavSteps, RefRows, Ins3dForward]:
+        """The steps, updates and forward pass of the flight as recorded (before a
+        relinearisation: what a fault is removed from exactly)."""
+        rel = self.relinearization
+        return (self.steps, self.refs, self.forward) if rel is None else \
+            (rel.steps, rel.refs, rel.forward)
+
     def turns(self) -> list[tuple[float, float]]:
         return [(a, b) for a, b, kind in self.manoeuvres if kind == "turn"]
 
@@ -214,14 +221,14 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
         return
     model = out.model
     rel = Relinearization(out.steps, out.refs, out.forward, [first],
-                          [neg2_log_likelihood(out.forward)])
+                          [out.forward.neg2_log_likelihood()])
     x_s = out.backward.x_s
     for _ in range(MAX_PASSES):
         steps, refs = relinearized(model, rel.steps, rel.refs, x_s)
         P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]),
                                 aligned_prior)
         fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=True)
-        nll = neg2_log_likelihood(fwd)
+        nll = fwd.neg2_log_likelihood()
         if nll >= rel.neg2_log_likelihood[-1]:
             break
         bwd = run_backward(model, steps, refs, fwd, rank_tol)
@@ -249,9 +256,7 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
     else:
         resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
     if needs_check(out.decision_glr, out.isolation, float(steps.t[-1])):
-        rel = out.relinearization          # the exact removal: from the flight as recorded
-        if rel is not None:
-            steps, refs, fwd = rel.steps, rel.refs, rel.forward
+        steps, refs, fwd = out.as_recorded()    # the exact removal: from the flight as recorded
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
                                 signature_error_of(model.grade)
                                 if signature_error is None else signature_error)
@@ -278,9 +283,7 @@ def _validity(out: Ins3dAnalysis) -> Validity:
         return valid
     fit = None if out.nonlinear is None else out.nonlinear.fit_of(iso.best)
     onset, mag = (fit.onset, fit.magnitude) if fit else (float(c.t[c.best]), float(c.mag[c.best]))
-    rel = out.relinearization
-    steps, refs, fwd = (out.steps, out.refs, out.forward) if rel is None else \
-        (rel.steps, rel.refs, rel.forward)
+    steps, refs, fwd = out.as_recorded()
     k0 = int(np.searchsorted(steps.t, onset))
     s2, r2 = corrected(out.model, steps, refs, h.sensor, h.axis, h.kind, k0, mag)
     return Validity.of(run_forward(out.model, s2, r2, P0=fwd.P0).x)

@@ -294,6 +294,10 @@ class Ins3dForward:
         return None if self.Ps_prior is None else \
             self.Ps_prior * self.s[:, None] * self.s[None, :]
 
+    def neg2_log_likelihood(self) -> float:
+        """-2 ln L of the pass (up to a constant): sum(nu' S^-1 nu + ln det S) over the updates."""
+        return float(self.beta2.sum() + np.linalg.slogdet(self.S)[1].sum())
+
 
 def white_variance(model: Ins3dModel, r: np.ndarray) -> np.ndarray:
     """The white part of the reference variance: the published one minus the Markov states'

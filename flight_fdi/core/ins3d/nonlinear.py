@@ -140,8 +140,7 @@ def corrected(model: Ins3dModel, steps: NavSteps, refs: RefRows, sensor: str, ax
 def neg2_log_likelihood(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                         P0: np.ndarray, x0: np.ndarray | None = None) -> float:
     """-2 ln L (up to a constant) of the no-fault forward filter: sum nu' S^-1 nu + ln det S."""
-    fwd = run_forward(model, steps, refs, x0=x0, P0=P0, threads=1)
-    return float(fwd.beta2.sum() + np.linalg.slogdet(fwd.S)[1].sum())
+    return run_forward(model, steps, refs, x0=x0, P0=P0, threads=1).neg2_log_likelihood()
 
 
 @dataclass

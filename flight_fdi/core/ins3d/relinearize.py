@@ -35,18 +35,15 @@ filter's on the flight without that fault (removed exactly): what is left if it 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
-from ..earth import radii
+from ..earth import A, nav_rates
 from ..rotation import qdcm, qexp
 from .data import NavSteps, RefRows
 from .model import IPHI, IV, Ins3dModel, fill_F, transition
-
-EARTH_RADIUS = 6.371e6
 
 #: the first pass's largest smoothed attitude error (rad, vector norm) above which the model
 #: is relinearised (0.02 rad: g |phi|^2 / 2 = 0.2 mg, a navigation-grade bias level)
@@ -66,11 +63,8 @@ def remainder(f_n, fc, phi, dv, lat, h):
     """The rate of the velocity error the model linear about (phi, dv) leaves out (m/s^2, ENU):
     the attitude's f - f_c - f_c x phi (f_c = exp([phi x]) f) and the transport rate's
     w_en(dv) x dv (module docstring)."""
-    r_n, r_m = radii(lat)
-    w_en = np.empty(3)
-    w_en[0] = -dv[1] / (r_m + h)
-    w_en[1] = dv[0] / (r_n + h)
-    w_en[2] = dv[0] * math.tan(lat) / (r_n + h)
+    w_ie, w_en = np.empty(3), np.empty(3)
+    nav_rates(lat, h, dv[0], dv[1], w_ie, w_en)      # w_en is linear in the velocity
     return f_n - fc - np.cross(fc, phi) + np.cross(w_en, dv)
 
 
@@ -128,13 +122,9 @@ def largest_attitude(x_s: np.ndarray) -> float:
 
 def velocity_remainder(x_s: np.ndarray) -> float:
     """The largest second-order rate term of the velocity error, |dv|^2 / R (m/s^2; R the
-    Earth's mean radius): what the model, linear in dv (Coriolis, transport rate), leaves out."""
-    return float((np.sum(x_s[:, IV:IV + 3]**2, axis=1) / EARTH_RADIUS).max(initial=0.0))
-
-
-def neg2_log_likelihood(fwd) -> float:
-    """-2 ln L of a forward pass (``filter.Ins3dForward``): sum(nu' S^-1 nu + ln det S)."""
-    return float(fwd.beta2.sum() + np.linalg.slogdet(fwd.S)[1].sum())
+    Earth's semi-major axis): what the model, linear in dv (Coriolis, transport rate), leaves
+    out."""
+    return float((np.sum(x_s[:, IV:IV + 3]**2, axis=1) / A).max(initial=0.0))
 
 
 @dataclass
@@ -186,4 +176,4 @@ class Validity:
 
 __all__ = ["MAX_PASSES", "RELINEARIZE_MPS2", "RELINEARIZE_RAD", "Relinearization", "TOLERANCE_RAD",
            "VALID_RAD", "Validity",
-           "at_steps", "remainder", "largest_attitude", "neg2_log_likelihood", "relinearized"]
+           "at_steps", "remainder", "largest_attitude", "relinearized"]
