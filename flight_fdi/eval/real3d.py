@@ -273,8 +273,13 @@ def _span_shape(t: np.ndarray, v: np.ndarray, tc: np.ndarray, half: float) -> np
 
 
 def contract_arrays(rec: Recording, bg: np.ndarray, ba: np.ndarray,
-                    cfg: Contract = Contract()) -> dict[str, np.ndarray]:
-    """The four contract topics of ``rec`` as arrays (``build_input``'s arguments + lon)."""
+                    cfg: Contract = Contract(),
+                    reference_of: Recording | None = None) -> dict[str, np.ndarray]:
+    """The four contract topics of ``rec`` as arrays (``build_input``'s arguments + lon).
+    ``reference_of``: the recording whose INS gives the reference's shape within its span
+    (``Contract.ref_ins_shape``; default ``rec``). A fault run passes the recording before the
+    fault: the reference is then the same as on the nominal run -- a reference does not see
+    the IMU under test (with the faulty INS's shape it would carry the fault's curvature)."""
     t, nav, f, w = mechanize_recording(rec, bg, ba)
     every = int(round(RATE_HZ / cfg.imu_rate_hz))
     m = (t.size - 1) // every
@@ -284,7 +289,9 @@ def contract_arrays(rec: Recording, bg: np.ndarray, ba: np.ndarray,
     tr, vr = gt_velocity(rec.gt, cfg.ref_half, cfg.ref_every)
     inside = (tr > t[idx[0]]) & (tr <= t[idx[-1]])
     if cfg.ref_ins_shape:
-        vr = vr + _span_shape(t, nav.v, tr, cfg.ref_half * GT_DT)
+        t_s, nav_s = (t, nav) if reference_of is None else \
+            mechanize_recording(reference_of, bg, ba)[:2]
+        vr = vr + _span_shape(t_s, nav_s.v, tr, cfg.ref_half * GT_DT)
     r = np.array([cfg.ref_sigma_h**2, cfg.ref_sigma_h**2, cfg.ref_sigma_u**2])
     return {"t_imu": t[idx], "q": nav.q[idx], "f_b": fm, "w_b": wm, "t_vel": t[idx],
             "v": nav.v[idx], "t_fix": t[idx], "lat": nav.lat[idx], "h": nav.h[idx],
@@ -293,23 +300,25 @@ def contract_arrays(rec: Recording, bg: np.ndarray, ba: np.ndarray,
 
 
 def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
-                   cfg: Contract = Contract()) -> Ins3dInput:
-    """The four contract topics of ``rec`` in memory (``bagio.ins3d_input.build_input``)."""
-    a = contract_arrays(rec, bg, ba, cfg)
+                   cfg: Contract = Contract(),
+                   reference_of: Recording | None = None) -> Ins3dInput:
+    """The four contract topics of ``rec`` in memory (``bagio.ins3d_input.build_input``;
+    ``reference_of``: ``contract_arrays``)."""
+    a = contract_arrays(rec, bg, ba, cfg, reference_of)
     a.pop("lon")
     return build_input(**a)
 
 
 def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str | Path,
                        cfg: Contract | None = None, epoch_s: int = 1_700_000_000,
-                       overwrite: bool = False, settings: "Settings | None" = None
-                       ) -> dict[str, int]:
+                       overwrite: bool = False, settings: "Settings | None" = None,
+                       reference_of: Recording | None = None) -> dict[str, int]:
     """The same contract as a bag (the topics and frames of ``sim.bag3d``): the user-facing path.
     Its metadata ``flight_fdi.sim3d`` says ``vertical: free`` (the INS) and, in its
     ``error_model`` block (``error_model_of``), how ``settings`` (default ``Settings()``) models
     this INS and reference -- what ``flight-fdi analyze/run --model ins3d`` then use
     (``bagio.ins3d_input.error_model_options``). ``cfg``: the contract (default
-    ``settings.contract``). Returns message counts."""
+    ``settings.contract``; ``reference_of``: ``contract_arrays``). Returns message counts."""
     import json
 
     from ..bagio import cdr
@@ -317,7 +326,7 @@ def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str
     from ..bagio.writer import open_writer
     settings = settings or Settings()
     cfg = cfg or settings.contract
-    a = contract_arrays(rec, bg, ba, cfg)
+    a = contract_arrays(rec, bg, ba, cfg, reference_of)
 
     def ns(t):
         return epoch_s * 1_000_000_000 + np.round(np.asarray(t) * 1e9).astype(np.int64)
@@ -391,13 +400,15 @@ class Settings:
                                min_valid_steps=self.min_valid_steps)
 
 
-def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings = Settings()):
-    """``analyze_ins3d`` of the contract built from ``rec`` (biases bg, ba removed); the model
+def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings = Settings(),
+            reference_of: Recording | None = None):
+    """``analyze_ins3d`` of the contract built from ``rec`` (biases bg, ba removed; the
+    reference's shape from ``reference_of``'s INS: ``contract_arrays``); the model
     options through the bag description's ``error_model`` block (``error_model_of``, read back
     by ``bagio.ins3d_input.error_model_options``), as ``flight-fdi analyze`` on the bag."""
     from ..bagio.ins3d_input import ERROR_MODEL, error_model_options
     from ..core.ins3d.analysis import analyze_ins3d
-    inp = build_contract(rec, bg, ba, settings.contract)
+    inp = build_contract(rec, bg, ba, settings.contract, reference_of)
     options = error_model_options({ERROR_MODEL: error_model_of(settings)}, "real3d.Settings")
     return analyze_ins3d(inp.steps, inp.refs, grade=settings.grade(), rows=settings.rows,
                          diagnosis=settings.diagnosis(),
@@ -472,7 +483,7 @@ def fault_runs(data_dir: Path, cal: Calibration, names: list[str], units: list[i
             mag = float(magnitude * rng.choice([-1.0, 1.0]))
             fault = Fault(sensor, axis, mag, onset)
             bg, ba = cal.for_recording(name, unit)
-            out = record(analyze(fault.apply(rec), bg, ba, settings))
+            out = record(analyze(fault.apply(rec), bg, ba, settings, reference_of=rec))
             yield name, unit, fault, out, judge(out, fault)
 
 
