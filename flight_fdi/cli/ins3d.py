@@ -371,8 +371,9 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Pat
 
     doc = doc or _load_result(folder / "result.json")
     res, analysis, rec = analyze_recording3d(folder / "recording", bag_label=doc.get("bag"))
-    if doc.get("source"):
-        res["source"] = doc["source"]
+    for key in ("source", "input"):         # the run's record: its options, what it received
+        if doc.get(key):
+            res[key] = doc[key]
     notes = [f"Rebuilt from the recording {folder / 'recording'} of the node pipeline."]
     return written(write_report3d, res, analysis, out,
                    truth=_truth(doc.get("bag"), rec["t0_ns"]), notes=notes)
