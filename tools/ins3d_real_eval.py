@@ -125,6 +125,7 @@ def nominal(data: Path, cal, names, units, st: R.Settings, dump=None
                     f"{c['ambiguous']} | {c['none']} | {med_max('beta2')} | "
                     f"{med_max('max_step')} | {med_max('max_ramp')} | {med_max('max_jump')} | "
                     f"{med_max('max_outliers')} |")
+    rows += ["", validity_line(allo)]
     head = ["| recording | β² mean | largest step GLR | jump | outliers | outcomes (4 units) |",
             "|---|---|---|---|---|---|"]
     thr = allo[0]["thresholds"]
@@ -140,7 +141,7 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
             "most frequent wrong or ambiguous answer | held out (vertical 8-14): right / "
             "confident wrong of 28 |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    smallest, angles, totals = {}, {}, Counter()
+    smallest, angles, totals, records = {}, {}, Counter(), []
     for sensor, sizes in SIZES.items():
         for axis in R.AXES:
             for size in sizes:
@@ -148,6 +149,7 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                 for name, unit, f, out, o in R.fault_runs(data, cal, names, units, sensor, axis,
                                                           _si(sensor, size), seed, st):
                     c[o] += 1
+                    records.append(out)
                     if dump is not None:
                         dump.write(json.dumps({"name": name, "unit": unit, "fault": asdict(f),
                                                "outcome": o, "record": out}) + "\n")
@@ -191,7 +193,21 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                                                            "vertical 1-7)"),
                                                           ("held", "held out (vertical 8-14)")))
              + "."]
-    return rows + [""] + angle_table(angles)
+    return rows + ["", validity_line(records), ""] + angle_table(angles)
+
+
+def validity_line(records: list[dict]) -> str:
+    """How many runs were relinearised (``record``'s ``relinearised``: a pass about the
+    smoothed attitude error kept) and how many left the model valid (``model_valid``), with
+    the largest smoothed attitude error."""
+    n = len(records)
+    att = [r["attitude_error_max_deg"] for r in records
+           if r.get("attitude_error_max_deg") is not None]
+    return (f"Relinearised: {sum(bool(r['relinearised']) for r in records)} of {n} runs "
+            f"({sum(r['relinearisation_passes'] for r in records)} passes kept); model valid "
+            f"(smoothed attitude error within the small-angle limit): "
+            f"{sum(r['model_valid'] is True for r in records)} of {n}"
+            + (f", largest attitude error {max(att):.2f} deg." if att else "."))
 
 
 def angle_table(angles: dict[str, list[float]]) -> list[str]:

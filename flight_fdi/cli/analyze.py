@@ -135,7 +135,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--jobs", type=int, choices=(1, 2), default=default_jobs(),
                    help="processes to use: with 2 the bag is read in a forked child while "
                         "this process loads the estimation core and its compiled kernels, same "
-                        "results (default 2 on a machine with 2 or more cores)")
+                        "results; with --model ins3d the cores the 3-D analysis's threads may "
+                        "run on (1: one core) (default 2 on a machine with 2 or more cores)")
     # on the command line: no cyclic GC, and the process ends once the result is printed
     # (cli.main.main, exit_now)
     p.set_defaults(func=run, short_lived=True)

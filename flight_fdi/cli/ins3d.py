@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 from flight_fdi.cli.analyze import exit_status, gate_defaults, gate_flags_given
@@ -286,8 +288,40 @@ def emit(res: dict, args: argparse.Namespace, extra: list[str] = ()) -> int:
 
 
 def run_analyze(args: argparse.Namespace) -> int:
-    res, _, _ = analyze_bag(args.bag, args)
+    with bounded_cores(getattr(args, "jobs", None)):
+        res, _, _ = analyze_bag(args.bag, args)
     return emit(res, args)
+
+
+@contextmanager
+def bounded_cores(n: int | None):
+    """``analyze --model ins3d --jobs N``: the 3-D analysis on at most ``n`` cores. Its parallel
+    parts are threads (the forward pass's discretisation ahead, the observability Gramian, the
+    backward sweep's combination, the decision's signatures and nonlinear fits): the CPU
+    affinity of this thread, which they inherit, is cut to ``n`` of its cores, and
+    ``FLIGHT_FDI_THREADS`` (``core.threads.usable_threads``, by which the parts that can run
+    alone do) is set to ``n``; a lower ``FLIGHT_FDI_THREADS`` already set wins. Both are
+    restored after. None: no bound."""
+    from flight_fdi.core.threads import ENV, usable_threads
+
+    if n is None:
+        yield
+        return
+    n = max(1, min(int(n), usable_threads()))
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    before = os.environ.get(ENV)
+    os.environ[ENV] = str(n)
+    try:
+        if cores is not None and len(cores) > n:
+            os.sched_setaffinity(0, cores[:n])
+        yield
+    finally:
+        if cores is not None and len(cores) > n:
+            os.sched_setaffinity(0, cores)
+        if before is None:
+            del os.environ[ENV]
+        else:
+            os.environ[ENV] = before
 
 
 def _load_result(path: Path) -> dict:
@@ -337,8 +371,9 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Pat
 
     doc = doc or _load_result(folder / "result.json")
     res, analysis, rec = analyze_recording3d(folder / "recording", bag_label=doc.get("bag"))
-    if doc.get("source"):
-        res["source"] = doc["source"]
+    for key in ("source", "input"):         # the run's record: its options, what it received
+        if doc.get(key):
+            res[key] = doc[key]
     notes = [f"Rebuilt from the recording {folder / 'recording'} of the node pipeline."]
     return written(write_report3d, res, analysis, out,
                    truth=_truth(doc.get("bag"), rec["t0_ns"]), notes=notes)

@@ -114,6 +114,8 @@ def analyse_run_folder(folder: Path, args: argparse.Namespace):
                             bag_label=str(input_bag) if input_bag else None)
     truth = None if flight is None else _truth_of(flight, rec.model, 0.0)
     notes = [f"Rebuilt from the recording {recording} (gate of the recorded run)."]
+    if isinstance(doc.get("input"), dict):      # what the run received and dropped: its record
+        run.analysis.summary.setdefault("input", doc["input"])
     return run.analysis, truth, rec.model, notes
 
 

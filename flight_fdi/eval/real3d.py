@@ -417,7 +417,10 @@ def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings =
 
 def record(analysis, t0: float = 0.0) -> dict:
     """The measured outcome of one analysis: verdict, named fault (sensor, axis, kind, onset,
-    magnitude), the largest GLR statistic per kind, the thresholds, beta^2 per row, latency."""
+    magnitude), the largest GLR statistic per kind, the thresholds, beta^2 per row, latency;
+    whether it was relinearised (``post_flight.relinearization``: a pass kept, how many) and
+    the model's validity (``post_flight.model_validity``: valid, largest smoothed attitude
+    error in deg; None without the post-flight part)."""
     pf = analysis.post_flight_dict(t0=t0)
     summ = analysis.summary()
     f = pf.get("fault")
@@ -442,6 +445,11 @@ def record(analysis, t0: float = 0.0) -> dict:
                 "turn_on": [{k: t[k] for k in ("sensor", "axis", "magnitude", "magnitude_std",
                                                 "prior_sigmas", "statistic")}
                             for t in pf["turn_on_bias"]]})
+    rel, val = pf.get("relinearization"), pf.get("model_validity")
+    out.update({"relinearised": bool(rel and rel["passes"] > 0),    # a pass about it kept
+                "relinearisation_passes": rel["passes"] if rel else 0,
+                "model_valid": None if val is None else bool(val["valid"]),
+                "attitude_error_max_deg": None if val is None else val["attitude_error_max_deg"]})
     for kind in ("step", "ramp", "jump", "outliers"):     # unconditional (not given turn-on)
         top = max((c for c in analysis.glr.values() if c.hypothesis.kind == kind),
                   key=lambda c: c.statistic)

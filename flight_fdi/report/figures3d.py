@@ -179,7 +179,10 @@ def _e(x: Any) -> str:
 
 
 def _page(res: dict, figs: list[tuple[str, str]], notes: list[str]) -> str:
+    from flight_fdi.bagio.ins3d_input import REASON_TEXT3D
     from flight_fdi.core.ins3d_result import fault_line
+
+    from .inputs import inputs_part
 
     post, inf, summ = res["post_flight"], res["in_flight"], res["ins3d"]
     verdict = post["verdict"]
@@ -197,6 +200,7 @@ def _page(res: dict, figs: list[tuple[str, str]], notes: list[str]) -> str:
              f"{res['samples']} reference updates over {res['duration_s']:.1f} s (times in "
              "seconds from the first stamp of the inputs). Turns are shaded in the figures.</p>"]
     parts += [f"<p>{_e(n)}</p>" for n in notes]
+    parts.append(inputs_part(res.get("input"), REASON_TEXT3D))
     obs = summ.get("observability") or {}
     if obs:
         parts.append("<h2>Observability (when each state became observable)</h2>")

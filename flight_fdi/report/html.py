@@ -23,6 +23,7 @@ from flight_fdi.eval.errors import EvalError
 
 from . import figures
 from .figures import Truth
+from .inputs import inputs_part
 
 CSS = """
 body { font-family: sans-serif; margin: 2em; max-width: 1100px; color: #222; }
@@ -170,6 +171,7 @@ def _page(summary: dict, res: Any, figs: list[tuple[str, str]], title: str | Non
     ]
     for note in notes:
         parts.append(f"<p>{_e(note)}</p>")
+    parts.append(inputs_part(summary.get("input")))
     if inf["alarms"]:
         parts.append("<h2>In-flight alarms</h2>")
         parts.append(_table(("start s", "end s", "peak beta^2"),

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -283,14 +284,16 @@ class Ins3dForward:
     P0: np.ndarray | None = None       # (n, n) its covariance
     fused: np.ndarray | None = None    # (M,) bool: the update was fused (not rejected)
 
-    @property
+    @cached_property
     def x_prior(self) -> np.ndarray | None:
-        """(M, n) the state before each update, physical units (keep_prior)."""
+        """(M, n) the state before each update, physical units (keep_prior); made at the first
+        access and kept (the scaled arrays it is made of are not changed after the pass)."""
         return None if self.xs_prior is None else self.xs_prior * self.s
 
-    @property
+    @cached_property
     def P_prior(self) -> np.ndarray | None:
-        """(M, n, n) its covariance, physical units (keep_prior)."""
+        """(M, n, n) its covariance, physical units (keep_prior); made at the first access and
+        kept, as ``x_prior``."""
         return None if self.Ps_prior is None else \
             self.Ps_prior * self.s[:, None] * self.s[None, :]
 
