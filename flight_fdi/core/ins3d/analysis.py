@@ -23,7 +23,7 @@ from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
 from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade, signature_error_of
 from .grades import ImuGrade
 from .model import IBA, IBG, IPHI, Ins3dModel
-from .nonlinear import FineGrid, NonlinearCheck, confirm, corrected, needs_check
+from .nonlinear import NonlinearCheck, confirm, corrected, needs_check
 from .relinearize import (MAX_PASSES, RELINEARIZE_MPS2, RELINEARIZE_RAD, TOLERANCE_RAD,
                           Relinearization, Validity, largest_attitude, relinearized,
                           velocity_remainder)
@@ -57,9 +57,6 @@ class Ins3dAnalysis:
     relinearization: Relinearization | None = None
     #: whether the model may name a sensor on this flight (``relinearize.Validity``)
     validity: Validity | None = None
-    #: the input's step grid under ``steps`` when they were merged (``nonlinear.FineGrid``:
-    #: where the exact removal of a fault integrates the attitude)
-    fine: FineGrid | None = None
 
     @property
     def decision_glr(self) -> dict[str, GlrCurve]:
@@ -192,11 +189,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                    np.ascontiguousarray(refs.r[order]), refs.step[order],
                    np.ascontiguousarray(refs.a[order]))
     turns = manoeuvres(steps)
-    fine = None
     if max_dt is not None:
-        given = steps
         steps, refs = coarsen(steps, refs, max_dt)
-        fine = FineGrid.of(given, steps) if len(steps) < len(given) else None
     P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]), aligned_prior)
     with ThreadPoolExecutor(max_workers=1) as pool:     # the second core: the Gramian
         obs = pool.submit(observability, model, steps, refs, P0=P0) if with_observability \
@@ -205,8 +199,7 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                           threads=1 if obs is not None else None)   # one thread per core
         out = Ins3dAnalysis(model, fwd, None, turns, steps, refs,
                             thresholds=grade_thresholds(model.grade,
-                                                        float(steps.t[-1] - steps.t[0])),
-                            fine=fine)
+                                                        float(steps.t[-1] - steps.t[0])))
         if thresholds is not None:
             out.thresholds.update(thresholds)
         if post:
@@ -266,8 +259,7 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
         steps, refs, fwd = out.as_recorded()    # the exact removal: from the flight as recorded
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
                                 signature_error_of(model.grade)
-                                if signature_error is None else signature_error,
-                                fine=out.fine)
+                                if signature_error is None else signature_error)
     out.validity = _validity(out)
     iso = out.isolation            # beyond the (relinearised) model: no confident name
     if not out.validity.valid and iso.isolation == "single" and iso.rival is not None \
@@ -293,7 +285,7 @@ def _validity(out: Ins3dAnalysis) -> Validity:
     onset, mag = (fit.onset, fit.magnitude) if fit else (float(c.t[c.best]), float(c.mag[c.best]))
     steps, refs, fwd = out.as_recorded()
     k0 = int(np.searchsorted(steps.t, onset))
-    s2, r2 = corrected(out.model, steps, refs, h.sensor, h.axis, h.kind, k0, mag, out.fine)
+    s2, r2 = corrected(out.model, steps, refs, h.sensor, h.axis, h.kind, k0, mag)
     return Validity.of(run_forward(out.model, s2, r2, P0=fwd.P0).x)
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d", "initial_covariance"]

@@ -113,16 +113,6 @@ def _weighted_means(y, w, b, dt, out):
             out[i, c] = acc / dt[i]
 
 
-def merged(y: np.ndarray, dt: np.ndarray, b: np.ndarray, dt_merged: np.ndarray) -> np.ndarray:
-    """The dt-weighted means of ``y`` (one row per step of length ``dt``) over the merged steps
-    [b_i, b_i+1) of lengths ``dt_merged`` (``coarsen``'s rule)."""
-    K = dt.size
-    out = np.empty((b.size - 1,) + y.shape[1:])
-    _weighted_means(np.ascontiguousarray(y).reshape(K, -1), dt, np.asarray(b, dtype=np.int64),
-                    dt_merged, out.reshape(b.size - 1, -1))
-    return out
-
-
 def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSteps, RefRows]:
     """The same flight on a coarser step grid: consecutive steps are merged into one between the
     boundaries that carry reference updates, and at least every ``max_dt`` seconds (a merged
@@ -147,7 +137,10 @@ def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSte
     dt = np.add.reduceat(steps.dt, b[:-1])
 
     def mean(y: np.ndarray) -> np.ndarray:
-        return merged(y, steps.dt, b, dt)
+        out = np.empty((b.size - 1,) + y.shape[1:])
+        _weighted_means(np.ascontiguousarray(y).reshape(K, -1), steps.dt, b, dt,
+                        out.reshape(b.size - 1, -1))
+        return out
 
     coarse = NavSteps(t[b], dt, mean(steps.C), mean(steps.f_n), mean(steps.w_b),
                       mean(steps.v), mean(steps.lat), mean(steps.h))
@@ -155,4 +148,4 @@ def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSte
     return coarse, RefRows(refs.t, refs.z, refs.r, step, refs.a)
 
 
-__all__ = ["NavSteps", "RefRows", "coarsen", "merged", "nav_steps", "ref_rows"]
+__all__ = ["NavSteps", "RefRows", "coarsen", "nav_steps", "ref_rows"]

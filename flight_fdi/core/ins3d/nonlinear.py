@@ -54,8 +54,7 @@ from numba import njit
 from scipy.optimize import minimize_scalar
 
 from ..threads import usable_threads
-from ..errors import CoreError
-from .data import NavSteps, RefRows, merged
+from .data import NavSteps, RefRows
 from .filter import run_forward
 from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation
 from ..rotation import qdcm, qexp
@@ -73,19 +72,21 @@ MAX_ONSETS = 16
 
 
 @njit(cache=True, nogil=True)
-def _rotation(C, f_n, w_b, dt, t, k0, gyro, axis, ramp, mag, D_mid, g):
-    """The fault's exact effect on the attitude, per step of the grid from boundary ``k0``:
-    D_mid[k] (K, 3, 3) the body-frame correction at mid-step k (identity before k0), g[k]
-    (K, 3) the specific-force difference C (f_b - D (f_b - u_a)) (zero before k0)."""
+def _effect(C, f_n, w_b, v, lat, h, dt, t, bias, k0, gyro, axis, ramp, mag, x_out, D_mid):
+    """x_out[k] (K+1, n): the error state the fault leaves at boundary k; D_mid[k] (K, 3, 3):
+    the body-frame correction at mid-step k (module docstring)."""
+    n = x_out.shape[1]
     K = dt.size
+    F, Phi, F2 = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    x = np.zeros(n)             # the bias states get no input: they stay zero
     D = np.eye(3)
     A, B = np.empty((3, 3)), np.empty((3, 3))
     u_g, u_a = np.zeros(3), np.zeros(3)
     u = u_g if gyro else u_a
     for k in range(K):
+        x_out[k] = x
         if k < k0:
             D_mid[k] = D
-            g[k] = 0.0
             continue
         u[axis] = mag * (0.5 * (t[k] + t[k + 1]) - t[k0]) if ramp else mag
         f_b = C[k].T @ f_n[k]
@@ -95,28 +96,14 @@ def _rotation(C, f_n, w_b, dt, t, k0, gyro, axis, ramp, mag, D_mid, g):
         qdcm(*qexp(a[0], a[1], a[2]), B)                    # exp([(w - u_g) dt x])
         D1 = A @ D @ B
         Dm = 0.5 * (D + D1)
-        g[k] = C[k] @ (f_b - Dm @ (f_b - u_a))
-        D_mid[k] = Dm
-        D = D1
-
-
-@njit(cache=True, nogil=True)
-def _effect(C, f_n, v, lat, h, dt, bias, k0, g, x_out):
-    """x_out[k] (K+1, n): the error state the specific-force difference g (K, 3) leaves at
-    boundary k, through the model's own transition (the bias states get no input)."""
-    n = x_out.shape[1]
-    K = dt.size
-    F, Phi, F2 = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    x = np.zeros(n)
-    for k in range(K):
-        x_out[k] = x
-        if k < k0:
-            continue
+        g = C[k] @ (f_b - Dm @ (f_b - u_a))
         fill_F(F, C[k], f_n[k], v[k], lat[k], h[k], bias)
         transition(F, dt[k], Phi, F2)
         x = Phi @ x
         for i in range(3):
-            x[IV + i] += g[k, i] * dt[k]
+            x[IV + i] += g[i] * dt[k]
+        D_mid[k] = Dm
+        D = D1
     x_out[K] = x
 
 
@@ -125,69 +112,27 @@ def _orthonormal(M: np.ndarray) -> np.ndarray:
     return U @ Vt
 
 
-@dataclass
-class FineGrid:
-    """The input's step grid under the analysis' merged steps (``data.coarsen``): ``steps`` the
-    input's, ``b[i]`` the input boundary of merged boundary i. The exact removal integrates the
-    attitude on it: a quadrotor turns by tenths of a radian within a merged 0.1-s step, and the
-    rotation of a gyro fault does not commute with that (on the real vertical flights a 17-deg
-    fault removed on the merged steps left 4 deg of attitude error; on the input grid 0.02)."""
-
-    steps: NavSteps
-    b: np.ndarray
-
-    @classmethod
-    def of(cls, fine: NavSteps, merged_steps: NavSteps) -> "FineGrid":
-        b = np.searchsorted(fine.t, merged_steps.t).astype(np.int64)
-        if b.size and (b[-1] >= fine.t.size or not np.array_equal(fine.t[b], merged_steps.t)):
-            raise CoreError("nonlinear: the merged steps are not on the input grid")
-        return cls(fine, b)
-
-    def after(self, k: int) -> "FineGrid":
-        """The grid from merged boundary ``k`` on (``Window``)."""
-        i = int(self.b[k])
-        f = self.steps
-        return FineGrid(NavSteps(f.t[i:], f.dt[i:], f.C[i:], f.f_n[i:], f.w_b[i:], f.v[i:],
-                                 f.lat[i:], f.h[i:]), self.b[k:] - i)
-
-
-def _attitude_part(steps: NavSteps, fine: FineGrid | None, gyro: bool, i: int, ramp: bool,
-                   k0: int, magnitude: float) -> tuple[np.ndarray, ...]:
-    """(C_c, f_n_c, w_c, g) of the fault-free flight on the merged steps: computed per input
-    step (``_rotation``) and merged as ``data.coarsen`` merges (dt-weighted means)."""
-    fs, b = (steps, np.arange(len(steps) + 1)) if fine is None else (fine.steps, fine.b)
-    K = len(fs)
-    D, g = np.empty((K, 3, 3)), np.empty((K, 3))
-    k0f = int(b[min(k0, b.size - 1)])
-    _rotation(fs.C, fs.f_n, fs.w_b, fs.dt, fs.t, k0f, gyro, i, ramp, float(magnitude), D, g)
-    tm = 0.5 * (fs.t[1:] + fs.t[:-1]) - fs.t[min(k0f, K)]
-    u = np.zeros((K, 3))
-    u[k0f:, i] = magnitude * (tm[k0f:] if ramp else 1.0)
-    Cc = fs.C @ _orthonormal(D)
-    f_b = np.einsum("kji,kj->ki", fs.C, fs.f_n)
-    f_c = np.einsum("kij,kj->ki", Cc, f_b - (0.0 if gyro else u))
-    w_c = fs.w_b - (u if gyro else 0.0)
-    if fine is None:
-        return Cc, f_c, w_c, g
-    return tuple(merged(y, fs.dt, b, steps.dt) for y in (Cc, f_c, w_c, g))
-
-
 def corrected(model: Ins3dModel, steps: NavSteps, refs: RefRows, sensor: str, axis: str,
-              kind: str, k0: int, magnitude: float,
-              fine: FineGrid | None = None) -> tuple[NavSteps, RefRows]:
+              kind: str, k0: int, magnitude: float) -> tuple[NavSteps, RefRows]:
     """The flight without the fault (``sensor`` accelerometer / gyro, body ``axis`` x/y/z,
-    ``kind`` step / ramp from boundary ``k0``, ``magnitude`` SI), module docstring; the
-    attitude integrated on ``fine`` (the input grid under merged ``steps``) when given."""
+    ``kind`` step / ramp from boundary ``k0``, ``magnitude`` SI), module docstring."""
+    K = len(steps)
+    x = np.empty((K + 1, model.n))
+    D = np.empty((K, 3, 3))
     gyro = sensor == "gyro"
-    Cc, f_c, w_c, g = _attitude_part(steps, fine, gyro, "xyz".index(axis), kind == "ramp",
-                                     int(k0), magnitude)
-    x = np.empty((len(steps) + 1, model.n))
-    _effect(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt, model.kernel_params(),
-            int(k0), np.ascontiguousarray(g), x)
+    i = "xyz".index(axis)
+    _effect(steps.C, steps.f_n, steps.w_b, steps.v, steps.lat, steps.h, steps.dt, steps.t,
+            model.kernel_params(), int(k0), gyro, i, kind == "ramp", float(magnitude), x, D)
+    tm = 0.5 * (steps.t[1:] + steps.t[:-1]) - steps.t[min(k0, K)]
+    u = np.zeros((K, 3))
+    u[k0:, i] = magnitude * (tm[k0:] if kind == "ramp" else 1.0)
+    Cc = steps.C @ _orthonormal(D)
+    f_b = np.einsum("kji,kj->ki", steps.C, steps.f_n)
+    f_c = np.einsum("kij,kj->ki", Cc, f_b - (0.0 if gyro else u))
     xm = 0.5 * (x[1:] + x[:-1])
     h = steps.h - xm[:, model.ih] if model.ih >= 0 else steps.h
-    out = NavSteps(steps.t, steps.dt, np.ascontiguousarray(Cc), np.ascontiguousarray(f_c),
-                   w_c, steps.v - xm[:, IV:IV + 3], steps.lat, h)
+    out = NavSteps(steps.t, steps.dt, np.ascontiguousarray(Cc), f_c,
+                   steps.w_b - (u if gyro else 0.0), steps.v - xm[:, IV:IV + 3], steps.lat, h)
     z = refs.z - x[refs.step, IV:IV + 3]
     return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a)
 
@@ -208,16 +153,14 @@ class Window:
     refs: RefRows
     x0: np.ndarray
     P0: np.ndarray
-    fine: FineGrid | None = None     # the input grid under ``steps`` (``FineGrid``)
 
     @classmethod
-    def of(cls, steps: NavSteps, refs: RefRows, fwd, j: int,
-           fine: FineGrid | None = None) -> "Window":
+    def of(cls, steps: NavSteps, refs: RefRows, fwd, j: int) -> "Window":
         k = int(refs.step[j])
         w = NavSteps(steps.t[k:], steps.dt[k:], steps.C[k:], steps.f_n[k:], steps.w_b[k:],
                      steps.v[k:], steps.lat[k:], steps.h[k:])
         r = RefRows(refs.t[j:], refs.z[j:], refs.r[j:], refs.step[j:] - k, refs.a[j:])
-        return cls(w, r, fwd.x_prior[j], fwd.P_prior[j], None if fine is None else fine.after(k))
+        return cls(w, r, *fwd.prior(j))
 
 
 @dataclass
@@ -242,8 +185,7 @@ def fit(model: Ins3dModel, win: Window, curve: GlrCurve, k_range: tuple[int, int
 
     def cost(k: int, b: float) -> float:
         return neg2_log_likelihood(model, *corrected(model, win.steps, win.refs, h.sensor,
-                                                     h.axis, h.kind, k, b, win.fine),
-                                   win.P0, win.x0)
+                                                     h.axis, h.kind, k, b), win.P0, win.x0)
 
     def magnitude(k: int, b0: float) -> tuple[float, float]:
         scale = max(abs(b0), 3.0 * float(curve.sd[curve.best]), 1e-12)
@@ -325,14 +267,14 @@ def tested(cv: dict[str, GlrCurve], iso: Isolation) -> list[str]:
 
 def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
             cv: dict[str, GlrCurve], iso: Isolation, eps: float,
-            margin: float = AMBIGUITY_MARGIN, fine: FineGrid | None = None) -> NonlinearCheck:
+            margin: float = AMBIGUITY_MARGIN) -> NonlinearCheck:
     """The nonlinear check (module docstring); ``fwd`` the flight's forward pass (with the
     priors: ``run_forward(keep_prior=True)``), ``eps`` the model's relative signature error
-    (``glr3d.settle``), ``fine`` the input grid under ``steps``. Changes ``iso`` in place."""
+    (``glr3d.settle``). Changes ``iso`` in place."""
     j_of = {float(t): j for j, t in enumerate(refs.t)}
     own = [j_of.get(float(cv[n].t[cv[n].best]), 0) for n in (iso.best, iso.rival) if n]
     j0, j1 = max(min(own) - 2, 0), min(max(own) + 1, refs.t.size - 1)
-    win = Window.of(steps, refs, fwd, j0, fine)
+    win = Window.of(steps, refs, fwd, j0)
     check = NonlinearCheck(before=f"{iso.isolation} {iso.best}",
                            cost0=neg2_log_likelihood(model, win.steps, win.refs, win.P0, win.x0))
     k_range = (0, int(refs.step[j1] - refs.step[j0]))
@@ -351,5 +293,5 @@ def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
     return check
 
 
-__all__ = ["FineGrid", "Fit", "NonlinearCheck", "SMALL_ANGLE_RAD", "Window", "confirm", "corrected", "fit",
+__all__ = ["Fit", "NonlinearCheck", "SMALL_ANGLE_RAD", "Window", "confirm", "corrected", "fit",
            "implied_angle", "needs_check", "neg2_log_likelihood", "tested"]
