@@ -479,8 +479,9 @@ def fault_runs(data_dir: Path, cal: Calibration, names: list[str], units: list[i
                sensor: str, axis: str, magnitude: float, seed: int,
                settings: Settings = Settings(), margin_s: tuple[float, float] = (3.0, 5.0)):
     """One run per recording x unit with a step of |``magnitude``| (random sign) on ``sensor``
-    ``axis`` at a random onset in [margin0, T - margin1] s (seeded per run); yields
-    (name, unit, Fault, record, outcome)."""
+    ``axis`` at a random onset in [margin0, T - margin1] s (seeded per run), the reference the
+    nominal run's (``contract_arrays``' ``reference_of``); yields (name, unit, Fault, record,
+    outcome)."""
     for i, name in enumerate(names):
         for unit in units:
             rng = np.random.default_rng([seed, i, unit, AXES.index(axis),
