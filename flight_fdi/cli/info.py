@@ -7,7 +7,8 @@ import os
 import platform
 import sys
 
-MESSAGES = ("Innovation", "FilterState", "ModelInfo", "FaultLocalization", "SmoothedState", "VoteStatus")
+MESSAGES = ("Innovation", "FilterState", "ModelInfo", "FaultLocalization", "SmoothedState",
+            "VoteStatus")
 
 
 def register(sub: argparse._SubParsersAction) -> None:

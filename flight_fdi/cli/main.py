@@ -47,7 +47,8 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from flight_fdi.core.errors import CoreError
 
     errors: list[type[BaseException]] = [CliError, CoreError]
-    for mod, name in (("flight_fdi.bagio.errors", "BagError"), ("flight_fdi.sim.errors", "SimError")):
+    for mod, name in (("flight_fdi.bagio.errors", "BagError"),
+                      ("flight_fdi.sim.errors", "SimError")):
         try:
             errors.append(getattr(importlib.import_module(mod), name))
         except (ImportError, AttributeError):

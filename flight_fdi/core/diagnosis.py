@@ -279,54 +279,61 @@ def diagnose(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
       only on other elements -> ``ambiguous``; on none -> ``glitch`` (J alone).
     """
     config = _diagnosis_config(config, settings)
-    n = model.n
-    N = len(fwd.t)
-    if len(bwd.t) != N:
-        raise CoreError(f"diagnose: forward has {N} steps, backward {len(bwd.t)}")
+    if len(bwd.t) != len(fwd.t):
+        raise CoreError(f"diagnose: forward has {len(fwd.t)} steps, backward {len(bwd.t)}")
+    stats, viol_k = _statistics(model, fwd, bwd, config)
+    return SeedDiagnosis(**stats, **_verdict(model, stats, viol_k, config))
+
+
+def _statistics(model: LinearModel, fwd: ForwardResult, bwd: BackwardResult,
+                config: DiagnosisConfig) -> tuple[dict[str, Any], np.ndarray]:
+    """:func:`diagnose`'s statistics over the record: the SeedDiagnosis fields but the verdict's
+    (J, its element terms and seed bounds, the Fisher statistics, the valid steps, the element
+    reports without their Fisher violations), and the (N, n) ``violation_mask``."""
     t = np.asarray(fwd.t, dtype=float)
     loc, v_tilde, delta_d = _localization(model, fwd, bwd, config.rank_tol)
-    terms, gammas, edof, first = loc.terms, loc.gammas, loc.dof, loc.element
-    J = terms[:, -1]
+    terms, gammas, edof = loc.terms, loc.gammas, loc.dof
     dof = edof[:, -1]
-    gamma2 = seed_threshold(dof)
     _, _, eta2 = fisher_threshold(config.fisher_window)
     F = fisher(loc.normalized, config.fisher_window)
-
-    full = int(dof.max()) if N else 0
+    full = int(dof.max()) if len(t) else 0
     valid = (dof == full) & (full > 0)
     viol_k = violation_mask(edof, terms, gammas, valid)
-    with np.errstate(invalid="ignore"):
-        F_viol = (F > eta2) & valid[:, None]
-    n_valid = int(valid.sum())
-
     reports = _element_reports(model, valid, terms, gammas, edof, F, viol_k, float(eta2))
+    return {"t": t, "valid": valid, "J": terms[:, -1], "dof": dof, "gamma2": seed_threshold(dof),
+            "terms": terms, "gammas": gammas, "element_dof": edof, "first_element": loc.element,
+            "normalized": loc.normalized, "v_tilde": v_tilde, "delta_d": delta_d, "F": F,
+            "eta2": float(eta2), "elements": reports, "config": config}, viol_k
 
-    def result(verdict: str, element: str | None = None, onset: float | None = None,
-               end: float | None = None, episode: tuple | None = None) -> SeedDiagnosis:
-        return SeedDiagnosis(t=t, valid=valid, J=J, dof=dof, gamma2=gamma2, terms=terms,
-                             gammas=gammas, element_dof=edof, first_element=first,
-                             normalized=loc.normalized, v_tilde=v_tilde, delta_d=delta_d, F=F,
-                             eta2=float(eta2), elements=reports,
-                             verdict=verdict, element=element, onset_t=onset, end_t=end,
-                             episode=episode, config=config)
 
-    if n_valid < config.min_valid_steps:
-        return result("insufficient_data")
+def _verdict(model: LinearModel, stats: dict[str, Any], viol_k: np.ndarray,
+             config: DiagnosisConfig) -> dict[str, Any]:
+    """:func:`diagnose`'s verdict from its ``_statistics`` (the rules in its docstring): the
+    SeedDiagnosis fields verdict, element, onset_t, end_t, episode; marks the element reports'
+    Fisher violations around the episode."""
+    t, valid, J, reports = stats["t"], stats["valid"], stats["J"], stats["elements"]
+    none = {"element": None, "onset_t": None, "end_t": None, "episode": None}
+    if int(valid.sum()) < config.min_valid_steps:
+        return {"verdict": "insufficient_data", **none}
+    full = int(stats["dof"].max())
     episode_idx = strongest_episode(t, J, viol_k, full, config)
     if episode_idx is None:
-        return result("no_fault")
+        return {"verdict": "no_fault", **none}
     s0, e0, peak = episode_idx
-    k0 = int(first[peak])
+    with np.errstate(invalid="ignore"):
+        F_viol = (stats["F"] > stats["eta2"]) & valid[:, None]
     lo = max(0, s0 - config.fisher_window)
-    for k in range(n):
+    for k in range(model.n):
         runs = _runs(F_viol[lo:e0 + 1, k])
         reports[k].F_violated = any(e - s + 1 > config.fisher_window for s, e in runs)
-    last_valid = int(np.flatnonzero(valid)[-1])
-    episode = (float(t[s0]), float(t[e0]))
-    end = None if e0 >= last_valid else float(t[e0])
-    name = model.state_names[k0]
+    k0 = int(stats["first_element"][peak])
     if reports[k0].F_violated:
-        return result("failure", name, float(t[peak]), end, episode)
-    if any(r.F_violated for r in reports):
-        return result("ambiguous", name, float(t[peak]), end, episode)
-    return result("glitch", name, float(t[peak]), end, episode)
+        verdict = "failure"
+    elif any(r.F_violated for r in reports):
+        verdict = "ambiguous"
+    else:
+        verdict = "glitch"
+    last_valid = int(np.flatnonzero(valid)[-1])
+    return {"verdict": verdict, "element": model.state_names[k0], "onset_t": float(t[peak]),
+            "end_t": None if e0 >= last_valid else float(t[e0]),
+            "episode": (float(t[s0]), float(t[e0]))}

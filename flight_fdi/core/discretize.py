@@ -47,17 +47,23 @@ SHORT = 5
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def matmul_sized(A, B, out, rows, inner, cols):
+    """out = A B over the leading rows x inner and inner x cols blocks (``out`` must not alias A
+    or B). With the sizes given, a kernel compiled for constant sizes has loops of known length
+    (``glr_kernel``); :func:`matmul` is the same products in the same order, the same bits."""
+    for i in range(rows):
+        for j in range(cols):
+            acc = 0.0
+            for k in range(inner):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def matmul(A, B, out):
     """out = A B (small dense matrices; ``out`` must not alias A or B; ``matmul(A, B.T, out)``
     for A B^T)."""
-    n, m = A.shape
-    p = B.shape[1]
-    for i in range(n):
-        for j in range(p):
-            acc = 0.0
-            for k in range(m):
-                acc += A[i, k] * B[k, j]
-            out[i, j] = acc
+    matmul_sized(A, B, out, A.shape[0], A.shape[1], B.shape[1])
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -45,7 +45,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .discretize import expm_series, matmul
+from .discretize import expm_series, matmul, matmul_sized
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -117,19 +117,6 @@ def lambda_f_step(Psi, D, Glam_k, w_k, lam_f, lam_new, q, m):
         lam_new[a] = acc
     for a in range(q):
         lam_f[a] = lam_new[a]
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def matmul_sized(A, B, out, rows, inner, cols):
-    """out = A B over the leading rows x inner and inner x cols blocks: :func:`matmul` with
-    the sizes given, so that a kernel compiled for constant sizes has loops of known length
-    (same products in the same order, the same bits)."""
-    for i in range(rows):
-        for j in range(cols):
-            acc = 0.0
-            for k in range(inner):
-                acc += A[i, k] * B[k, j]
-            out[i, j] = acc
 
 
 #: the (n, m, q) compiled with constant sizes: the INS channel's fault systems (a step or ramp

@@ -51,7 +51,8 @@ def _check_psd(mat: np.ndarray, what: str, strict: bool = False) -> None:
     if strict and np.min(eig) <= 0:
         raise CoreError(f"{what}: not positive definite (smallest eigenvalue {np.min(eig):.3g})")
     if np.min(eig) < -1e-9 * scale:
-        raise CoreError(f"{what}: not positive semidefinite (smallest eigenvalue {np.min(eig):.3g})")
+        raise CoreError(f"{what}: not positive semidefinite "
+                        f"(smallest eigenvalue {np.min(eig):.3g})")
 
 
 @dataclass(frozen=True)
@@ -106,7 +107,8 @@ class LinearModel:
         if n == 0:
             raise CoreError(f"model {self.name!r}: no states")
         if len(self.state_units) != n:
-            raise CoreError(f"model {self.name!r}: {n} state names but {len(self.state_units)} units")
+            raise CoreError(f"model {self.name!r}: {n} state names but "
+                            f"{len(self.state_units)} units")
         A = _matrix(self.A, (n, n), f"model {self.name!r}: A")
         Qc = _matrix(self.Qc, (n, n), f"model {self.name!r}: Qc")
         H = _matrix(self.H, None, f"model {self.name!r}: H")
@@ -300,7 +302,8 @@ def attitude_axis(m_c: float = 0.01, sigma_md_walk: float = 1e-7, sigma_angle: f
     """
     for nm, val in (("m_c", m_c), ("sigma_md_walk", sigma_md_walk), ("sigma_angle", sigma_angle),
                     ("sigma_angle0", sigma_angle0), ("sigma_rate0", sigma_rate0),
-                    ("sigma_md0", sigma_md0)) + ((("sigma_rate", sigma_rate),) if sigma_rate else ()):
+                    ("sigma_md0", sigma_md0)) + (
+                        (("sigma_rate", sigma_rate),) if sigma_rate else ()):
         if not np.isfinite(val) or val <= 0:
             raise CoreError(f"attitude_axis: {nm} must be a positive number, got {val!r}")
     A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])

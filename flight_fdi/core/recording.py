@@ -206,18 +206,21 @@ def summary_line(result: dict) -> str:
     return text
 
 
+def json_safe(v: Any) -> Any:
+    """``v`` with every non-finite float (in dicts, lists, tuples) as None: strict JSON."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [json_safe(x) for x in v]
+    return v
+
+
 def write_json(result: dict, path: str | Path) -> None:
     """Write the result (NaN as null, so the file is strict JSON)."""
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [clean(x) for x in v]
-        return v
-
     p = Path(path)
     tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(json.dumps(clean(result), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    tmp.write_text(json.dumps(json_safe(result), indent=2, allow_nan=False) + "\n",
+                   encoding="utf-8")
     tmp.replace(p)

@@ -41,14 +41,16 @@ def _check_p(P: Any) -> np.ndarray:
     return P
 
 
-def estimate_time_offsets(P: Any, rate_hz: float, max_lag_s: float = 0.2, smooth: int = 12) -> tuple[np.ndarray, np.ndarray]:
+def estimate_time_offsets(P: Any, rate_hz: float, max_lag_s: float = 0.2,
+                          smooth: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """(tau (3,) in seconds, tau[0] = 0; peak correlation (3,)) of IMU2 and IMU3 against IMU1.
 
     The gyro vectors are smoothed with a ``smooth``-sample moving average (vibration near the
     Nyquist frequency is not common to the units), centred, and correlated at lags within
     +- ``max_lag_s`` on a 0.01-sample grid (the correlation of IMU1's interior -- all but
     max_lag_s at each end -- with IMU k, evaluated from the cross-spectrum of the zero-padded
-    signals, so a whole-sample shift of IMU k moves the estimate by exactly that shift). Needs at least 4 max lags of data."""
+    signals, so a whole-sample shift of IMU k moves the estimate by exactly that shift). Needs at
+    least 4 max lags of data."""
     P = _check_p(P)
     L = max(1, int(round(max_lag_s * rate_hz)))
     T = P.shape[0]

@@ -5,7 +5,8 @@ lengths and trajectories, and their units disagree by offsets that change from d
 
 1. per recording, the time offsets of IMU2 and IMU3 are estimated over the learning phase
    (:func:`flight_fdi.core.voter_align.estimate_time_offsets`), and with them the mounting maps
-   are estimated over all recordings together (:func:`~flight_fdi.core.voter_align.estimate_mounting`);
+   are estimated over all recordings together
+   (:func:`~flight_fdi.core.voter_align.estimate_mounting`);
    With ``linear`` (>= 3 recordings) the per-pair linear model (lever arm, scale factor:
    :mod:`flight_fdi.core.voter_linear`) is fitted on the aligned, mounting-corrected recordings
    and kept for the quantities where it lowers the held-out residual;
@@ -21,8 +22,9 @@ lengths and trajectories, and their units disagree by offsets that change from d
    (:func:`~flight_fdi.core.voting_calib.segment_curve`); bins held by fewer than
    ``min_recordings`` recordings end the curve (the last segment then holds);
 4. with ``symmetric`` each bound becomes +- the larger of the two (a set of recordings may drift
-   one way; another day's may drift the other), and the bounds are multiplied by ``margin`` (>= 1; recordings of other days spread more than the
-   calibration set: a margin chosen on held-out days, docs/voter_real.md).
+   one way; another day's may drift the other), and the bounds are multiplied by ``margin``
+   (>= 1; recordings of other days spread more than the calibration set: a margin chosen on
+   held-out days, docs/voter_real.md).
 
 5. with ``sequential`` ({quantity: drift nu}) the same pass runs the CUSUM of each pair
    (:mod:`flight_fdi.core.voter_sequential`) without alarms; its thresholds are

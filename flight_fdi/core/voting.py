@@ -7,14 +7,14 @@ Three co-mounted IMUs measure the same quantity j (gyro x/y/z, accel x/y/z) as P
 * **Statistic**: the mean of the last N differences (:func:`window_means`). Before N samples
   have been seen the mean is over all samples so far (a growing window), so a vote is possible
   from the first sample; its spread is larger there, which the thresholds reflect.
-* **Calibration** (offline, :func:`flight_fdi.core.voting_calib.calibrate`): at each time step of a Monte Carlo over nominal
-  flights, the window means of each pair are tested for normality with the Kolmogorov-Smirnov
-  test (:func:`ks_normal`, parameters by maximum likelihood). Normal: bounds mu +- z_(1-alpha/2)
-  sigma; not normal: the empirical alpha/2 and 1-alpha/2 quantiles (:func:`bounds_from_samples`).
-  The bound curves are cut into segments at the points of largest rate of change, each segment
-  taking its max (upper) and min (lower) (:func:`segment_curve`). The result is a
-  :class:`ThresholdTable`, saved as JSON (:func:`save_table`, schema in :data:`TABLE_FORMAT`'s
-  docs below) and loaded by the voter (:func:`load_table`).
+* **Calibration** (offline, :func:`flight_fdi.core.voting_calib.calibrate`): at each time step of a
+  Monte Carlo over nominal flights, the window means of each pair are tested for normality with the
+  Kolmogorov-Smirnov test (:func:`ks_normal`, parameters by maximum likelihood). Normal: bounds
+  mu +- z_(1-alpha/2) sigma; not normal: the empirical alpha/2 and 1-alpha/2 quantiles
+  (:func:`bounds_from_samples`). The bound curves are cut into segments at the points of largest
+  rate of change, each segment taking its max (upper) and min (lower) (:func:`segment_curve`). The
+  result is a :class:`ThresholdTable`, saved as JSON (:func:`save_table`, schema in
+  :data:`TABLE_FORMAT`'s docs below) and loaded by the voter (:func:`load_table`).
 * **Voting** (:func:`vote`): eps_k = 1 when x_k is inside its bounds.
 
   ======= ============================== ============ ===============

@@ -20,8 +20,9 @@ not a body axis, so for IMU faults only its right-*sensor* rate is scored (its s
 
 Onset error: estimated minus true onset over the ``right`` flights (median of the absolute value
 is the issue's target, <= 5 s); onset coverage: the fraction of the right flights whose stated
-95 % onset interval (``onset_interval_s``) contains the true onset; magnitude error: estimated / true - 1 over the right flights
-whose kind is right too (a ramp reported as a step has a magnitude in other units).
+95 % onset interval (``onset_interval_s``) contains the true onset; magnitude error:
+estimated / true - 1 over the right flights whose kind is right too (a ramp reported as a step has
+a magnitude in other units).
 Smallest fault isolated in 95 %: the smallest level from which the rate of ``right`` is >= 95 %
 at that level and at every larger level (per scenario and axis).
 """

@@ -1,8 +1,9 @@
 """The onset mixture as a detection statistic of the ins3d GLR's hypotheses, the size unknown
 (docs/ins3d_eval.md, "Seventh evaluation"; an evaluation, not a change of ``glr3d.isolate``).
 
-Per hypothesis and onset theta the GLR curve gives e(theta) and d(theta) (``power_bound.onset_terms``:
-d the information per SI unit of the size, e = b^ d, the GLR e^2 / d). With a Gaussian prior
+Per hypothesis and onset theta the GLR curve gives e(theta) and d(theta)
+(``power_bound.onset_terms``: d the information per SI unit of the size, e = b^ d, the GLR
+e^2 / d). With a Gaussian prior
 N(0, s^2) on the size b, the Bayes factor of "this hypothesis from theta" against "no fault" is
 
     BF(theta) = integral exp(b e - b^2 d / 2) N(b; 0, s^2) db

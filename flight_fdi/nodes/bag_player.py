@@ -329,13 +329,20 @@ class BagPlayer(Node):
         self._clock_pub.publish(msg)
         self._next_clock_ns = t_ns + self._clock_period_ns
 
-    def _release(self) -> None:
-        """Timed mode: publish every message whose (scaled) time has come."""
+    def _upcoming(self) -> tuple[str, int, bytes] | None:
+        """The next message to publish; None when the replay is over (ended here when the bag
+        has just run out)."""
         if self.done.done():
-            return
+            return None
         nxt = self._peek()
         if nxt is None:
             self._finish()
+        return nxt
+
+    def _release(self) -> None:
+        """Timed mode: publish every message whose (scaled) time has come."""
+        nxt = self._upcoming()
+        if nxt is None:
             return
         if self._t_first is None:
             self._t_first = nxt[1]
@@ -352,11 +359,8 @@ class BagPlayer(Node):
 
     def _pump_one(self) -> None:
         """Fast mode without acknowledgements: one message per executor cycle."""
-        if self.done.done():
-            return
-        nxt = self._peek()
+        nxt = self._upcoming()
         if nxt is None:
-            self._finish()
             return
         self._next = None
         self._publish(*nxt)

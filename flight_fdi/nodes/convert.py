@@ -99,8 +99,8 @@ _NAN3 = (float("nan"),) * 3
 def velocity_decoder(msgtype: str, odometry_twist_frame: str = "child"):
     """f(data) -> (sec, nanosec, linear velocity (x, y, z), variance per axis; NaN where the
     type has none) for one of VELOCITY_TYPES, from the CDR bytes (``bagio.cdr.message``;
-    WireError when malformed). Odometry: see wire.decode_odometry (rotated into header.frame_id unless
-    ``odometry_twist_frame`` is "header")."""
+    WireError when malformed). Odometry: see wire.decode_odometry (rotated into header.frame_id
+    unless ``odometry_twist_frame`` is "header")."""
     if msgtype == VELOCITY_TYPES[0]:
         def twist(data: bytes):
             sec, nanosec, x, y, z = wire.decode_twist_stamped(data)

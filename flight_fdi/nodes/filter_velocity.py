@@ -188,18 +188,27 @@ class VelocityMode:
         """A message whose bytes are not its type (only a broken publisher sends that)."""
         self._drop(f"{what}_malformed", f"{what} message: {exc}")
 
+    def _received(self, what: str, decode: Any, data: bytes) -> tuple[float, tuple] | None:
+        """(t, the decoded message) of an input message, counted ``received_<what>``; None (a
+        counted drop) when its bytes are malformed or its stamp cannot be carried."""
+        self.counters.inc(f"received_{what}")
+        try:
+            msg = decode(data)
+        except WireError as exc:
+            self._malformed(what, exc)
+            return None
+        t = convert.parts_to_s(msg[0], msg[1])
+        if self._bad_stamp(what, t, msg[0], msg[1]):
+            return None
+        return t, msg
+
     # ------------------------------------------------------------------ INS input
     def _on_ins(self, data: bytes) -> None:
         self.inputs.seen(self.ins_name)
-        self.counters.inc("received_ins")
-        try:
-            sec, nanosec, lin = self._decode_ins(data)
-        except WireError as exc:
-            self._malformed("ins", exc)
+        got = self._received("ins", self._decode_ins, data)
+        if got is None:
             return
-        t = convert.parts_to_s(sec, nanosec)
-        if self._bad_stamp("ins", t, sec, nanosec):
-            return
+        t, (_, _, lin) = got
         values = [lin[a] for a in self._axes_list]
         if not all(map(math.isfinite, values)):
             self._drop("ins_nonfinite", f"INS sample at t={t:.3f} s: non-finite velocity "
@@ -253,15 +262,10 @@ class VelocityMode:
     def _on_reference(self, k: int, data: bytes) -> None:
         ref = self.refs[k]
         self.inputs.seen(ref.name)
-        self.counters.inc("received_reference")
-        try:
-            sec, nanosec, lin, var = self._decode_ref(data)
-        except WireError as exc:
-            self._malformed("reference", exc)
+        got = self._received("reference", self._decode_ref, data)
+        if got is None:
             return
-        t = convert.parts_to_s(sec, nanosec)
-        if self._bad_stamp("reference", t, sec, nanosec):
-            return
+        t, (_, _, lin, var) = got
         verdict = ref.line.check(t, (t, lin, var))
         if verdict.dismissed:
             self._outliers("reference", verdict.dismissed)

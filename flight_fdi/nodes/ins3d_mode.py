@@ -56,8 +56,8 @@ from .params import fail
 
 #: the grade presets an analysis takes (core/ins3d/grades.py; "perfect" is for tests)
 GRADES = tuple(g for g in PRESETS if g != "perfect")
-#: the defaults of ``analyze_ins3d`` (the parameters' copies of its model options:
-#: ``ins3d_params.ANALYZE_DEFAULTS``)
+#: the defaults of ``analyze_ins3d`` (those of its model options, which are also the node
+#: parameters' defaults: ``core.ins3d.defaults.ANALYZE_DEFAULTS``)
 _ANALYZE = {k: v.default for k, v in inspect.signature(analyze_ins3d).parameters.items()}
 
 

@@ -2,23 +2,18 @@
 
 ``filter_node`` declares these at start-up in every mode (one parameter set, one
 ``config/filter.yaml``), but imports the mode (``nodes/ins3d_mode.py``: the 3-D core, its compiled
-kernels, scipy) only when ``model: ins3d`` is selected, so this module imports nothing of
-``flight_fdi.core.ins3d``. The defaults that are the core's own (``analyze_ins3d``'s model
-options, ``core.ins3d.model.VERTICAL``) are therefore written out here;
-test/nodes/test_filter_lazy_import.py checks that they equal the core's.
+kernels, scipy) only when ``model: ins3d`` is selected, so this module imports of
+``flight_fdi.core.ins3d`` only ``defaults`` (which imports nothing): the core's own defaults
+(``analyze_ins3d``'s model options, ``model.VERTICAL``) are taken from there.
 """
 from __future__ import annotations
 
 from typing import Any
 
+from ..core.ins3d.defaults import ANALYZE_DEFAULTS, VERTICAL
 from .params import ParamSpec, fail
 
 MODEL = "ins3d"
-#: ``core.ins3d.model.VERTICAL``: the error model's vertical channels
-VERTICAL = ("damped", "free", "loop")
-#: the defaults of ``core.ins3d.analysis.analyze_ins3d``'s model options
-ANALYZE_DEFAULTS = {"vertical": "loop", "latency": True, "ref_markov": (0.02, 0.03, 30.0),
-                    "aligned_prior": True}
 
 INS3D_PARAMS = (
     ParamSpec("imu_topic", "string", "/ins/imu",

@@ -53,8 +53,8 @@ Bad input never stops the node: non-finite values, values too large for the wind
 (|value| > max float / (4 N): a window of pair differences could overflow float64), duplicate and
 out-of-order stamps are dropped and counted per IMU (``dropped_imuK_<reason>``: ``nonfinite``,
 ``out_of_range``, ``duplicate``, ``out_of_order``); a stamp going back by more than
-``time_jump_reset_s`` restarts the voter (windows, flight time, learning; isolations are kept). Silent
-and never-arriving inputs are reported in ``/diagnostics``.
+``time_jump_reset_s`` restarts the voter (windows, flight time, learning; isolations are kept).
+Silent and never-arriving inputs are reported in ``/diagnostics``.
 
 Parameters: ``VOTER_PARAMS`` below (documented in ``config/voter.yaml``). A missing or invalid
 threshold table stops the node at start-up with a ParameterError naming ``thresholds_file``.

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from flight_fdi.core.models import DEG_PER_HOUR, G0
+from flight_fdi.core.recording import json_safe as _clean  # (figures3d imports it here)
 from flight_fdi.eval.errors import EvalError
 
 from . import figures
@@ -69,16 +70,6 @@ def _table(head: Iterable[str], rows: Iterable[Iterable[Any]]) -> str:
         out.append("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in row) + "</tr>")
     out.append("</table>")
     return "\n".join(out)
-
-
-def _clean(v: Any) -> Any:
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    if isinstance(v, dict):
-        return {k: _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    return v
 
 
 def write_report(analysis_result: Any, out_dir: str | Path, truth: Truth | None = None, *,

@@ -59,9 +59,12 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
+#: the 3-D core's light modules (they import nothing)
+LIGHT = ("flight_fdi.core.ins3d", "flight_fdi.core.ins3d.defaults")
+
 def heavy():
     return sorted(m for m in sys.modules if m.startswith(("flight_fdi.core.ins3d",
-                  "flight_fdi.nodes.ins3d_mode", "scipy.optimize")))
+                  "flight_fdi.nodes.ins3d_mode", "scipy.optimize")) and m not in LIGHT)
 
 from flight_fdi.nodes.filter_node import FilterNode
 out = {"import": heavy()}
@@ -76,6 +79,12 @@ print(json.dumps(out))
 """
 
 
+def _env() -> dict[str, str]:
+    """This environment with this worktree first on PYTHONPATH (the subprocess imports it)."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [REPO] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+
+
 def _declared(node) -> dict[str, tuple[str, ...]]:
     from rcl_interfaces.msg import ParameterType
 
@@ -88,9 +97,7 @@ def _declared(node) -> dict[str, tuple[str, ...]]:
 
 
 def test_the_velocity_and_attitude_modes_do_not_import_the_3d_core():
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [REPO] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-    proc = subprocess.run([sys.executable, "-c", _PROBE], cwd=REPO, env=env,
+    proc = subprocess.run([sys.executable, "-c", _PROBE], cwd=REPO, env=_env(),
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     got = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -118,14 +125,27 @@ def test_every_mode_declares_the_parameters_it_declared_before():
             rclpy.shutdown(context=ctx)
 
 
-def test_the_parameters_copies_of_the_core_defaults_are_the_cores():
-    """ins3d_params writes out the defaults that are the core's own (it must not import it)."""
+def test_the_core_defaults_have_one_copy():
+    """The parameters' defaults that are the 3-D core's own are the core's objects (one copy, in
+    ``core.ins3d.defaults``), and that module loads nothing heavy."""
+    from flight_fdi.core.ins3d import defaults, model
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
-    from flight_fdi.core.ins3d.model import VERTICAL
     from flight_fdi.nodes import ins3d_mode
 
+    assert ins3d_params.VERTICAL is defaults.VERTICAL is model.VERTICAL
+    assert ins3d_params.ANALYZE_DEFAULTS is defaults.ANALYZE_DEFAULTS
     sig = inspect.signature(analyze_ins3d).parameters
-    assert ins3d_params.ANALYZE_DEFAULTS == {k: sig[k].default
-                                             for k in ins3d_params.ANALYZE_DEFAULTS}
-    assert ins3d_params.VERTICAL == VERTICAL
+    for k, v in defaults.ANALYZE_DEFAULTS.items():
+        assert sig[k].default is v, k
     assert ins3d_mode.INS3D_PARAMS is ins3d_params.INS3D_PARAMS  # one table, re-exported
+    by_name = {s.name: s.default for s in ins3d_params.INS3D_PARAMS}
+    assert by_name["ins3d_vertical"] is defaults.ANALYZE_DEFAULTS["vertical"]
+    assert by_name["ins3d_reference_markov"] == list(defaults.ANALYZE_DEFAULTS["ref_markov"])
+
+    probe = ("import sys; import flight_fdi.core.ins3d.defaults; print(sorted(m for m in "
+             "sys.modules if m.startswith(('numba', 'numpy', 'scipy', 'flight_fdi'))))")
+    proc = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == str(
+        ["flight_fdi", "flight_fdi.core", "flight_fdi.core.ins3d", "flight_fdi.core.ins3d.defaults"])

@@ -43,6 +43,7 @@ from .message import WireError, header_bytes, header_stamp_ns
 
 __all__ = ["FILTER_STATE", "IMU", "LINEAR_COV", "NAVSATFIX", "ODOMETRY", "STRING",
            "TWIST_COV_STAMPED", "TWIST_STAMPED", "FilterStateRecord", "Payloads", "WireError",
-           "decode", "decode_doubles", "decode_filter_state_x", "decode_filter_states", "decode_odometry",
-           "decode_string", "encode", "encode_doubles", "encode_navsatfix", "encode_odometry",
+           "decode", "decode_doubles", "decode_filter_state_x", "decode_filter_states",
+           "decode_odometry", "decode_string", "encode", "encode_doubles", "encode_navsatfix",
+           "encode_odometry",
            "header_bytes", "header_stamp_ns", "rows", "supported"]

@@ -18,6 +18,7 @@ from ..diagnosis import DiagnosisConfig, SeedDiagnosis
 from ..errors import CoreError
 from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
+from .defaults import ANALYZE_DEFAULTS as _DEFAULTS
 from .filter import Ins3dForward, run_forward
 from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
 from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade, signature_error_of
@@ -154,9 +155,10 @@ def initial_covariance(model: Ins3dModel, C0: np.ndarray, f0: np.ndarray, lat0: 
 
 def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navigation",
                   rows: int = 3,
-                  position: bool = False, vertical: str = "loop", latency: bool = True,
-                  ref_markov: tuple[float, float, float] | None = (0.02, 0.03, 30.0),
-                  gate: GateConfig = GateConfig(), aligned_prior: bool = True,
+                  position: bool = False, vertical: str = _DEFAULTS["vertical"],
+                  latency: bool = _DEFAULTS["latency"],
+                  ref_markov: tuple[float, float, float] | None = _DEFAULTS["ref_markov"],
+                  gate: GateConfig = GateConfig(), aligned_prior: bool = _DEFAULTS["aligned_prior"],
                   post: bool = True, max_dt: float | None = 0.1,
                   thresholds: dict[str, float] | None = None,
                   diagnosis: DiagnosisConfig | None = None,

@@ -67,6 +67,7 @@ from numba import njit
 
 from ..earth import A, E2, GE, GF, GK, GM_RATIO, OMEGA_IE, gravity, radii
 from .grades import G0 as GRAVITY0
+from .defaults import VERTICAL
 from .grades import GRADES, ImuGrade
 from .vertical import VerticalLoop, fill_loop, loop_gains
 from .sparse import mul_left
@@ -76,7 +77,6 @@ LOOP_NAMES = ("dh", "int_dh", "b_aid")
 STATE_NAMES = ("dv_e", "dv_n", "dv_u", "phi_e", "phi_n", "phi_u",
                "ba_x", "ba_y", "ba_z", "bg_x", "bg_y", "bg_z", "dp_e", "dp_n", "dp_u")
 IV, IPHI, IBA, IBG, IP = 0, 3, 6, 9, 12
-VERTICAL = ("damped", "free", "loop")
 REF_MARKOV_NAMES = ("ref_m_e", "ref_m_n", "ref_m_u")
 
 
