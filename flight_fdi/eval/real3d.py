@@ -36,6 +36,7 @@ from ..core.earth import radii
 from ..core.ins3d.grades import DEG_H, DEG_RTH, ImuGrade
 from ..core.rotation import dcm_array
 from .errors import EvalError
+from .real3d_record import judge, record
 
 RATE_HZ = 120.0
 GT_DT = 0.1
@@ -379,10 +380,13 @@ class Settings:
     #: 95 % quantile, over the fault runs of the fit days (straight, vertical 1-7) whose true
     #: sensor and axis is the best or the runner-up, of the angle the true signature is off
     #: the data beyond noise (``real3d_error.model_error_angle``; tools/ins3d_real_eval.py,
-    #: seed 1: q95 0.336 of 299 runs with the levelled INS's prior; 0.264 of 293 with the
-    #: independent one, kept at 0.33: docs/ins3d_real.md, "Initial covariance"). None: the
-    #: grade's misalignment (the decision before).
-    signature_error: float | None = 0.33
+    #: seed 1). None: the grade's misalignment. Session 15: 0.000 of 293 runs (max 0.42), so
+    #: None; it was 0.33 (q95 0.336 / 0.264) while the fault runs' reference carried the
+    #: faulty INS's shape (``nominal_reference``) -- the allowance had measured that.
+    signature_error: float | None = None
+    #: True (default): a fault run's reference is the nominal run's (``contract_arrays``'
+    #: ``reference_of``); False: built with the faulty INS's shape (before session 15)
+    nominal_reference: bool = True
     #: False (default): independent initial states -- the contract's attitude is the ground
     #: truth's, not levelled on the unit's accelerometer; True: the initial covariance of a
     #: levelled INS (``Ins3dModel.p0_aligned``: the tilt cancels the horizontal accelerometer
@@ -415,72 +419,12 @@ def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings =
                          signature_error=settings.signature_error, **options)
 
 
-def record(analysis, t0: float = 0.0) -> dict:
-    """The measured outcome of one analysis: verdict, named fault (sensor, axis, kind, onset,
-    magnitude), the largest GLR statistic per kind, the thresholds, beta^2 per row, latency;
-    whether it was relinearised (``post_flight.relinearization``: a pass kept, how many) and
-    the model's validity (``post_flight.model_validity``: valid, largest smoothed attitude
-    error in deg; None without the post-flight part)."""
-    pf = analysis.post_flight_dict(t0=t0)
-    summ = analysis.summary()
-    f = pf.get("fault")
-    out = {"verdict": pf["verdict"], "isolation": pf.get("isolation"),
-           "sensor": f and f["sensor"], "axis": f and f["axis"], "kind": f and f["kind"],
-           "onset_s": f and f["onset_s"], "magnitude": f and f["magnitude"],
-           "statistic": f and f["statistic"],
-           "candidates": [f"{c['sensor']} {c['axis']} {c['kind']}" for c in pf["candidates"]],
-           "thresholds": dict(pf["glr"]["thresholds"]),
-           "seed_verdict": pf["seed_method"]["verdict"],
-           "seed_element": pf["seed_method"]["element"],
-           "beta2": summ["beta2_mean"], "beta2_rows": summ["beta2_row_mean"],
-           "latency_s": summ["final_state"].get("latency")}
-    iso = analysis.isolation
-    cv = analysis.decision_glr
-    out.update({"best": iso.best, "rival": iso.rival, "reason": iso.reason,
-                "best_statistic": cv[iso.best].statistic if iso.best else None,
-                "rival_statistic": cv[iso.rival].statistic if iso.rival else None,
-                "pair": iso.pair, "similarity": iso.similarity, "offset": iso.offset,
-                "nonlinear": None if analysis.nonlinear is None else
-                f"{analysis.nonlinear.before} -> {analysis.nonlinear.after}",
-                "turn_on": [{k: t[k] for k in ("sensor", "axis", "magnitude", "magnitude_std",
-                                                "prior_sigmas", "statistic")}
-                            for t in pf["turn_on_bias"]]})
-    rel, val = pf.get("relinearization"), pf.get("model_validity")
-    out.update({"relinearised": bool(rel and rel["passes"] > 0),    # a pass about it kept
-                "relinearisation_passes": rel["passes"] if rel else 0,
-                "model_valid": None if val is None else bool(val["valid"]),
-                "attitude_error_max_deg": None if val is None else val["attitude_error_max_deg"]})
-    for kind in ("step", "ramp", "jump", "outliers"):     # unconditional (not given turn-on)
-        top = max((c for c in analysis.glr.values() if c.hypothesis.kind == kind),
-                  key=lambda c: c.statistic)
-        out[f"max_{kind}"] = float(top.statistic)
-        out[f"max_{kind}_hyp"] = top.hypothesis.name
-    return out
-
-
-def judge(rec_out: dict, fault: Fault | None) -> str:
-    """``right`` (the fault's sensor and axis, verdict failure), ``wrong`` (a confident
-    isolation of anything else: another IMU axis, the reference, a glitch), ``ambiguous``
-    (candidates named, no fault), ``none`` (no isolation). Without a fault: ``false`` for an
-    IMU sensor named, ``reference`` for the reference named, else as above."""
-    v, sensor, axis = rec_out["verdict"], rec_out["sensor"], rec_out["axis"]
-    if v == "ambiguous":
-        return "ambiguous"
-    if sensor is None:
-        return "none"
-    if fault is None:
-        return "reference" if sensor == "reference" else "false"
-    if v == "failure" and sensor == fault.sensor and axis == fault.axis:
-        return "right"
-    return "wrong"
-
-
 def fault_runs(data_dir: Path, cal: Calibration, names: list[str], units: list[int],
                sensor: str, axis: str, magnitude: float, seed: int,
                settings: Settings = Settings(), margin_s: tuple[float, float] = (3.0, 5.0)):
     """One run per recording x unit with a step of |``magnitude``| (random sign) on ``sensor``
     ``axis`` at a random onset in [margin0, T - margin1] s (seeded per run), the reference the
-    nominal run's (``contract_arrays``' ``reference_of``); yields (name, unit, Fault, record,
+    nominal run's (``Settings.nominal_reference``); yields (name, unit, Fault, record,
     outcome)."""
     for i, name in enumerate(names):
         for unit in units:
@@ -492,7 +436,8 @@ def fault_runs(data_dir: Path, cal: Calibration, names: list[str], units: list[i
             mag = float(magnitude * rng.choice([-1.0, 1.0]))
             fault = Fault(sensor, axis, mag, onset)
             bg, ba = cal.for_recording(name, unit)
-            out = record(analyze(fault.apply(rec), bg, ba, settings, reference_of=rec))
+            ref = rec if settings.nominal_reference else None
+            out = record(analyze(fault.apply(rec), bg, ba, settings, reference_of=ref))
             yield name, unit, fault, out, judge(out, fault)
 
 

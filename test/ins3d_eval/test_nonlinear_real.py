@@ -86,12 +86,19 @@ def test_likelihood_is_least_at_the_true_fault(rec, cal):
 @pytest.mark.parametrize("deg_s", [10.0, 20.0])
 def test_large_gyro_z_step_is_not_named_gyro_x(rec, cal, deg_s):
     """Before the check, a gyro z step of 10 or 20 deg/s at 5 s was named gyro x with
-    confidence. Now: ambiguous, gyro z the first candidate with its magnitude within 5 %."""
+    confidence. Now gyro z comes first, its magnitude within 5 %: ambiguous against gyro x at
+    10 deg/s (gap 7.1 < 9.2), named at 20 deg/s (10.9 > 9.2; with the 0.33-rad allowance of
+    sessions 11-14 both were ambiguous)."""
     fault = R.Fault("gyro", "z", math.radians(deg_s), 5.0)
     an = R.analyze(fault.apply(rec), *cal)
     pf = an.post_flight_dict(t0=float(an.steps.t[0]))
-    assert pf["verdict"] == "ambiguous" and an.isolation.reason == "nonlinear"
-    first = pf["candidates"][0]
+    assert an.isolation.reason == "nonlinear"
+    if deg_s == 10.0:
+        assert pf["verdict"] == "ambiguous"
+        first = pf["candidates"][0]
+    else:
+        assert pf["verdict"] == "failure"
+        first = pf["fault"]
     assert (first["sensor"], first["axis"]) == ("gyro", "z")
     assert first["magnitude"] == pytest.approx(fault.magnitude, rel=0.05)
     assert pf["nonlinear"]["before"] == "single gyro_x_step"

@@ -156,7 +156,7 @@ def test_model_error_allowance_on_the_excerpt(rec, cal, monkeypatch):
     relinearises it (``core/ins3d/relinearize.py``), which leaves the two ambiguous as well,
     by the margin (checked last)."""
     bg, ba = cal
-    st = R.Settings(aligned_prior=True)
+    st = R.Settings(aligned_prior=True, signature_error=0.33)   # the allowance of sessions 11-14
     x = R.Fault("accelerometer", "x", 1.0, 9.0)
     relinearized = R.record(R.analyze(x.apply(rec), bg, ba, st))
     assert R.judge(relinearized, x) == "ambiguous"

@@ -76,7 +76,7 @@ def test_the_grade_file_is_settings():
     for changed, needle in ((R.Settings(vrw=0.03), "vrw:"),
                             (R.Settings(gyro_bias_deg_h=300.0), "gyro_bias:"),
                             (R.Settings(min_valid_steps=6), "seed method"),
-                            (R.Settings(signature_error=None), "signature error")):
+                            (R.Settings(signature_error=0.33), "signature error")):
         diff = grade_file_differences(GRADE_FILE, changed)
         assert len(diff) == 1 and diff[0].startswith(needle), diff
 
