@@ -6,8 +6,9 @@ recorder stores its outputs in a bag (OUT/recording), and the smoother replays t
 backwards and localizes the fault. Prints the in-flight alarms and the localized-fault result (the
 same numbers as ``flight-fdi analyze`` on the same bag: both go through one core).
 
-Bounds (docs/hardening.md, section 5): a stage with work waiting that makes no progress for
---stall-timeout seconds ends the run with one line naming it (exit 1). The middleware teardown
+Bounds (docs/hardening.md, section 5): a run whose work is not done after --timeout seconds,
+or a stage with work waiting that makes no progress for --stall-timeout seconds, ends with one
+line (naming the stage; exit 1). The middleware teardown
 after the run's work is bounded by --teardown-timeout: past it a WARN line and the threads'
 stacks go to stderr, the result is still printed and the report written, and the process exits
 with the status it would have had (0, or 3 with --fail-on-fault) without the teardown. The same
@@ -25,9 +26,11 @@ from flight_fdi.cli.analyze import (add_analysis_options, analysis_config, exit_
                                     format_result, input_spec)
 from flight_fdi.cli.errors import CliError
 
-#: the run's bounds a user can set: option -> (keyword of run_pipeline, least, most); their
-#: defaults are the pipeline's (STALL_TIMEOUT_S, runner.TEARDOWN_TIMEOUT_S: 60 s, 10 s)
-BOUNDS = {"--stall-timeout": ("stall_timeout_s", 1.0, 3600.0),
+#: the run's bounds a user can set: option -> (keyword of run_pipeline / run_pipeline3d, least,
+#: most); their defaults are the pipeline's (TIMEOUT_S, STALL_TIMEOUT_S,
+#: runner.TEARDOWN_TIMEOUT_S: 600 s, 60 s, 10 s)
+BOUNDS = {"--timeout": ("timeout_s", 1.0, 86400.0),
+          "--stall-timeout": ("stall_timeout_s", 1.0, 3600.0),
           "--teardown-timeout": ("teardown_timeout", 1.0, 600.0)}
 
 
@@ -45,6 +48,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="skip the figures and HTML page (OUT/report/index.html)")
     p.add_argument("--no-progress", action="store_true",
                    help="no 'replay NN %%' lines on stderr")
+    p.add_argument("--timeout", metavar="S", default=None,
+                   help="end the run with an error when its work (replay, recording, analysis) "
+                   "is not done after S seconds (1 to 86400; default 600): raise it for a long "
+                   "flight on a slow or loaded machine")
     p.add_argument("--stall-timeout", metavar="S", default=None,
                    help="end the run with an error naming the stage when a stage with work "
                    "waiting makes no progress for S seconds (1 to 3600; default 60)")

@@ -23,7 +23,8 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .pipeline_graph import STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, Graph, PipelineRun, Progress
+from .pipeline_graph import (STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, TIMEOUT_S, Graph, PipelineRun,
+                             Progress)
 
 ACK_WINDOW = 60
 MARGIN = 45         # a sample bag's ~15 messages of look-ahead, three times
@@ -75,7 +76,7 @@ def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any,
 
 def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, str] | None = None,
                    grade: str = "navigation", rows: int = 2, gate: Any = None,
-                   storage: str = "mcap", overwrite: bool = False, timeout_s: float = 600.0,
+                   storage: str = "mcap", overwrite: bool = False, timeout_s: float = TIMEOUT_S,
                    executor: str = "events", log_level: str = "warn", source: dict | None = None,
                    progress: Any = None, options: dict | None = None,
                    stall_timeout_s: float = STALL_TIMEOUT_S,

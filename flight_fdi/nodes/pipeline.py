@@ -48,8 +48,9 @@ from flight_fdi.bagio.errors import BagError
 
 from .errors import ParameterError
 # the graph machinery (pipeline_graph), also importable from here as before
-from .pipeline_graph import (STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, Graph,  # noqa: F401
-                             PipelineError, PipelineRun, Progress, StallWatch, _private_context)
+from .pipeline_graph import (STALL_TIMEOUT_S, TEARDOWN_TIMEOUT_S, TIMEOUT_S,  # noqa: F401
+                             Graph, PipelineError, PipelineRun, Progress, StallWatch,
+                             _private_context)
 
 
 def filter_parameters(config: Any, channel: str, model: str, spec: Any = None,
@@ -100,7 +101,7 @@ def check_inputs(bag: Path, spec: Any, config: Any) -> tuple[Any, dict]:
 
 def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "x", *,
                           config: Any = None, model: str = "ins_channel", storage: str = "mcap",
-                          overwrite: bool = False, timeout_s: float = 600.0,
+                          overwrite: bool = False, timeout_s: float = TIMEOUT_S,
                           executor: str = "events", log_level: str = "warn",
                           spec: Any = None, progress: Any = None,
                           stall_timeout_s: float = STALL_TIMEOUT_S,

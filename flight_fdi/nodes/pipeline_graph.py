@@ -22,6 +22,7 @@ from flight_fdi.bagio.errors import BagError
 from .errors import ParameterError
 from .runner import TEARDOWN_TIMEOUT_S, StopSignals, TeardownWatchdog, make_executor
 
+TIMEOUT_S = 600.0       # the whole run (replay, recording, analysis): its work done by then
 STALL_TIMEOUT_S = 60.0  # a stage with work waiting that does none of it this long: stalled
 
 
@@ -146,11 +147,12 @@ class StallWatch:
 
 
 def _spin_until(executor: Any, done: Any, deadline: float, what: str,
-                stop: StopSignals, tick: Any = None, stalled: Any = None) -> None:
-    """Spin until ``done()``; PipelineError at the deadline or when ``stalled()`` (called at
-    most every 0.1 s) names a stalled stage, KeyboardInterrupt once Ctrl-C was pressed (raised
-    here, between callbacks, never inside a node's callback). ``tick()`` is called between
-    spins (progress)."""
+                stop: StopSignals, tick: Any = None, stalled: Any = None,
+                timeout_s: float | None = None) -> None:
+    """Spin until ``done()``; PipelineError at the deadline (naming ``timeout_s``, the run's
+    bound, when given) or when ``stalled()`` (called at most every 0.1 s) names a stalled stage,
+    KeyboardInterrupt once Ctrl-C was pressed (raised here, between callbacks, never inside a
+    node's callback). ``tick()`` is called between spins (progress)."""
     next_check = 0.0
     while not done():
         if tick is not None:
@@ -165,7 +167,8 @@ def _spin_until(executor: Any, done: Any, deadline: float, what: str,
                 raise PipelineError(f"pipeline stalled while {what}: {stall}")
         left = deadline - now
         if left <= 0:
-            raise PipelineError(f"pipeline timed out while {what}")
+            bound = "" if timeout_s is None else f" (the run's bound: {timeout_s:g} s)"
+            raise PipelineError(f"pipeline timed out while {what}{bound}")
         executor.spin_once(timeout_sec=min(0.05, left))
 
 
@@ -184,7 +187,7 @@ class Graph:
     NAME = "flight_fdi_pipeline"
 
     def __init__(self, executor: str = "events", log_level: str = "warn",
-                 timeout_s: float = 600.0, stall_timeout_s: float = STALL_TIMEOUT_S,
+                 timeout_s: float = TIMEOUT_S, stall_timeout_s: float = STALL_TIMEOUT_S,
                  teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
                  on_teardown_timeout: Callable[[dict], int] | None = None) -> None:
         self.timeout_s = seconds("timeout_s", timeout_s)
@@ -308,7 +311,7 @@ class Graph:
 
     def spin_until(self, done: Any, what: str, tick: Any = None) -> None:
         _spin_until(self.ex, done, self.deadline, what, self.stop, tick,
-                    None if self._stages is None else self._stalled)
+                    None if self._stages is None else self._stalled, self.timeout_s)
 
     def replay(self, player: Any, progress: "Progress") -> None:
         """Spin until ``player`` has published its whole bag (BagError when it failed)."""
@@ -365,5 +368,5 @@ class Graph:
         return dict(run.result)
 
 
-__all__ = ["STALL_TIMEOUT_S", "TEARDOWN_TIMEOUT_S", "Graph", "PipelineError", "PipelineRun",
+__all__ = ["STALL_TIMEOUT_S", "TEARDOWN_TIMEOUT_S", "TIMEOUT_S", "Graph", "PipelineError", "PipelineRun",
            "Progress", "StallWatch", "seconds"]
