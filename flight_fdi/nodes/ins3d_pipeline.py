@@ -31,20 +31,6 @@ MARGIN = 45         # a sample bag's ~15 messages of look-ahead, three times
 WAIT_S = 5.0
 
 
-def _message_counts(bag: Path, topics: list[str]) -> dict[str, int]:
-    from rosbags.rosbag2 import Reader
-
-    try:
-        with Reader(bag) as r:
-            out = {t: 0 for t in topics}
-            for c in r.connections:
-                if c.topic in out:
-                    out[c.topic] += c.msgcount
-            return out
-    except Exception:  # only for progress and pacing; the reader reports real problems
-        return {}
-
-
 def ack_window(counts: dict[str, int], reference_topic: str) -> int:
     """The player's window (module docstring): ``ACK_WINDOW``, or for a bag with more
     messages per reference period (a sparse reference) two periods' messages plus ``MARGIN``."""
@@ -83,14 +69,16 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                    teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
                    on_teardown_timeout: Any = None) -> PipelineRun:
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
-    before any node exists (BagError). Leaves ``recording/`` and ``result.json`` in
+    before any node exists (BagError: topics, types, and every message read raw by bagio's
+    reader -- a corrupt bag is one line, never a replay of what rosbags' iterator makes of it:
+    ``bagio.ins3d_input.check_messages``). Leaves ``recording/`` and ``result.json`` in
     ``out_dir``; the result's ``input`` section is the filter's count of the messages it
     received and dropped (``input_section_of_run``: that of ``analyze``, no second read). ``options``: the model options (``filter_parameters3d``; the filter records
     them, the smoother analyses with them). ``timeout_s``, ``stall_timeout_s``,
     ``teardown_timeout``: the bounds of ``pipeline`` (its module docstring: a stalled stage
     ends the run with PipelineError; the teardown after the result is bounded), and
     ``on_teardown_timeout`` what is done with the result should that bound be reached."""
-    from flight_fdi.bagio.ins3d_input import check_topics
+    from flight_fdi.bagio.ins3d_input import check_messages
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.gate import GateConfig
 
@@ -102,9 +90,10 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                   on_teardown_timeout)
     gate = gate or GateConfig()
     bag = Path(bag)
-    names = check_topics(bag, topics)
+    # every message read once before any node (corrupt data: one line now, not garbage
+    # played), which gives the counts for the progress and the player's window
+    names, counts = check_messages(bag, topics)
     played = list(names.values())
-    counts = _message_counts(bag, played)
     tick_progress = Progress(sum(counts.values()) or 1, progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
