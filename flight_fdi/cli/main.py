@@ -120,8 +120,9 @@ def exit_now(code: int) -> None:
     whose whole output is already written. Only for the command line (never in library code).
     Returns instead, and the process exits the normal way with the same status, when a flush
     fails (e.g. a closed pipe: reported as before) or coverage is measuring the process (it
-    saves its data at exit)."""
-    if sys.modules.get("coverage") is not None or os.environ.get("COVERAGE_PROCESS_START"):
+    saves its data at exit; numba imports coverage without measuring anything: that does not
+    count)."""
+    if _coverage_measuring() or os.environ.get("COVERAGE_PROCESS_START"):
         return
     try:
         sys.stdout.flush()
@@ -129,6 +130,15 @@ def exit_now(code: int) -> None:
     except (OSError, ValueError):
         return
     os._exit(code)
+
+
+def _coverage_measuring() -> bool:
+    """Whether coverage is measuring this process (a started ``coverage.Coverage``)."""
+    cov = sys.modules.get("coverage")
+    current = getattr(getattr(cov, "Coverage", None), "current", None)
+    if cov is None:
+        return False
+    return current is None or current() is not None  # (an old coverage: assume it measures)
 
 
 if __name__ == "__main__":
