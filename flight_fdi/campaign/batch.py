@@ -35,6 +35,15 @@ from .engine import Engine
 from .summary import summary_row
 
 BAG_SUFFIXES = (".mcap", ".db3")
+#: estimated wall seconds of one flight's analysis per MB of its bag (``--model ins3d``; the
+#: single-axis models: ``ANALYSIS_S_PER_MB``) -- the high end of what was measured in one
+#: process after the first flight (0.03-0.09 s per MB single-axis, 0.09-0.17 s per MB 3-D:
+#: docs/scaling.md), so that the estimate errs toward the cluster (the old default): a bag
+#: with other topics (camera, lidar) or without compression only makes it larger
+ANALYSIS_S_PER_MB = 0.1
+ANALYSIS_S_PER_MB_3D = 0.2
+#: a per-flight report's figures and page, beside the analysis it runs again
+REPORT_S = 1.5
 #: options that say where and how to run, not what the analysis computes
 RUN_OPTIONS = ("json", "jobs", "fail_on_fault")
 
@@ -105,6 +114,13 @@ def flight_names(bags: list[tuple[Path, Path]]) -> dict[Path, str]:
         counts[n] = counts.get(n, 0) + 1
     return {b: n if counts[n] == 1 else f"{n}-{hashlib.sha1(str(b).encode()).hexdigest()[:8]}"
             for b, n in raw.items()}
+
+
+def bag_megabytes(bag: Path) -> float:
+    """The size of a bag's files (a bag folder: every file in it), MB."""
+    if bag.is_file():
+        return bag.stat().st_size / 1e6
+    return sum(f.stat().st_size for f in bag.iterdir() if f.is_file()) / 1e6
 
 
 def bag_mtime(bag: Path) -> float:
@@ -265,6 +281,7 @@ class Batch:
             raise BatchError("no inputs")
         self.names = flight_names(bags)
         self.force = force or self._options_changed()
+        self._plan: tuple[dict[str, dict], list[FlightTask]] | None = None
 
     def result_path(self, name: str) -> Path:
         return self.flights_dir / f"{name}.json"
@@ -290,6 +307,49 @@ class Batch:
             return None
         return doc if isinstance(doc, dict) and doc.get("bag") == str(bag) else None
 
+    def plan(self) -> tuple[dict[str, dict], list[FlightTask]]:
+        """(summary rows of the flights up to date, the tasks of the others): what the next
+        :meth:`run` does (it takes this plan, made once)."""
+        if self._plan is None:
+            rows: dict[str, dict] = {}
+            tasks: list[FlightTask] = []
+            for bag, name in sorted(self.names.items(), key=lambda kv: kv[1]):
+                done = self.up_to_date(bag, name)
+                if done is not None:
+                    rows[name] = summary_row(name, done, bag=str(bag))
+                else:
+                    tasks.append(FlightTask(name, str(bag), self.args))
+            self._plan = (rows, tasks)
+        return self._plan
+
+    def estimated_work(self, reports: str | None = None,
+                       enough: float = float("inf")) -> tuple[int, float]:
+        """(tasks, estimated serial wall seconds) of the next run: the flights to analyse
+        (:meth:`plan`; ``ANALYSIS_S_PER_MB`` of their bags) and, with ``reports`` (--reports),
+        the flights whose report it may make (``REPORT_S`` each and their analysis again). The
+        bags' sizes are summed until the estimate passes ``enough``."""
+        per_mb = ANALYSIS_S_PER_MB_3D if self.args.model == "ins3d" else ANALYSIS_S_PER_MB
+        bags = {name: bag for bag, name in self.names.items()}
+        jobs = [(bags[t.name], 0.0) for t in self.plan()[1]]
+        if reports:
+            wanted = (set(bags) if reports in ("all", "faults")
+                      else {n.strip() for n in reports.split(",")} & set(bags))
+            jobs += [(bags[n], REPORT_S) for n in sorted(wanted) if not self._report_fresh(n)]
+        work = 0.0
+        for bag, extra in jobs:
+            if work > enough:
+                break
+            work += extra + per_mb * bag_megabytes(bag)
+        return len(jobs), work
+
+    def _report_fresh(self, name: str) -> bool:
+        index = self.out / "reports" / name / "index.html"
+        result = self.result_path(name)
+        try:
+            return index.stat().st_mtime > result.stat().st_mtime
+        except OSError:
+            return False
+
     def run(self, engine: Engine, progress: bool = False,
             say: Callable[[str], None] = lambda s: None,
             on_flight: Callable[[dict], None] | None = None) -> BatchResult:
@@ -301,14 +361,9 @@ class Batch:
         except OSError as exc:
             raise BatchError(f"cannot create {self.flights_dir}: {exc.strerror}") from None
         start = time.perf_counter()
-        rows: dict[str, dict] = {}
-        tasks: list[FlightTask] = []
-        for bag, name in sorted(self.names.items(), key=lambda kv: kv[1]):
-            done = self.up_to_date(bag, name)
-            if done is not None:
-                rows[name] = summary_row(name, done, bag=str(bag))
-            else:
-                tasks.append(FlightTask(name, str(bag), self.args))
+        done_rows, tasks = self.plan()
+        self._plan = None          # (a second run plans again)
+        rows = dict(done_rows)
         for text, why in self.problems:
             name = re.sub(r"[^A-Za-z0-9._-]", "_", Path(text).name).strip("_.") or "input"
             while name in rows or name in self.names.values():

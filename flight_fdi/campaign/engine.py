@@ -70,6 +70,24 @@ class EngineError(RuntimeError):
     """The engine cannot start or reach its cluster (one sentence for the user)."""
 
 
+#: wall time the embedded local cluster adds to a batch, from its start to its close: the
+#: scheduler, one nanny and worker process per core, each worker's warm-up (imports, compiled
+#: kernels from numba's cache). Measured on the 2-core machine (load 3.5-4.5): start 3.2-3.9 s,
+#: close 0.8-1.2 s (docs/scaling.md, "How many workers by default")
+CLUSTER_COST_S = 4.0
+
+
+def auto_workers(tasks: int, work_s: float, cores: int | None = None) -> int:
+    """The workers of a batch whose worker count was not given: one per core (``cores``, None:
+    :func:`default_workers`) and at most one per task; 1 -- this process, no cluster -- when
+    spreading ``work_s`` (the tasks' estimated serial wall time) over them would save less than
+    the cluster costs (:data:`CLUSTER_COST_S`): ``work_s * (1 - 1/w) < CLUSTER_COST_S``."""
+    w = min(cores or default_workers(), max(int(tasks), 1))
+    if w < 2 or work_s * (1.0 - 1.0 / w) < CLUSTER_COST_S:
+        return 1
+    return w
+
+
 def default_workers() -> int:
     """Worker processes of the embedded local cluster: one per core this process may use."""
     try:

@@ -10,8 +10,10 @@ them when the analysis options changed); a bag that cannot be analysed is a row 
 Exit status 0 (errors are rows), 3 with --fail-on-fault when any flight declared a fault.
 
 The flights run on an embedded local Dask cluster of one worker process per core (nothing to
-start), or with --scheduler tcp://HOST:PORT on an existing cluster (``dask scheduler``,
-``dask worker``) whose workers see the bags under the same paths. See docs/scaling.md.
+start) -- by default no more workers than flights, and in this process when the work is too
+small to pay for the cluster's start (a few flights) -- or with --scheduler tcp://HOST:PORT on
+an existing cluster (``dask scheduler``, ``dask worker``) whose workers see the bags under the
+same paths. See docs/scaling.md.
 """
 from __future__ import annotations
 
@@ -30,9 +32,16 @@ def add_engine_options(p: argparse.ArgumentParser, *flags: str) -> None:
 
     p.add_argument(*(flags or ("--workers",)), dest="workers", type=int, default=None,
                    metavar="N", help="worker processes of the local Dask cluster (default: one "
-                   f"per core, {default_workers()} here; 1: in this process, no cluster)")
+                   f"per core, {default_workers()} here; 1: in this process, no cluster)"
+                   + _SMALL_BATCH.get(flags[0] if flags else "--workers", ""))
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                    help="run on this existing Dask cluster (its workers) instead of a local one")
+
+
+#: what the default of ``batch --workers`` also does (:func:`batch_engine_spec`)
+_SMALL_BATCH = {"--workers": "; by default a batch whose work is too small to pay for the "
+                "cluster's start runs in this process, and never on more workers than flights "
+                "(docs/scaling.md)"}
 
 
 def engine_spec(args: argparse.Namespace):
@@ -42,6 +51,21 @@ def engine_spec(args: argparse.Namespace):
         return EngineSpec(workers=args.workers, scheduler=args.scheduler)
     except EngineError as exc:
         raise CliError(f"--workers/--scheduler: {exc}") from None
+
+
+def batch_engine_spec(args: argparse.Namespace, batch):
+    """The engine of a batch: ``engine_spec``; without --workers and --scheduler, the local
+    cluster's workers by the size of the work (``campaign.engine.auto_workers``: in this process
+    when the cluster would not pay, at most one worker per flight)."""
+    from flight_fdi.campaign.engine import CLUSTER_COST_S, EngineSpec, auto_workers
+
+    spec = engine_spec(args)
+    if args.workers is not None or args.scheduler is not None:
+        return spec
+    # (summing the bags' sizes stops once the work is surely worth a cluster)
+    tasks, work_s = batch.estimated_work(getattr(args, "reports", None),
+                                         enough=4 * CLUSTER_COST_S)
+    return EngineSpec(workers=auto_workers(tasks, work_s))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -67,10 +91,11 @@ def run(args: argparse.Namespace) -> int:
     from flight_fdi.campaign.reports import make_reports
     from flight_fdi.campaign.worker import warm_for
 
-    spec = engine_spec(args)
+    engine_spec(args)   # (a bad --workers / --scheduler: its line before the inputs')
     say = (lambda s: None) if args.json else (lambda s: print(s, file=sys.stderr))
     try:
         batch = Batch(args.inputs, args.out, args, force=args.force)
+        spec = batch_engine_spec(args, batch)
         with Engine(spec, warm=warm_for(args.model)) as engine:
             if spec.scheduler:
                 engine.wait_for_workers(1)
