@@ -368,5 +368,6 @@ class Graph:
         return dict(run.result)
 
 
-__all__ = ["STALL_TIMEOUT_S", "TEARDOWN_TIMEOUT_S", "TIMEOUT_S", "Graph", "PipelineError", "PipelineRun",
+__all__ = ["STALL_TIMEOUT_S", "TEARDOWN_TIMEOUT_S", "TIMEOUT_S", "Graph", "PipelineError",
+           "PipelineRun",
            "Progress", "StallWatch", "seconds"]
