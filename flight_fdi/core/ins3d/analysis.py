@@ -24,9 +24,9 @@ from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
 from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade, signature_error_of
 from .grades import ImuGrade
 from .model import IBA, IBG, IPHI, Ins3dModel
-from .nonlinear import NonlinearCheck, confirm, corrected, needs_check
+from .nonlinear import SMALL_ANGLE_RAD, NonlinearCheck, confirm, corrected, needs_check
 from .relinearize import (MAX_PASSES, RELINEARIZE_MPS2, RELINEARIZE_RAD, TOLERANCE_RAD,
-                          Relinearization, Validity, largest_attitude, relinearized,
+                          Relinearization, Validity, largest_attitude, relinearized_input,
                           velocity_remainder)
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
@@ -226,7 +226,7 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
                           [out.forward.neg2_log_likelihood()])
     x_s = out.backward.x_s
     for _ in range(MAX_PASSES):
-        steps, refs = relinearized(model, rel.steps, rel.refs, x_s)
+        steps, refs, w = relinearized_input(model, rel.steps, rel.refs, x_s)
         P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]),
                                 aligned_prior)
         fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=True)
@@ -235,6 +235,7 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
             break
         bwd = run_backward(model, steps, refs, fwd, rank_tol)
         out.steps, out.refs, out.forward, out.backward = steps, refs, fwd, bwd
+        rel.response = w
         rel.attitude_max_rad.append(largest_attitude(bwd.x_s))
         rel.neg2_log_likelihood.append(nll)
         moved = float(np.abs(bwd.x_s[:, IPHI:IPHI + 3] - x_s[:, IPHI:IPHI + 3]).max())
@@ -257,11 +258,16 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
         out.isolation = out.turn_on.isolation
     else:
         resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
-    if needs_check(out.decision_glr, out.isolation, float(steps.t[-1])):
+    # relinearised (the no-fault estimate about which the signatures were taken absorbs part
+    # of a fault): every gyro decision is checked, whatever angle it implies
+    limit = SMALL_ANGLE_RAD if out.relinearization is None else 0.0
+    if needs_check(out.decision_glr, out.isolation, float(steps.t[-1]), limit):
         steps, refs, fwd = out.as_recorded()    # the exact removal: from the flight as recorded
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
                                 signature_error_of(model.grade)
-                                if signature_error is None else signature_error)
+                                if signature_error is None else signature_error,
+                                relinearized=None if out.relinearization is None else
+                                (cfg.rank_tol, out.relinearization, out.forward))
     out.validity = _validity(out)
     iso = out.isolation            # beyond the (relinearised) model: no confident name
     if not out.validity.valid and iso.isolation == "single" and iso.rival is not None \

@@ -42,12 +42,26 @@ same parameter count (onset, magnitude): the -2 ln L difference is their likelih
 the linear GLR gap. The check is evaluated on the flight from two updates before the earlier
 linear onset (``Window``: the forward filter's priors there), so it costs about 45 forward
 passes of that window per hypothesis (two hypotheses at a time on two cores).
+
+**On a relinearised flight** (``relinearize``: a MEMS INS 5-20 deg off without any fault) the
+fits above compare hypotheses with the model linear about the flight as recorded, which misfits
+the fault-free flight itself; a yaw fault of thousands of deg/h, rotating the INS's own tilt
+error, absorbs that misfit and beat the true horizontal gyro step (2 of 4 gyro x steps of
+200 deg/h on 5-min MEMS flights were named gyro z at ~4000 deg/h). So the best ``REFITTED`` fits
+are refitted (``refit``: the magnitude at the fit's onset) and compared -- with the no-fault
+cost0 -- by ``relinearized_cost``: the corrected flight relinearised about its own smoothed
+errors, on the window started from the analysis' kept pass's prior as the total error
+(``Relinearization.total_prior``). About 3 x 12 relinearised evaluations (3 forward passes and 2
+backward sweeps of the window each) more. On such a flight every decision whose best or rival
+is a gyro is checked (``analysis``: limit 0), not only those turning by ``SMALL_ANGLE_RAD``:
+the linear signatures were taken about an estimate the fault itself moved (a gyro step of
+200 deg/h 75 s before the end of a 5-min flight, 4 deg, was named an accelerometer ramp).
 """
 from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
@@ -57,6 +71,8 @@ from ..threads import usable_threads
 from .data import NavSteps, RefRows
 from .filter import run_forward
 from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation
+from .postflight import run_backward
+from .relinearize import MAX_PASSES, relinearized
 from ..rotation import qdcm, qexp
 from .model import IV, Ins3dModel, fill_F, transition
 
@@ -69,6 +85,8 @@ GRID_DECADES = 1.5
 GRID_POINTS = 9
 #: at most this many onsets (steps) scanned per hypothesis
 MAX_ONSETS = 16
+#: on a relinearised flight: the best this many fits are refitted relinearised (``refit``)
+REFITTED = 3
 
 
 @njit(cache=True, nogil=True)
@@ -239,6 +257,9 @@ class NonlinearCheck:
     """What ``confirm`` tested and decided."""
 
     fits: list[Fit] = field(default_factory=list)
+    #: on a relinearised flight: the best ``REFITTED`` fits refitted under the relinearised
+    #: model (``refit``) -- what the decision is then made on (``cost0`` too)
+    refits: list[Fit] = field(default_factory=list)
     before: str = ""             # the decision before: "single gyro_x_step", ...
     after: str = ""
     cost0: float = 0.0           # -2 ln L of the flight as it is (no fault)
@@ -247,15 +268,17 @@ class NonlinearCheck:
     allowance: float = 0.0       # the gap a single answer needs: margin + statistic sin^2(eps)
 
     def fit_of(self, name: str | None) -> Fit | None:
-        return next((f for f in self.fits if f.name == name), None)
+        """The fit the decision used: the refit when there is one."""
+        return next((f for f in self.refits + self.fits if f.name == name), None)
 
     def record(self, t0: float = 0.0) -> dict:
         """The result's ``nonlinear`` section."""
+        def fits(fs: list[Fit]) -> list[dict]:
+            return [{"hypothesis": f.name, "onset_s": f.onset - t0, "magnitude": f.magnitude,
+                     "neg2_log_likelihood": f.cost} for f in fs]
         return {"before": self.before, "after": self.after, "statistic": self.statistic,
-                "gap": self.gap, "allowance": self.allowance,
-                "fits": [{"hypothesis": f.name, "onset_s": f.onset - t0,
-                          "magnitude": f.magnitude, "neg2_log_likelihood": f.cost}
-                         for f in self.fits]}
+                "gap": self.gap, "allowance": self.allowance, "fits": fits(self.fits),
+                "relinearized_fits": fits(self.refits) if self.refits else None}
 
 
 def tested(cv: dict[str, GlrCurve], iso: Isolation) -> list[str]:
@@ -265,12 +288,52 @@ def tested(cv: dict[str, GlrCurve], iso: Isolation) -> list[str]:
             and cv[n].hypothesis.kind in ("step", "ramp")]
 
 
+def relinearized_cost(model: Ins3dModel, steps: NavSteps, refs: RefRows, x0: np.ndarray,
+                      P0: np.ndarray, rank_tol: float) -> float:
+    """-2 ln L of the no-fault forward filter on the flight relinearised about its own smoothed
+    errors (``relinearize``): passes kept while they lower it, at most ``MAX_PASSES`` (the
+    analysis' rule); the linear pass's when none does."""
+    fwd = run_forward(model, steps, refs, x0=x0, P0=P0, keep_prior=True, threads=1)
+    best, cur = fwd.neg2_log_likelihood(), (steps, refs, fwd)
+    for _ in range(MAX_PASSES):
+        x_s = run_backward(model, *cur, rank_tol, threads=1).x_s
+        s2, r2 = relinearized(model, steps, refs, x_s)
+        f2 = run_forward(model, s2, r2, x0=x0, P0=P0, keep_prior=True, threads=1)
+        cost = f2.neg2_log_likelihood()
+        if cost >= best:
+            break
+        best, cur = cost, (s2, r2, f2)
+    return best
+
+
+def refit(model: Ins3dModel, win: Window, f: Fit, rank_tol: float) -> Fit:
+    """``f``'s magnitude refitted (its onset kept) by ``relinearized_cost`` of the corrected
+    flight: on a flight whose no-fault errors leave small angles the fits must be compared with
+    the model the analysis uses there -- linear about zero, the fault-free MEMS flight's own
+    5-10 deg of attitude error leave a misfit that a large yaw fault absorbs (docs/ins3d_relinearize.md)."""
+    k = int(np.searchsorted(win.steps.t, f.onset))
+
+    def cost(b: float) -> float:
+        return relinearized_cost(model, *corrected(model, win.steps, win.refs, f.sensor, f.axis,
+                                                   f.kind, k, b), win.x0, win.P0, rank_tol)
+
+    lo, hi = sorted((0.5 * f.magnitude, 2.0 * f.magnitude))
+    r = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                        options={"xatol": 1e-2 * abs(f.magnitude) + 1e-15})
+    b, c = (float(r.x), float(r.fun))
+    return Fit(f.name, f.sensor, f.axis, f.kind, f.onset, b, c)
+
+
 def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
             cv: dict[str, GlrCurve], iso: Isolation, eps: float,
-            margin: float = AMBIGUITY_MARGIN) -> NonlinearCheck:
+            margin: float = AMBIGUITY_MARGIN,
+            relinearized: tuple | None = None) -> NonlinearCheck:
     """The nonlinear check (module docstring); ``fwd`` the flight's forward pass (with the
     priors: ``run_forward(keep_prior=True)``), ``eps`` the model's relative signature error
-    (``glr3d.settle``). Changes ``iso`` in place."""
+    (``glr3d.settle``). When the analysis relinearised the flight, ``relinearized`` =
+    (the backward sweep's rank_tol, the ``Relinearization``, the kept pass's forward filter):
+    the best ``REFITTED`` fits are then refitted and compared relinearised (``refit``), on the
+    window started from the kept pass's prior (the total error). Changes ``iso`` in place."""
     j_of = {float(t): j for j, t in enumerate(refs.t)}
     own = [j_of.get(float(cv[n].t[cv[n].best]), 0) for n in (iso.best, iso.rival) if n]
     j0, j1 = max(min(own) - 2, 0), min(max(own) + 1, refs.t.size - 1)
@@ -282,7 +345,14 @@ def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
     with ThreadPoolExecutor(max_workers=max(1, min(2, usable_threads()))) as pool:
         check.fits = list(pool.map(lambda n: fit(model, win, cv[n], k_range, t_first),
                                    tested(cv, iso)))
-    best, rival = sorted(check.fits, key=lambda f: f.cost)[:2]
+        if relinearized is not None and REFITTED > 0:
+            rank_tol, rel, rel_fwd = relinearized
+            rwin = replace(win, **dict(zip(("x0", "P0"), rel.total_prior(rel_fwd, j0))))
+            top = sorted(check.fits, key=lambda f: f.cost)[:REFITTED]
+            check.refits = list(pool.map(lambda f: refit(model, rwin, f, rank_tol), top))
+            check.cost0 = relinearized_cost(model, rwin.steps, rwin.refs, rwin.x0, rwin.P0,
+                                            rank_tol)
+    best, rival = sorted(check.refits or check.fits, key=lambda f: f.cost)[:2]
     check.statistic = check.cost0 - best.cost
     check.gap = rival.cost - best.cost
     check.allowance = margin + max(check.statistic, 0.0) * math.sin(eps) ** 2
@@ -293,5 +363,6 @@ def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
     return check
 
 
-__all__ = ["Fit", "NonlinearCheck", "SMALL_ANGLE_RAD", "Window", "confirm", "corrected", "fit",
-           "implied_angle", "needs_check", "neg2_log_likelihood", "tested"]
+__all__ = ["Fit", "NonlinearCheck", "REFITTED", "SMALL_ANGLE_RAD", "Window", "confirm",
+           "corrected", "fit", "implied_angle", "needs_check", "neg2_log_likelihood", "refit",
+           "relinearized_cost", "tested"]

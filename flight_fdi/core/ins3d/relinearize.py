@@ -103,6 +103,13 @@ def relinearized(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     """The flight (``steps``, ``refs`` sorted by step) as the model linearised about the
     estimated errors ``x_updates`` (M, n) at the updates (their attitude and velocity errors)
     sees it (module docstring)."""
+    return relinearized_input(model, steps, refs, x_updates)[:2]
+
+
+def relinearized_input(model: Ins3dModel, steps: NavSteps, refs: RefRows,
+                       x_updates: np.ndarray) -> tuple[NavSteps, RefRows, np.ndarray]:
+    """``relinearized`` and the known input's response w (K+1, n) at the boundaries: the
+    relinearised filter's state is the total error less w."""
     K = len(steps)
     x = at_steps(refs, np.asarray(x_updates)[:, :IPHI + 3], K)
     Cc, fc = np.empty_like(steps.C), np.empty_like(steps.f_n)
@@ -112,7 +119,7 @@ def relinearized(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                  model.kernel_params(), Cc, fc, w)
     out = NavSteps(steps.t, steps.dt, Cc, fc, steps.w_b, steps.v, steps.lat, steps.h)
     z = refs.z - w[refs.step, IV:IV + 3]
-    return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a)
+    return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a), w
 
 
 def largest_attitude(x_s: np.ndarray) -> float:
@@ -139,6 +146,16 @@ class Relinearization:
     forward: object
     attitude_max_rad: list[float] = field(default_factory=list)
     neg2_log_likelihood: list[float] = field(default_factory=list)
+    #: the kept pass's known-input response w (K+1, n; ``relinearized_input``), None: no pass
+    response: np.ndarray | None = None
+
+    def total_prior(self, fwd, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """(x, P) before update ``j`` of the kept pass's forward filter ``fwd``, x as the total
+        error (the filter's state plus w at the update's boundary)."""
+        x, P = fwd.prior(j)
+        if self.response is not None:
+            x = x + self.response[int(self.refs.step[j])]
+        return x, P
 
     @property
     def passes(self) -> int:
@@ -175,5 +192,5 @@ class Validity:
 
 
 __all__ = ["MAX_PASSES", "RELINEARIZE_MPS2", "RELINEARIZE_RAD", "Relinearization", "TOLERANCE_RAD",
-           "VALID_RAD", "Validity",
-           "at_steps", "remainder", "largest_attitude", "relinearized"]
+           "VALID_RAD", "Validity", "at_steps", "largest_attitude", "relinearized",
+           "relinearized_input", "remainder"]

@@ -1,0 +1,81 @@
+"""The nonlinear check on a relinearised flight compares its fits relinearised
+(``nonlinear.refit``, docs/ins3d_relinearize.md, "The nonlinear check on a relinearised
+flight"): a 5-min MEMS flight of the strapdown simulator with a gyro x step of 200 deg/h at
+167.4 s (the seeded MEMS study's case 26, tools/ins3d_mems_study.py). Its own INS is 7 deg off
+in attitude without the fault; the fits compared with the model linear about the flight as
+recorded named gyro z at 4600 deg/h with confidence (a yaw fault of that size rotates the INS's
+tilt error and absorbs the linear model's misfit of the fault-free flight); compared
+relinearised, gyro x is named with its magnitude within 3 %."""
+from __future__ import annotations
+
+import pytest
+
+from flight_fdi.bagio.ins3d_input import from_flight
+from flight_fdi.core.ins3d import nonlinear
+from flight_fdi.core.ins3d.analysis import analyze_ins3d
+from flight_fdi.eval.montecarlo3d import Case3D, Study3DConfig, simulate_case
+
+CASE = Case3D(index=26, scenario="gyro_step", sim_seed=673925615, traj_seed=344871417, axis="x",
+              level=200.0, magnitude=-0.0009696273622190719, onset_s=167.4, grade="mems")
+
+
+@pytest.fixture(scope="module")
+def flight():
+    cfg = Study3DConfig(nominal=0, per_scenario=1, grade="mems", duration_s=300.0,
+                        profile="cruise_turns", seed=2, single_axis=False)
+    return from_flight(simulate_case(CASE, cfg)), cfg
+
+
+def _analyse(inp, cfg):
+    return analyze_ins3d(inp.steps, inp.refs, grade="mems", rows=cfg.rows, gate=cfg.analysis.gate,
+                         with_observability=False, **inp.vertical())
+
+
+def test_gyro_x_named_with_its_magnitude(flight):
+    an = _analyse(*flight)
+    assert an.relinearization is not None and an.relinearization.passes >= 1
+    pf = an.post_flight_dict()
+    f, nl = pf["fault"], pf["nonlinear"]
+    assert pf["verdict"] == "failure" and (f["sensor"], f["axis"]) == ("gyro", "x")
+    assert f["magnitude"] == pytest.approx(CASE.magnitude, rel=0.03)
+    assert abs(f["onset_s"] - CASE.onset_s) <= 0.5
+    assert len(nl["relinearized_fits"]) == nonlinear.REFITTED
+    assert nl["gap"] > nl["allowance"]
+
+
+def test_compared_as_recorded_it_was_gyro_z(flight, monkeypatch):
+    """The same check without the refits (the decision before): gyro z, confidently."""
+    monkeypatch.setattr(nonlinear, "REFITTED", 0)
+    an = _analyse(*flight)
+    pf = an.post_flight_dict()
+    assert pf["verdict"] == "failure"
+    assert (pf["fault"]["sensor"], pf["fault"]["axis"]) == ("gyro", "z")
+    assert abs(pf["fault"]["magnitude"]) > 10 * abs(CASE.magnitude)
+    assert pf["nonlinear"]["relinearized_fits"] is None
+
+
+LATE = Case3D(index=29, scenario="gyro_step", sim_seed=585798702, traj_seed=1950601256,
+              axis="y", level=200.0, magnitude=0.0009696273622190719, onset_s=225.0,
+              grade="mems")
+
+
+def test_a_late_gyro_step_is_checked_and_named(monkeypatch):
+    """A gyro y step of 200 deg/h 75 s before the end (4 deg by then, below the check's 0.1-rad
+    limit): the linear GLR named the accelerometer x ramp, its tilt twin, with confidence. On a
+    relinearised flight every gyro decision is checked: gyro y, magnitude within 5 %."""
+    cfg = Study3DConfig(nominal=0, per_scenario=1, grade="mems", duration_s=300.0,
+                        profile="cruise_turns", seed=2, single_axis=False)
+    inp = from_flight(simulate_case(LATE, cfg))
+    an = _analyse(inp, cfg)
+    pf = an.post_flight_dict()
+    assert an.relinearization is not None and pf["nonlinear"] is not None
+    assert pf["verdict"] == "failure"
+    assert (pf["fault"]["sensor"], pf["fault"]["axis"]) == ("gyro", "y")
+    assert pf["fault"]["magnitude"] == pytest.approx(LATE.magnitude, rel=0.05)
+    from flight_fdi.core.ins3d import analysis
+    real = analysis.needs_check
+    monkeypatch.setattr(analysis, "needs_check",
+                        lambda cv, iso, t, limit: real(cv, iso, t, nonlinear.SMALL_ANGLE_RAD))
+    before = _analyse(inp, cfg).post_flight_dict()
+    assert before["nonlinear"] is None and before["verdict"] == "failure"
+    assert (before["fault"]["sensor"], before["fault"]["axis"]) == ("accelerometer", "x")
