@@ -34,10 +34,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .vanloan import TERMS, VanLoanSeries  # noqa: F401 (the series' class, re-exported)
+
 #: ||A h||_1 at or below which the series is summed directly (then at most ~15 terms)
 THETA = 0.25
-#: coefficients kept: enough for ||A h||_1 <= THETA to rounding
-TERMS = 20
 #: a series is cut where the bound of its next term falls below this fraction of its first
 _EPS = 1e-16
 #: when the bound asks for at most this many terms (the usual sample intervals), Horner's loop
@@ -72,42 +72,6 @@ def _add_to(M, D):
     for i in range(M.shape[0]):
         for j in range(M.shape[1]):
             M[i, j] += D[i, j]
-
-
-class VanLoanSeries:
-    """The Taylor coefficients of the Van Loan blocks of one model, in powers of dt::
-
-        Phi(h) = sum_j h^j F[j],      F[j] = A^j / j!
-        Bd(h)  = h sum_j h^j G[j],    G[j] = A^j B / (j+1)!
-        Qd(h)  = h sum_j h^j C[j],    C[j] = M_{j+1} / (j+1)!,  M_1 = Qc,  M_{k+1} = A M_k + M_k A^T
-
-    computed once per model (``TERMS`` coefficients each); ``norm`` = ||A||_1. The compiled
-    :func:`van_loan` then costs O(terms n^2) per dt instead of O(terms n^3).
-    """
-
-    def __init__(self, A: np.ndarray, Qc: np.ndarray, B: np.ndarray | None) -> None:
-        A = np.ascontiguousarray(A, dtype=float)
-        n = A.shape[0]
-        Bm = np.zeros((n, 0)) if B is None else np.ascontiguousarray(B, dtype=float)
-        F = np.empty((TERMS, n, n))
-        G = np.empty((TERMS, n, Bm.shape[1]))
-        C = np.empty((TERMS, n, n))
-        F[0] = np.eye(n)
-        Qc = np.asarray(Qc, dtype=float)
-        C[0] = 0.5 * (Qc + Qc.T)
-        for j in range(1, TERMS):
-            F[j] = F[j - 1] @ A / j
-            AC = A @ C[j - 1]
-            C[j] = (AC + AC.T) / (j + 1)            # (exactly symmetric: C[j-1] is)
-        for j in range(TERMS):
-            G[j] = F[j] @ Bm / (j + 1)
-        self.F, self.G, self.C = F, G, C
-        self.norm = float(np.abs(A).sum(axis=0).max())
-        self.n, self.p = n, Bm.shape[1]
-
-    def args(self) -> tuple:
-        """(F, G, C, norm): the first arguments of :func:`van_loan`."""
-        return self.F, self.G, self.C, self.norm
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -142,23 +142,6 @@ def step(F, G, C, norm, h, dt, u, z, r, threshold, reject, x, P, dt_held, Phi, Q
     return update(x_prior, P_prior, h, r, z, threshold, reject, x_post, P_post, K, work)
 
 
-class Workspace:
-    """The buffers of :func:`step` for an n-state, p-input model: the discretization held
-    (``dt_held``, ``Phi``, ``Qd``, ``Bd``), scratch (``work``), and the prior, posterior and
-    gain of the step."""
-
-    def __init__(self, n: int, p: int) -> None:
-        self.dt_held = np.full(1, np.nan)
-        self.Phi, self.Qd, self.Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, p))
-        self.work = np.empty((3, n, n))
-        self.x_prior, self.P_prior = np.empty(n), np.empty((n, n))
-        self.x_post, self.P_post, self.K = np.empty(n), np.empty((n, n)), np.empty(n)
-
-    def held(self) -> tuple:
-        """(dt_held, Phi, Qd, Bd, work): the arguments of :func:`predict_over` after P."""
-        return self.dt_held, self.Phi, self.Qd, self.Bd, self.work
-
-
 @njit(cache=True, error_model="numpy", nogil=True)
 def forward_pass(F, G, C, norm, h, x0, P0, dt, u, z, r, threshold, reject, s, SS,
                  x_prior, P_prior, x, P, K, nu, S, beta2, fused):

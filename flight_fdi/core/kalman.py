@@ -29,7 +29,6 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from . import filter_kernel as fk
 from .checks import (anomaly_covariance, check_dt, check_prior, check_R, check_times, check_u,
                      check_z, failed_rows)
 from .errors import CoreError
@@ -48,6 +47,38 @@ __all__ = ["ALARM_ACTIVE", "ALARM_CLEAR", "ALARM_CLEARED", "ALARM_RAISED", "GATE
 
 #: how ``KalmanFilter.update`` treats ``failed_rows``
 UPDATE_MODES = ("nominal", "known_anomaly", "exclude")
+
+
+class _KernelModule:
+    """Stands for :mod:`flight_fdi.core.filter_kernel` until its first use, which imports it
+    (and numba, ~0.2 s) and puts the module itself in its place: importing this module, or
+    building a filter, does not load numba -- a filter node loads it at its first step."""
+
+    def __getattr__(self, name: str) -> Any:
+        from . import filter_kernel
+
+        globals()["fk"] = filter_kernel
+        return getattr(filter_kernel, name)
+
+
+fk: Any = _KernelModule()
+
+
+class Workspace:
+    """The buffers of the kernel's ``step`` for an n-state, p-input model: the discretization
+    held (``dt_held``, ``Phi``, ``Qd``, ``Bd``), scratch (``work``), and the prior, posterior and
+    gain of the step."""
+
+    def __init__(self, n: int, p: int) -> None:
+        self.dt_held = np.full(1, np.nan)
+        self.Phi, self.Qd, self.Bd = np.empty((n, n)), np.empty((n, n)), np.empty((n, p))
+        self.work = np.empty((3, n, n))
+        self.x_prior, self.P_prior = np.empty(n), np.empty((n, n))
+        self.x_post, self.P_post, self.K = np.empty(n), np.empty((n, n)), np.empty(n)
+
+    def held(self) -> tuple:
+        """(dt_held, Phi, Qd, Bd, work): the arguments of ``predict_over`` after P."""
+        return self.dt_held, self.Phi, self.Qd, self.Bd, self.work
 
 
 # --------------------------------------------------------------------------- streaming filter
@@ -105,7 +136,7 @@ class KalmanFilter:
         self._no_u = np.zeros(sm.p)
         # the kernel's buffers: the discretization of the last dt, and the prior and posterior
         # it writes (a step is committed by swapping the posterior in)
-        self._ws = fk.Workspace(n, sm.p)
+        self._ws = Workspace(n, sm.p)
         self._alarm = AlarmLogic(gate.alarm_m, gate.alarm_n)
         self._reject = gate.action == "reject"
         self.reset(x0, P0)
@@ -407,7 +438,7 @@ def _forward1(sm: ScaledModel, x0: np.ndarray, P0: np.ndarray, dt: np.ndarray, u
 def _forward_rows(sm: ScaledModel, x: np.ndarray, P: np.ndarray, dt: np.ndarray, u: np.ndarray,
                   z: np.ndarray, R: np.ndarray, thr: float, reject: bool, out: dict) -> None:
     """A record with m > 1 rows: the kernel's prediction and the numpy update, step by step."""
-    held = fk.Workspace(sm.n, sm.p).held()
+    held = Workspace(sm.n, sm.p).held()
     vl = sm.series.args()
     for k in range(dt.size):
         fk.predict_over(*vl, float(dt[k]), u[k], x, P, *held, out["x_prior"][k],

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from .discretize import VanLoanSeries, discretize_all
 from .errors import CoreError
 from .models import LinearModel
+from .vanloan import VanLoanSeries
 
 
 class ScaledModel:
@@ -44,6 +44,8 @@ class ScaledModel:
 
     def discretize_all(self, dt: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Scaled Phi (N, n, n), Qd (N, n, n), Bd (N, n, p) for every dt of an array."""
+        from .discretize import discretize_all  # (numba: imported at the first use)
+
         return discretize_all(self.series, np.asarray(dt, dtype=float).reshape(-1))
 
     def to_scaled(self, x: np.ndarray | None, P: np.ndarray | None):

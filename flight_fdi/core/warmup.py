@@ -13,7 +13,7 @@ import numpy as np
 def warm() -> None:
     from .analysis import AnalysisConfig, run_analysis
     from .diagnosis import diagnose
-    from .kalman import GateConfig, KalmanFilter, run_forward
+    from .kalman import ForwardResult, GateConfig, KalmanFilter, run_forward
     from .ldl import ldl, localize, udu
     from .models import attitude_axis, ins_channel
     from .smoother import run_backward
@@ -26,6 +26,10 @@ def warm() -> None:
         fwd = run_forward(ins, t, rng.normal(0, 0.1, N), gate=gate)
         bwd = run_backward(ins, fwd)
         diagnose(ins, fwd, bwd)
+    # the smoother node's path: the forward pass rebuilt from a recording (its discretisation
+    # of every recorded dt, ``discretize._discretize_all``, runs nowhere else)
+    ForwardResult.from_record(ins, fwd.t, fwd.dt, fwd.z, fwd.R, fwd.H, fwd.fused, fwd.u,
+                              fwd.x, fwd.P)
     two = _two_states()
     fwd = run_forward(two, t, rng.normal(0, 0.1, N))
     run_backward(two, fwd)

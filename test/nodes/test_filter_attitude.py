@@ -73,6 +73,7 @@ class Rig:
         params = {"model": "attitude_axis", "use_sim_time": True, "diagnostics_period_s": 0.25,
                   **params}
         self.node = ros.node(FilterNode, parameters=params)
+        load_kernels(self.node.model)
         self.pub = {k: self.drv.create_publisher(Vector3Stamped, f"/attitude/{k}", 100)
                     for k in ("angle", "rate", "control")}
         self.innov = collect(ros, self.drv, Innovation, "fdi/innovation", 1000)
@@ -132,6 +133,20 @@ class Rig:
         self.advance(advance_s)
         self.ros.spin_until(lambda: len(self.diags) > n, what="diagnostics")
         return {s.name: s for s in self.diags[-1].status}
+
+
+def load_kernels(model) -> None:
+    """Load (or, with a stale numba cache, compile) the filter kernels the node's first step
+    runs, here rather than inside that step: the waits of the rig bound DDS delivery and the
+    node's work, and a compile there (10-30 s on a loaded machine) outlasted them."""
+    from flight_fdi.core.kalman import KalmanFilter
+
+    kf = KalmanFilter(model)
+    u = None if model.B is None else [0.0]
+    kf.step(0.0, np.zeros(model.m), model.R, u)     # the first step: an update only
+    kf.step(0.1, np.zeros(model.m), model.R, u)
+    kf.predict(0.1, u)                               # a step with some rows only
+    kf.update(np.zeros(1), model.R[:1, :1], model.H[:1])
 
 
 def _latched():

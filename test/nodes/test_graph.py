@@ -8,6 +8,10 @@
 * timed replay at 10x real time with the filter's default parameters: no input lost;
 * the player ending its replay while the filter is stopped waits for it (drain_timeout) and
   the filter receives every input.
+
+The last four tests take their recorder and filter from ``prestarted``, which starts them while
+the test before runs, in the other of two private ROS domains: their start-up and discovery
+(~4-5 s) was a quarter of each test's time.
 """
 from __future__ import annotations
 
@@ -69,7 +73,7 @@ def stop(procs: list[subprocess.Popen]) -> list[str]:
 class DiagnosticsProbe:
     """The latest key-values of every /diagnostics status, by status name."""
 
-    def __init__(self, ros):
+    def __init__(self, ros, name: str = ""):
         from diagnostic_msgs.msg import DiagnosticArray
 
         self.ros = ros
@@ -77,7 +81,7 @@ class DiagnosticsProbe:
         self.levels: dict[str, int] = {}
         self.messages: dict[str, str] = {}
         self.hardware: dict[str, str] = {}
-        node = ros.node(f"probe_{os.getpid()}")
+        node = ros.node(name or f"probe_{os.getpid()}")
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on, 100)
 
     def _on(self, msg) -> None:
@@ -118,6 +122,76 @@ def start_consumers(tmp_path: Path, run: int, domain: int | None = None) -> list
                   "-p", f"output:={tmp_path / f'rec{run}'}", domain=domain),
             start("filter_node", tmp_path, "-r", f"__node:=filter_{run}",
                   "-p", "diagnostics_period_s:=0.25", domain=domain)]
+
+
+def start_filter(tmp_path: Path, f: str, domain: int | None = None) -> subprocess.Popen:
+    """filter_node ``f`` with its default parameters (diagnostics every 0.25 s), in ROS domain
+    ``domain``."""
+    return start("filter_node", tmp_path, "-r", f"__node:={f}", "-p", "diagnostics_period_s:=0.25",
+                 domain=domain)
+
+
+#: the processes the last four tests consume, by test, in the order the tests run
+CONSUMERS = ("stalled /fdi/state", "stalled /recorder_99/recorded", "10x", "drain")
+
+
+class Prestarted:
+    """The processes each of the last four tests consumes (CONSUMERS: a recorder and a filter, or
+    a filter), started while the test before it runs -- in the other of two private ROS domains
+    (the tests' own and the second), so that they hear nothing of it -- and handed over by
+    :meth:`take` with a harness and probe of their domain, made before the processes started
+    (a harness made later took 1-2 s to discover them)."""
+
+    def __init__(self, tmp_path_factory) -> None:
+        self.tmp = tmp_path_factory
+        self.ready: dict[str, tuple] = {}    # started, not taken: (procs, domain, folder)
+        self.taken: list[subprocess.Popen] = []
+        self.done: set[str] = set()
+        self.graphs: dict[int | None, tuple] = {}   # domain -> (harness, probe)
+
+    def _start(self, key: str, domain: int | None) -> None:
+        if domain not in self.graphs:
+            h = harness.RosHarness(domain_id=domain)
+            self.graphs[domain] = (h, DiagnosticsProbe(h, f"probe_{os.getpid()}_{domain}"))
+        folder = self.tmp.mktemp("graph")
+        procs = (start_consumers(folder, 99, domain) if key.startswith("stalled")
+                 else [start_filter(folder, f"filter_{key}", domain)])
+        self.ready[key] = (procs, domain, folder)
+
+    def take(self, key: str) -> tuple:
+        """(processes, ROS domain (None: the tests' own), their working folder, a harness in the
+        domain, its DiagnosticsProbe) of ``key``; starts the next test's in the other domain."""
+        stop([p for p in self.taken if p.poll() is None])   # (a failed test's, if any)
+        if key not in self.ready:
+            busy = {d for _, d, _ in self.ready.values()}
+            self._start(key, harness.SECOND_DOMAIN_ID if None in busy else None)
+        procs, domain, folder = self.ready.pop(key)
+        self.done.add(key)
+        self.taken += procs
+        other = harness.SECOND_DOMAIN_ID if domain is None else None
+        later = [k for k in CONSUMERS[CONSUMERS.index(key) + 1:]
+                 if k not in self.done and k not in self.ready]
+        if later and other not in {d for _, d, _ in self.ready.values()}:
+            self._start(later[0], other)
+        return (procs, domain, folder, *self.graphs[domain])
+
+    def close(self) -> None:
+        """Stops what no test stopped (a failed test's, or those of a test not run)."""
+        try:
+            stop([p for p in self.taken if p.poll() is None]
+                 + [p for procs, _, _ in self.ready.values() for p in procs])
+        finally:
+            for h, _ in self.graphs.values():
+                h.close()
+
+
+@pytest.fixture(scope="module")
+def prestarted(tmp_path_factory):
+    pre = Prestarted(tmp_path_factory)
+    try:
+        yield pre
+    finally:
+        pre.close()
 
 
 def one_replay(ros, probe, bag, tmp_path, run: int, stall_s: float = 0.0,
@@ -221,34 +295,37 @@ def test_fast_replay_across_processes_records_every_message_ten_times(ros, bag40
 
 @pytest.mark.slow
 @pytest.mark.parametrize("ack_topic", ["/fdi/state", "/recorder_99/recorded"])
-def test_a_stalled_recorder_loses_nothing(ros, bag40, tmp_path, ack_topic):
+def test_a_stalled_recorder_loses_nothing(bag40, prestarted, ack_topic):
     """SIGSTOP on the recorder for 0.5 s in the middle of a fast replay (a loaded machine
     descheduling it, exaggerated; with the old KEEP_LAST 100 writers 0.2 s lost states): nothing
     is lost, whichever acknowledgement paces the player. (Stops of 1 s and more are beyond Fast
     DDS's shared-memory port health check, 1 s by default: see docs/design.md.)"""
-    probe = DiagnosticsProbe(ros)
-    c = one_replay(ros, probe, bag40, tmp_path, 99, stall_s=0.5, ack_topic=ack_topic)
+    procs, domain, folder, h, probe = prestarted.take(f"stalled {ack_topic}")
+    c = one_replay(h, probe, bag40, folder, 99, stall_s=0.5, ack_topic=ack_topic, domain=domain,
+                   consumers=procs)
     assert c["dropped"] == 0 and c["received_ins"] == 2000
     assert c["bag"] == {"/fdi/state": c["published"], "/fdi/innovation": c["published"]}
 
 
 def stalled_timed_replay(ros, probe, tmp_path, f: str, seconds: float, seed: int,
-                         rate: float, stall_s: float) -> tuple[list, bool]:
-    """filter_node ``f`` (default parameters) and bag_player at ``rate`` on a simulated flight
-    of ``seconds``, two processes; the filter stopped (SIGSTOP) for ``stall_s`` once the replay
-    started (a loaded machine descheduling it, exaggerated). Returns the processes once the
-    player exited 0 (the caller stops them), and whether the player was still running when the
-    stall ended."""
+                         rate: float, stall_s: float, procs: list | None = None,
+                         domain: int | None = None) -> tuple[list, bool]:
+    """filter_node ``f`` (default parameters; started here unless ``procs`` holds it, from
+    ``start_filter``) and bag_player at ``rate`` on a simulated flight of ``seconds``, two
+    processes in ROS domain ``domain``; the filter stopped (SIGSTOP) for ``stall_s`` once the
+    replay started (a loaded machine descheduling it, exaggerated). Returns the processes once
+    the player exited 0 (the caller stops them), and whether the player was still running when
+    the stall ended."""
     from flight_fdi.sim import SimConfig, simulate_to_bag
 
-    bag = tmp_path / f"flight_{f}"
-    simulate_to_bag(SimConfig(duration_s=seconds, seed=seed), str(bag))
-    procs = [start("filter_node", tmp_path, "-r", f"__node:={f}",
-                   "-p", "diagnostics_period_s:=0.25")]
+    procs = procs or [start_filter(tmp_path, f, domain)]
     try:
+        bag = tmp_path / f"flight_{f}"
+        simulate_to_bag(SimConfig(duration_s=seconds, seed=seed), str(bag))
         ros.spin_until(lambda: f"{f}: inputs" in probe.values, timeout=60,
                        what="the filter starting")
-        player = start("bag_player", tmp_path, "-p", f"bag:={bag}", "-p", f"rate:={rate}")
+        player = start("bag_player", tmp_path, "-p", f"bag:={bag}", "-p", f"rate:={rate}",
+                       domain=domain)
         procs.append(player)
         ros.spin_until(lambda: int(probe.get(f"{f}: inputs", "received_ins", "0")) > 0,
                        timeout=60, what="the replay starting")
@@ -265,18 +342,18 @@ def stalled_timed_replay(ros, probe, tmp_path, f: str, seconds: float, seed: int
 
 
 @pytest.mark.slow
-def test_10x_real_time_across_processes_with_default_parameters_loses_no_input(ros, tmp_path):
+def test_10x_real_time_across_processes_with_default_parameters_loses_no_input(prestarted):
     """bag_player at rate 10 (600 messages/s) -> filter_node with its default parameters, two
     processes; the filter is stopped for 0.5 s in the middle (a loaded machine descheduling it,
     exaggerated): every input is received and fused, nothing dropped. The old defaults
     (best effort, depth 100) lost ~150 INS samples in the same run (bench/bench_replay_10x.py)."""
-    probe = DiagnosticsProbe(ros)
     f = "filter_10x"
-    procs, _ = stalled_timed_replay(ros, probe, tmp_path, f, 30.0, 13, 10.0, 0.5)
+    procs, domain, folder, h, probe = prestarted.take("10x")
+    procs, _ = stalled_timed_replay(h, probe, folder, f, 30.0, 13, 10.0, 0.5, procs, domain)
     try:
-        wait_inputs(ros, probe, f, ins=1500, reference=300)
-        ros.spin_until(lambda: probe.get(f"{f}: inputs", "published") in ("598", "600"),
-                       timeout=10, what="every step published")
+        wait_inputs(h, probe, f, ins=1500, reference=300)
+        h.spin_until(lambda: probe.get(f"{f}: inputs", "published") in ("598", "600"),
+                     timeout=10, what="every step published")
     finally:
         stop(procs)
     v = probe.values[f"{f}: inputs"]
@@ -291,18 +368,19 @@ def test_10x_real_time_across_processes_with_default_parameters_loses_no_input(r
 
 
 @pytest.mark.slow
-def test_player_exiting_while_the_consumer_is_stalled_loses_nothing(ros, tmp_path):
+def test_player_exiting_while_the_consumer_is_stalled_loses_nothing(prestarted):
     """The player ends its replay while the filter is stopped (SIGSTOP, 2.5 s): with its default
     drain_timeout it waits until the filter acknowledged everything, then exits; the filter
     receives every input. Measured without the drain (drain_timeout 0, the old behaviour): the
     player exited during the stall and the filter received 18 of the 150 INS samples -- the
     rest died with the writer (a CI run lost the last 3 INS samples of a fast replay so)."""
-    probe = DiagnosticsProbe(ros)
     f = "filter_drain"
+    procs, domain, folder, h, probe = prestarted.take("drain")
     # the 3-s flight at rate 2 ends 1.5 s after its start, inside the stall
-    procs, still_draining = stalled_timed_replay(ros, probe, tmp_path, f, 3.0, 14, 2.0, 2.5)
+    procs, still_draining = stalled_timed_replay(h, probe, folder, f, 3.0, 14, 2.0, 2.5, procs,
+                                                 domain)
     try:
-        wait_inputs(ros, probe, f, ins=150, reference=30)
+        wait_inputs(h, probe, f, ins=150, reference=30)
     finally:
         logs = stop(procs)
     assert still_draining, logs[1]
