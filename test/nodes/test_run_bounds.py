@@ -94,8 +94,9 @@ def test_the_bounds_reach_the_pipeline(tmp_path, monkeypatch, capsys):
     assert capsys.readouterr().err.count("flight-fdi run: error: stopped here\n") == 2
 
 
-def test_the_stall_timeout_option_ends_a_stalled_run(small_bag, tmp_path,  # noqa: F811
-                                                     monkeypatch, capfd):
+@pytest.fixture
+def recorder_stops_after_50(monkeypatch):
+    """The recorder records the first 50 messages and then nothing (a stalled run)."""
     from flight_fdi.nodes.recorder_node import RecorderNode
 
     real = RecorderNode._on_message
@@ -105,6 +106,10 @@ def test_the_stall_timeout_option_ends_a_stalled_run(small_bag, tmp_path,  # noq
             real(self, topic, msgtype, data)
 
     monkeypatch.setattr(RecorderNode, "_on_message", stops_after_50)
+
+
+def test_the_stall_timeout_option_ends_a_stalled_run(small_bag, tmp_path,  # noqa: F811
+                                                     recorder_stops_after_50, capfd):
     code = main(["run", str(small_bag), "--out", str(tmp_path), "--no-report", "--no-progress",
                  "--stall-timeout", "1"])
     err = capfd.readouterr().err.splitlines()

@@ -11,6 +11,7 @@ import harness  # noqa: F401  (private ROS domain)
 import pytest
 # the 20-s flight of the shutdown tests (module fixture, reused)
 from nodes.test_pipeline_shutdown import _assert_closed_cleanly, small_bag  # noqa: F401
+from nodes.test_run_bounds import recorder_stops_after_50  # noqa: F401
 
 from flight_fdi.cli.main import main
 
@@ -96,24 +97,17 @@ def test_the_timeout_reaches_the_ins3d_pipeline(tmp_path, monkeypatch, capsys):
 
 
 def test_the_timeout_option_ends_a_run_that_is_not_done(small_bag, tmp_path,  # noqa: F811
-                                                        monkeypatch, capfd):
+                                                        recorder_stops_after_50,  # noqa: F811
+                                                        capfd):
     """The recorder stops after 50 messages; the stall bound is far away: the run's own bound
-    ends it, one line naming it; the recording holds the 50 messages, closed cleanly."""
-    from flight_fdi.nodes.recorder_node import RecorderNode
-
-    real = RecorderNode._on_message
-
-    def stops_after_50(self, topic, msgtype, data):
-        if self.bag.message_count < 50:
-            real(self, topic, msgtype, data)
-
-    monkeypatch.setattr(RecorderNode, "_on_message", stops_after_50)
+    ends it, one line naming it; the recording holds what was recorded (the 50 messages, fewer
+    when the machine is so loaded that the bound comes first), closed cleanly."""
     code = main(["run", str(small_bag), "--out", str(tmp_path), "--no-report", "--no-progress",
-                 "--timeout", "2", "--stall-timeout", "3600"])
+                 "--timeout", "3", "--stall-timeout", "3600"])
     err = capfd.readouterr().err.splitlines()
     assert code == 1
     (line,) = [ln for ln in err if "error" in ln]
     assert line.startswith("flight-fdi run: error: pipeline timed out while ")
-    assert line.endswith(" (the run's bound: 2 s)")
-    assert _assert_closed_cleanly(tmp_path / "recording") == 50
+    assert line.endswith(" (the run's bound: 3 s)")
+    assert _assert_closed_cleanly(tmp_path / "recording") <= 50
     assert not (tmp_path / "result.json").exists()

@@ -259,8 +259,9 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
     else:
         resolve(model, steps, refs, fwd, out.glr, out.isolation, signature_error)
     # relinearised (the no-fault estimate about which the signatures were taken absorbs part
-    # of a fault): every gyro decision is checked, whatever angle it implies
-    limit = SMALL_ANGLE_RAD if out.relinearization is None else 0.0
+    # of a fault): every confident gyro decision is checked, whatever angle it implies
+    limit = 0.0 if out.relinearization is not None and out.isolation.isolation == "single" \
+        else SMALL_ANGLE_RAD
     if needs_check(out.decision_glr, out.isolation, float(steps.t[-1]), limit):
         steps, refs, fwd = out.as_recorded()    # the exact removal: from the flight as recorded
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
