@@ -20,10 +20,14 @@ from typing import Any, Callable, Iterator
 from flight_fdi.bagio.errors import BagError
 
 from .errors import ParameterError
-from .runner import TEARDOWN_TIMEOUT_S, StopSignals, TeardownWatchdog, make_executor
+from .runner import (TEARDOWN_TIMEOUT_S, SpinWatchdog, StopSignals, TeardownWatchdog,
+                     make_executor)
 
 TIMEOUT_S = 600.0       # the whole run (replay, recording, analysis): its work done by then
 STALL_TIMEOUT_S = 60.0  # a stage with work waiting that does none of it this long: stalled
+#: past the run's deadline by this much with a node callback still running (the spin loop
+#: never got back to check the deadline): ``runner.SpinWatchdog`` ends the process
+SPIN_GRACE_S = 10.0
 
 
 class PipelineError(RuntimeError):
@@ -202,12 +206,14 @@ class Graph:
 
     def __enter__(self) -> "Graph":
         self.deadline = time.monotonic() + self.timeout_s
+        self.guard = SpinWatchdog(self.NAME, self.timeout_s + SPIN_GRACE_S).__enter__()
         try:
             self.stop = self._stack.enter_context(StopSignals((signal.SIGINT,)))
             self.ctx = self._stack.enter_context(
                 _private_context(["--log-level", self._log_level]))
             self.ex = make_executor(self._kind, self.ctx)
         except BaseException:
+            self.guard.__exit__(None, None, None)
             self._stack.close()
             raise
         return self
@@ -222,6 +228,7 @@ class Graph:
             failure = failure or err
             raise
         finally:
+            self.guard.__exit__(None, None, None)   # the spin is over (the teardown's own bound)
             status, after = self._outcome(failure)
             with TeardownWatchdog(self.NAME, status, self.teardown_timeout, after,
                                   self._on_timeout(failure)) as watchdog:
@@ -310,6 +317,7 @@ class Graph:
         return self.stall.check(self._stages())
 
     def spin_until(self, done: Any, what: str, tick: Any = None) -> None:
+        self.guard.stage = what
         _spin_until(self.ex, done, self.deadline, what, self.stop, tick,
                     None if self._stages is None else self._stalled, self.timeout_s)
 

@@ -207,11 +207,7 @@ class TeardownWatchdog:
             if self._done.is_set():
                 return
             self._fired = True
-        then = (f"exiting with status {self.status} without it" if self.on_timeout is None
-                else "completing the command without it")
-        os.write(2, (f"[WARN] [{self.name}]: the middleware teardown did not end within "
-                     f"{self.timeout:g} s ({self.stage}) after {self.after}; {then}. "
-                     "Stacks:\n").encode())
+        os.write(2, self._line().encode())
         faulthandler.dump_traceback(all_threads=True)
         status = self.status
         if self.on_timeout is not None:
@@ -222,6 +218,13 @@ class TeardownWatchdog:
             except (OSError, ValueError):
                 pass
         os._exit(status)
+
+    def _line(self) -> str:
+        """The line said when the bound passes (the stacks follow)."""
+        then = (f"exiting with status {self.status} without it" if self.on_timeout is None
+                else "completing the command without it")
+        return (f"[WARN] [{self.name}]: the middleware teardown did not end within "
+                f"{self.timeout:g} s ({self.stage}) after {self.after}; {then}. Stacks:\n")
 
     def _complete(self) -> int:
         """``on_timeout()``, bounded (class docstring); the exit status."""
@@ -239,6 +242,25 @@ class TeardownWatchdog:
         os.write(2, f"[WARN] [{self.name}]: exiting with status {status} without the middleware "
                     "teardown\n".encode())
         return status
+
+
+class SpinWatchdog(TeardownWatchdog):
+    """Bounds a spin that a node callback blocks: the spin loop checks its deadline only between
+    callbacks, so a callback that never returns would hold the process past any bound. Inside
+    ``with SpinWatchdog(name, bound):`` the watchdog's thread says so in one line (naming
+    :attr:`stage`: what the spin was waiting for), dumps every thread's stack and ends the
+    process with status 1 once ``bound`` passes (the run's own deadline plus a grace; a callback
+    that returns before that lets the spin loop report its timeout as usual). What the nodes
+    had written stays (the recorder is kill-safe to its last flush)."""
+
+    def __init__(self, name: str, bound: float) -> None:
+        super().__init__(name, 1, bound)
+        self.stage = "spinning"
+        self.thread.name = "spin-watchdog"
+
+    def _line(self) -> str:
+        return (f"[ERROR] [{self.name}]: timed out while {self.stage}: a node callback has not "
+                f"returned within {self.timeout:g} s; exiting with status 1. Stacks:\n")
 
 
 def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = None,
