@@ -22,7 +22,10 @@ document.querySelectorAll('table.fleet th').forEach(function (th, col) {
     var dir = th.dataset.dir === 'asc' ? -1 : 1;
     th.closest('tr').querySelectorAll('th').forEach(function (h) { delete h.dataset.dir; });
     th.dataset.dir = dir === 1 ? 'asc' : 'desc';
-    function key(r) { var c = r.cells[col]; return c.dataset.v !== undefined ? c.dataset.v : c.textContent; }
+    function key(r) {
+      var c = r.cells[col];
+      return c.dataset.v !== undefined ? c.dataset.v : c.textContent;
+    }
     rows.sort(function (a, b) {
       var x = key(a), y = key(b);
       if (x === '' || y === '') { return (x === '') - (y === ''); }

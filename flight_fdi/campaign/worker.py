@@ -20,8 +20,8 @@ TRIM_THRESHOLD = 64 << 20
 
 class WorkerSetup(WorkerPlugin):
     """Run on each worker as it joins (a Dask worker plugin, registered by
-    :class:`~.engine.Engine`): fix glibc's malloc thresholds (:func:`restore_malloc`: Dask's nanny freezes them low),
-    give each analysis one thread (``FLIGHT_FDI_THREADS=1``), then run ``warm``."""
+    :class:`~.engine.Engine`): fix glibc's malloc thresholds (:func:`restore_malloc`: Dask's
+    nanny freezes them low), give each analysis one thread (``FLIGHT_FDI_THREADS=1``), then run ``warm``."""
 
     #: registered once per cluster and name: a later engine on the same cluster (the next
     #: batch) does not set up and warm its workers again

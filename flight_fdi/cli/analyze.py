@@ -84,7 +84,8 @@ def exit_status(res: dict, args: argparse.Namespace) -> int:
 def add_gate_options(p: argparse.ArgumentParser) -> None:
     """The in-flight gate and alarm options (read by :func:`analysis_config`)."""
     p.add_argument("--gate-rule", default="chi2", choices=("chi2", "seed"),
-                   help="beta^2 gate: chi-square quantile or the seed's m + 3 sqrt(2m) (default chi2)")
+                   help="beta^2 gate: chi-square quantile or the seed's m + 3 sqrt(2m) "
+                   "(default chi2)")
     p.add_argument("--gate-probability", type=float, default=1e-3,
                    help="per-sample false-alarm probability of the chi2 gate (default 1e-3)")
     p.add_argument("--alarm", default="3/5", metavar="M/N",
@@ -279,7 +280,8 @@ def format_result(res: dict) -> str:
         "",
         f"seed method (chi2/UDU^T + Fisher): {seed['verdict']}, element "
         f"{_fmt(seed['element'], 's')}",
-        f"  {'element':<16}{'J peak':>10}{'gamma2':>9}{'F peak':>10}{'eta2':>8}{'exceed':>9}{'dof':>5}",
+        f"  {'element':<16}{'J peak':>10}{'gamma2':>9}{'F peak':>10}{'eta2':>8}"
+        f"{'exceed':>9}{'dof':>5}",
     ]
     for e in seed["elements"]:
         lines.append(f"  {e['name']:<16}{_fmt(e['J_peak']):>10}{_fmt(e['gamma2']):>9}"

@@ -73,7 +73,8 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     reader -- a corrupt bag is one line, never a replay of what rosbags' iterator makes of it:
     ``bagio.ins3d_input.check_messages``). Leaves ``recording/`` and ``result.json`` in
     ``out_dir``; the result's ``input`` section is the filter's count of the messages it
-    received and dropped (``input_section_of_run``: that of ``analyze``, no second read). ``options``: the model options (``filter_parameters3d``; the filter records
+    received and dropped (``input_section_of_run``: that of ``analyze``, no second read).
+    ``options``: the model options (``filter_parameters3d``; the filter records
     them, the smoother analyses with them). ``timeout_s``, ``stall_timeout_s``,
     ``teardown_timeout``: the bounds of ``pipeline`` (its module docstring: a stalled stage
     ends the run with PipelineError; the teardown after the result is bounded), and

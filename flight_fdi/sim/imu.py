@@ -412,7 +412,8 @@ def nominal_window_means(config: ImuSimConfig, n_flights: int, window: int,
 
 def encode_imu(stamp_ns: np.ndarray, output: np.ndarray, frame_id: str,
                noise_var: np.ndarray) -> list[bytes]:
-    """Serialize a series of sensor_msgs/Imu (vectorised, :func:`flight_fdi.bagio.cdr.encode_doubles`):
+    """Serialize a series of sensor_msgs/Imu (vectorised,
+    :func:`flight_fdi.bagio.cdr.encode_doubles`):
     ``output`` (T, 6) = gyro x/y/z, accel x/y/z; ``noise_var`` (6,) the covariance diagonals.
     Orientation (0, 0, 0, 1) with orientation_covariance[0] = -1 (no orientation estimate, per
     the message definition)."""

@@ -17,7 +17,8 @@ Measured on the real MEMS recordings: 0.06-0.25, and 0.33 keeps confident wrong 
 there (docs/ins3d_real.md). ``seed_episode_probability`` (optional, in (0, 1)): the seed method's
 ``DiagnosisConfig.episode_probability`` for this grade -- the upper-tail probability a persistent
 J episode's peak must fall below to be declared (default 1e-6, the presets'); ``flight-fdi
-calibrate`` sets it so that the grade's nominal flights are rarely declared (``diagnosis_config_of``).
+calibrate`` sets it so that the grade's nominal flights are rarely declared
+(``diagnosis_config_of``).
 ``seed_fisher_window`` (optional, an integer > 4) and ``seed_min_valid_steps`` (optional, an
 integer >= 1): the seed method's Fisher window and the fewest valid steps it analyses
 (``DiagnosisConfig``; defaults 50 and 100 -- a short flight with a 1-Hz reference needs less, e.g.

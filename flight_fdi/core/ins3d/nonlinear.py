@@ -68,7 +68,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
-from scipy.optimize import minimize_scalar
 
 from ..threads import usable_threads
 from .data import NavSteps, RefRows
@@ -202,6 +201,7 @@ def fit(model: Ins3dModel, win: Window, curve: GlrCurve, k_range: tuple[int, int
     """Onset (a step boundary of the window in ``k_range``) and magnitude of ``curve``'s
     hypothesis by exact removal (module docstring, "The fit"), the magnitude first searched at
     the onset ``t_first`` (the decision's best's: where the data change)."""
+    from scipy.optimize import minimize_scalar    # (0.4 s to import: only when a check runs)
     h = curve.hypothesis
 
     def cost(k: int, b: float) -> float:
@@ -313,7 +313,9 @@ def refit(model: Ins3dModel, win: Window, f: Fit, rank_tol: float) -> Fit:
     """``f``'s magnitude refitted (its onset kept) by ``relinearized_cost`` of the corrected
     flight: on a flight whose no-fault errors leave small angles the fits must be compared with
     the model the analysis uses there -- linear about zero, the fault-free MEMS flight's own
-    5-10 deg of attitude error leave a misfit that a large yaw fault absorbs (docs/ins3d_relinearize.md)."""
+    5-10 deg of attitude error leave a misfit that a large yaw fault absorbs
+    (docs/ins3d_relinearize.md)."""
+    from scipy.optimize import minimize_scalar
     k = int(np.searchsorted(win.steps.t, f.onset))
 
     def cost(b: float) -> float:

@@ -5,7 +5,8 @@ Two parts, both pure logic (no rclpy):
 * :class:`Ins3dStream` -- the filter itself: ``predict`` takes one propagation step and
   ``update`` one reference row, calling the same compiled kernels as the batch
   ``filter.run_forward`` (``filter.propagate``, ``filter._update``) on the same scaled state,
-  so its states, innovations and gates equal the batch filter's bit for bit (test/ins3d_nodes/test_stream.py).
+  so its states, innovations and gates equal the batch filter's bit for bit
+  (test/ins3d_nodes/test_stream.py).
 * :class:`Ins3dAssembler` -- the contract topics (/ins/imu, /ins/velocity, /ins/fix,
   /reference/velocity) turned into those steps and rows as ``bagio.ins3d_input.build_input``
   does for a whole bag: the IMU stamps are the step boundaries, the INS velocity, latitude and
