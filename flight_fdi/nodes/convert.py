@@ -33,7 +33,7 @@ def stamp_fits(t: float) -> bool:
     """True when ``s_to_stamp(t)`` can represent ``t`` (finite, int32 seconds after rounding
     to the nanosecond). A received stamp may not: nanosec is a uint32 on the wire, so
     sec = 2^31 - 1 with nanosec >= 1e9 reads as a time after the last representable one."""
-    if not math.isfinite(t):
+    if not math.isfinite(t) or abs(t) > 2.0**32:      # (t * 1e9 would overflow to inf)
         return False
     return STAMP_MIN_S * 1_000_000_000 <= int(round(t * 1e9)) < 2**31 * 1_000_000_000
 

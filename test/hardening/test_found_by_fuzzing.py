@@ -97,6 +97,11 @@ def test_stamps_convert_before_1970_and_refuse_what_no_stamp_holds():
     assert convert.stamp_fits((2**31 - 1) + 0.999)
     assert not convert.stamp_fits((2**31 - 1) + 4294967295 * 1e-9)
     assert not convert.stamp_fits(-(2.0**31) - 1e-6) and not convert.stamp_fits(math.nan)
+    # a time so large that t * 1e9 overflows: False, not OverflowError (a corrupt bag's
+    # garbage killed the 3-D filter node this way)
+    assert not convert.stamp_fits(1e300) and not convert.stamp_fits(-1e300)
+    with pytest.raises(ValueError):
+        convert.s_to_stamp(1e300)
     with pytest.raises(ValueError):
         convert.s_to_stamp(2.0**31 + 3)
 
