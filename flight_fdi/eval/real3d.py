@@ -312,14 +312,14 @@ def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
 
 def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str | Path,
                        cfg: Contract | None = None, epoch_s: int = 1_700_000_000,
-                       overwrite: bool = False, settings: "Settings | None" = None,
-                       reference_of: Recording | None = None) -> dict[str, int]:
+                       overwrite: bool = False, settings: "Settings | None" = None
+                       ) -> dict[str, int]:
     """The same contract as a bag (the topics and frames of ``sim.bag3d``): the user-facing path.
     Its metadata ``flight_fdi.sim3d`` says ``vertical: free`` (the INS) and, in its
     ``error_model`` block (``error_model_of``), how ``settings`` (default ``Settings()``) models
     this INS and reference -- what ``flight-fdi analyze/run --model ins3d`` then use
     (``bagio.ins3d_input.error_model_options``). ``cfg``: the contract (default
-    ``settings.contract``; ``reference_of``: ``contract_arrays``). Returns message counts."""
+    ``settings.contract``). Returns message counts."""
     import json
 
     from ..bagio import cdr
@@ -327,7 +327,7 @@ def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str
     from ..bagio.writer import open_writer
     settings = settings or Settings()
     cfg = cfg or settings.contract
-    a = contract_arrays(rec, bg, ba, cfg, reference_of)
+    a = contract_arrays(rec, bg, ba, cfg)
 
     def ns(t):
         return epoch_s * 1_000_000_000 + np.round(np.asarray(t) * 1e9).astype(np.int64)

@@ -54,11 +54,11 @@ errors, on the window started from the analysis' kept pass's prior as the total 
 (``Relinearization.total_prior``). About 3 x 12 relinearised evaluations (3 forward passes and 2
 backward sweeps of the window each) more. On such a flight every confident (``single``)
 decision whose best or rival is a gyro is checked (``analysis``: limit 0), not only those
-turning by ``SMALL_ANGLE_RAD`` (an ambiguous one stays so: on the real vertical flights a
+turning by ``SMALL_ANGLE_RAD``: the linear signatures were taken about an estimate the fault
+itself moved (a gyro step of 200 deg/h 75 s before the end of a 5-min flight, 4 deg, was named
+an accelerometer ramp). An ambiguous decision stays so: on the real vertical flights a
 1000-deg/h gyro step found 4 s late by the 1-Hz reference was checked from the late onset and
-named an accelerometer):
-the linear signatures were taken about an estimate the fault itself moved (a gyro step of
-200 deg/h 75 s before the end of a 5-min flight, 4 deg, was named an accelerometer ramp).
+named an accelerometer.
 """
 from __future__ import annotations
 
