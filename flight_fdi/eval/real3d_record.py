@@ -11,9 +11,9 @@ if TYPE_CHECKING:
 def record(analysis, t0: float = 0.0) -> dict:
     """The measured outcome of one analysis: verdict, named fault (sensor, axis, kind, onset,
     magnitude), the largest GLR statistic per kind, the thresholds, beta^2 per row, latency;
-    whether it was relinearised (``post_flight.relinearization``: a pass kept, how many) and
-    the model's validity (``post_flight.model_validity``: valid, largest smoothed attitude
-    error in deg; None without the post-flight part)."""
+    whether a relinearisation was tried (``post_flight.relinearization``), a pass kept, how
+    many; and the model's validity (``post_flight.model_validity``: valid, largest smoothed
+    attitude error in deg; None without the post-flight part)."""
     pf = analysis.post_flight_dict(t0=t0)
     summ = analysis.summary()
     f = pf.get("fault")
@@ -39,7 +39,8 @@ def record(analysis, t0: float = 0.0) -> dict:
                                                 "prior_sigmas", "statistic")}
                             for t in pf["turn_on_bias"]]})
     rel, val = pf.get("relinearization"), pf.get("model_validity")
-    out.update({"relinearised": bool(rel and rel["passes"] > 0),    # a pass about it kept
+    out.update({"relinearisation_tried": rel is not None,       # the first pass left it
+                "relinearised": bool(rel and rel["passes"] > 0),    # a pass about it kept
                 "relinearisation_passes": rel["passes"] if rel else 0,
                 "model_valid": None if val is None else bool(val["valid"]),
                 "attitude_error_max_deg": None if val is None else val["attitude_error_max_deg"]})

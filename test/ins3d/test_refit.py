@@ -39,7 +39,7 @@ def test_gyro_x_named_with_its_magnitude(flight):
     assert pf["verdict"] == "failure" and (f["sensor"], f["axis"]) == ("gyro", "x")
     assert f["magnitude"] == pytest.approx(CASE.magnitude, rel=0.03)
     assert abs(f["onset_s"] - CASE.onset_s) <= 0.5
-    assert len(nl["relinearized_fits"]) == nonlinear.REFITTED
+    assert len(nl["relinearized_fits"]) == min(len(nl["fits"]), nonlinear.REFITTED)
     assert nl["gap"] > nl["allowance"]
 
 
@@ -79,3 +79,29 @@ def test_a_late_gyro_step_is_checked_and_named(monkeypatch):
     before = _analyse(inp, cfg).post_flight_dict()
     assert before["nonlinear"] is None and before["verdict"] == "failure"
     assert (before["fault"]["sensor"], before["fault"]["axis"]) == ("accelerometer", "x")
+
+
+ACCEL = Case3D(index=14, scenario="accel_step", sim_seed=677459531, traj_seed=533175510,
+               axis="x", level=20.0, magnitude=-0.196133, onset_s=134.6, grade="mems")
+
+
+def test_the_fits_are_all_refitted_not_the_best_as_recorded():
+    """An accelerometer x step of 20 mg at 134.6 s (the MEMS study's case 14): compared as
+    recorded, its exact fit was the worst of the four tested; when only the best three were
+    refitted, a gyro z step of 27 500 deg/h was named with confidence. Refitted, the
+    accelerometer x step is the best fit by far (magnitude within 3 %); the flight's own errors
+    leave the relinearised model's validity, so no sensor is named with confidence -- but the
+    accelerometer comes first and no gyro is named."""
+    cfg = Study3DConfig(nominal=0, per_scenario=1, grade="mems", duration_s=300.0,
+                        profile="cruise_turns", seed=2, single_axis=False)
+    pf = _analyse(from_flight(simulate_case(ACCEL, cfg)), cfg).post_flight_dict()
+    nl = pf["nonlinear"]
+    as_recorded = sorted(nl["fits"], key=lambda f: f["neg2_log_likelihood"])
+    assert as_recorded[-1]["hypothesis"] == "accelerometer_x_step"
+    refits = sorted(nl["relinearized_fits"], key=lambda f: f["neg2_log_likelihood"])
+    assert refits[0]["hypothesis"] == "accelerometer_x_step"
+    assert refits[0]["magnitude"] == pytest.approx(ACCEL.magnitude, rel=0.03)
+    assert refits[1]["neg2_log_likelihood"] - refits[0]["neg2_log_likelihood"] > nl["allowance"]
+    assert pf["verdict"] != "failure" or pf["fault"]["sensor"] == "accelerometer"
+    first = pf["fault"] or pf["candidates"][0]
+    assert (first["sensor"], first["axis"]) == ("accelerometer", "x")

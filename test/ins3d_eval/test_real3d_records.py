@@ -22,6 +22,7 @@ REPO = Path(__file__).resolve().parents[2]
 def consistent(out: dict, analysis) -> None:
     pf = analysis.post_flight_dict()
     rel, val = pf["relinearization"], pf["model_validity"]
+    assert out["relinearisation_tried"] is (rel is not None)
     assert out["relinearised"] is (rel is not None and rel["passes"] > 0)
     assert out["relinearisation_passes"] == (rel["passes"] if rel else 0)
     assert out["model_valid"] is val["valid"]
@@ -36,6 +37,7 @@ def test_records_say_relinearised_and_valid_as_the_result(rec, cal):
     consistent(out, nominal)
     # the calibrated unit, no fault: small angles, never relinearised, the model valid
     assert out["relinearised"] is False and out["relinearisation_passes"] == 0
+    assert out["relinearisation_tried"] is False
     assert out["model_valid"] is True and 0 < out["attitude_error_max_deg"] < 5
     # a 20 deg/s gyro z step at 3 s: the smoothed attitude leaves small angles (measured 16
     # deg), passes about it are kept (2) and leave the model valid (1 deg)
@@ -43,6 +45,7 @@ def test_records_say_relinearised_and_valid_as_the_result(rec, cal):
     out = R.record(big)
     consistent(out, big)
     assert out["relinearised"] is True and out["relinearisation_passes"] >= 1
+    assert out["relinearisation_tried"] is True
     assert big.relinearization.passes == out["relinearisation_passes"]
     assert out["model_valid"] is True
 

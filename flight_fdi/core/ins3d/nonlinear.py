@@ -47,12 +47,14 @@ passes of that window per hypothesis (two hypotheses at a time on two cores).
 fits above compare hypotheses with the model linear about the flight as recorded, which misfits
 the fault-free flight itself; a yaw fault of thousands of deg/h, rotating the INS's own tilt
 error, absorbs that misfit and beat the true horizontal gyro step (2 of 4 gyro x steps of
-200 deg/h on 5-min MEMS flights were named gyro z at ~4000 deg/h). So the best ``REFITTED`` fits
-are refitted (``refit``: the magnitude at the fit's onset) and compared -- with the no-fault
-cost0 -- by ``relinearized_cost``: the corrected flight relinearised about its own smoothed
-errors, on the window started from the analysis' kept pass's prior as the total error
-(``Relinearization.total_prior``). About 3 x 12 relinearised evaluations (3 forward passes and 2
-backward sweeps of the window each) more. On such a flight every confident (``single``)
+200 deg/h on 5-min MEMS flights were named gyro z at ~4000 deg/h). So the fits are refitted
+(``refit``: the magnitude at the fit's onset) and compared -- with the no-fault cost0 -- by
+``relinearized_cost``: the corrected flight relinearised about its own smoothed errors, on the
+window started from the analysis' kept pass's prior as the total error
+(``Relinearization.total_prior``). All of them (``REFITTED``), not the best few as recorded:
+that ranking is the biased one (a 20-mg accelerometer x step, the truth, ranked last of four
+and a 27 500-deg/h yaw step was named). About 5 x 12 relinearised evaluations (3 forward
+passes and 2 backward sweeps of the window each) more. On such a flight every confident (``single``)
 decision whose best or rival is a gyro is checked (``analysis``: limit 0), not only those
 turning by ``SMALL_ANGLE_RAD``: the linear signatures were taken about an estimate the fault
 itself moved (a gyro step of 200 deg/h 75 s before the end of a 5-min flight, 4 deg, was named
@@ -87,8 +89,10 @@ GRID_DECADES = 1.5
 GRID_POINTS = 9
 #: at most this many onsets (steps) scanned per hypothesis
 MAX_ONSETS = 16
-#: on a relinearised flight: the best this many fits are refitted relinearised (``refit``)
-REFITTED = 3
+#: on a relinearised flight: the best this many fits are refitted relinearised (``refit``);
+#: every tested fit (``tested``: at most 5): ranked as recorded, the true accelerometer x step
+#: of a 5-min MEMS flight was the worst of four and was not refitted (docs/ins3d_relinearize.md)
+REFITTED = 5
 
 
 @njit(cache=True, nogil=True)
