@@ -116,6 +116,28 @@ def observability(model: Ins3dModel, steps: NavSteps, refs: RefRows, every_s: fl
     return ObservabilityReport(model.names, t_rep, ratio, excited, lam, vec, threshold)
 
 
+#: the sensor-bias states a fault hypothesis names (``bias_line``)
+_SENSOR = {"ba": "accelerometer", "bg": "gyro"}
+
+
+def bias_line(excited_at: dict[str, float | None]) -> str | None:
+    """The text result's line on the sensor biases (``ObservabilityReport.excited_at``, as in
+    the result's ``ins3d.observability``): from when the flight knew each initial bias to half
+    its prior sigma, and which it never did. Not a detectability verdict: a bias step later in
+    flight can be seen where the initial bias was not learnt (its prior may already be tight,
+    or it is confounded with the initial tilt). The vertical gyro's is learnt only through
+    turns. None without the report."""
+    if not excited_at:
+        return None
+    parts = []
+    for name, at in excited_at.items():
+        kind, _, axis = name.partition("_")
+        if kind in _SENSOR:
+            when = "never" if at is None else f"from {at:.0f} s"
+            parts.append(f"{_SENSOR[kind]} {axis} {when}")
+    return "sensor bias known to half its prior sigma: " + ", ".join(parts) if parts else None
+
+
 def manoeuvres(steps: NavSteps, rate_deg_s: float = 0.5, accel_mps2: float = 0.2,
                gap_s: float = 5.0, min_s: float = 2.0) -> list[tuple[float, float, str]]:
     """Intervals (t0, t1, kind) of turns (heading rate > ``rate_deg_s``) and of speed changes
@@ -139,4 +161,4 @@ def manoeuvres(steps: NavSteps, rate_deg_s: float = 0.5, accel_mps2: float = 0.2
     return sorted(out)
 
 
-__all__ = ["ObservabilityReport", "manoeuvres", "observability"]
+__all__ = ["ObservabilityReport", "bias_line", "manoeuvres", "observability"]
