@@ -23,10 +23,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..core.ins3d.data import NavSteps, RefRows, nav_steps, ref_rows
+from .cdr import FILTER_STATE
 from .errors import BagError
 
 TOPICS = {"ins_velocity": "/ins/velocity", "ins_imu": "/ins/imu", "ins_fix": "/ins/fix",
@@ -265,11 +267,26 @@ def check_messages(path: str | Path, topics: dict[str, str] | None = None
     """``check_topics``, then every message of the contract topics read (raw, not decoded:
     ``reader.read_topics_raw``, the reader of ``read_ins3d``; ~0.05 s for an 1800-s flight):
     BagError, one line, for a corrupt bag. (names, messages per topic)."""
+    return checked_messages(path, topics)[:2]
+
+
+def checked_messages(path: str | Path, topics: dict[str, str] | None = None,
+                     with_truth: bool = False) -> tuple[dict[str, str], dict[str, int], Any]:
+    """``check_messages`` and, in the same pass when ``with_truth``, the simulator's truth
+    (``truth_of_raw``; None when the bag has none or it is not asked for)."""
     from .reader import read_topics_raw
     names = _names(topics)
-    raw = read_topics_raw(path, list(names.values()),
-                          check=lambda have: _check_available(path, names, have))
-    return names, {t: int(raw[t].log_ns.size) for t in names.values()}
+    types: dict[str, str] = {}
+
+    def check(have: dict[str, str]) -> None:
+        _check_available(path, names, have)
+        types.update(have)
+
+    wanted = list(names.values()) + ([TRUTH_TOPIC] if with_truth else [])
+    raw = read_topics_raw(path, wanted, check=check)
+    truth = truth_of_raw(raw[TRUTH_TOPIC], path, TRUTH_TOPIC) \
+        if with_truth and types.get(TRUTH_TOPIC) == FILTER_STATE else None
+    return names, {t: int(raw[t].log_ns.size) for t in names.values()}, truth
 
 
 def _names(topics: dict[str, str] | None) -> dict[str, str]:
@@ -375,23 +392,39 @@ def sim_description(path: str | Path) -> dict | None:
 def read_truth3d(path: str | Path, t0_ns: int, topic: str = TRUTH_TOPIC
                  ) -> dict[str, np.ndarray] | None:
     """The simulator's truth (/sim/truth, FilterState channel ``truth3d``) as {"t": seconds from
-    ``t0_ns``, name: values}, or None when the bag has no such topic."""
-    from .reader import bag_topics, read_messages
-    if topic not in bag_topics(path):
+    ``t0_ns``, name: values} (``truth_relative``), or None when the bag has no such topic."""
+    from .reader import read_topics_raw
+    types: dict[str, str] = {}
+    raw = read_topics_raw(path, [topic], check=types.update)
+    if types.get(topic) != FILTER_STATE:
         return None
-    t, rows, names = [], [], None
-    for _, _, _, m in read_messages(path, [topic]):
-        if m.channel != "truth3d":
-            continue
-        names = names or list(m.state_names)
-        if list(m.state_names) != names or len(m.x) != len(names):
+    return truth_relative(truth_of_raw(raw[topic], path, topic), t0_ns)
+
+
+def truth_of_raw(raw, path: str | Path, topic: str = TRUTH_TOPIC
+                 ) -> tuple[np.ndarray, list[str], np.ndarray] | None:
+    """(stamps ns, state names, x (N, n)) of the ``truth3d`` messages among the raw FilterState
+    messages ``raw`` (a ``reader.RawSeries``), or None when there are none; BagError for
+    messages with different state names (or a malformed one)."""
+    from .cdr import decode_filter_state_x
+    stamps, channels, names, xs = decode_filter_state_x(
+        raw.payloads, what=f"bag '{path}': {topic} message")
+    pick = [i for i, c in enumerate(channels) if c == "truth3d"]
+    if not pick:
+        return None
+    first = list(names[pick[0]])
+    for i in pick:
+        if list(names[i]) != first or xs[i].size != len(first):
             raise BagError(f"bag '{path}': {topic} messages with different state names")
-        t.append((_stamp_ns(m) - t0_ns) * 1e-9)
-        rows.append(np.asarray(m.x, dtype=float))
-    if not rows:
+    return stamps[pick], first, np.vstack([np.asarray(xs[i], dtype=float) for i in pick])
+
+
+def truth_relative(truth: tuple | None, t0_ns: int) -> dict[str, np.ndarray] | None:
+    """``truth_of_raw``'s truth as {"t": seconds from ``t0_ns``, name: values} (None: None)."""
+    if truth is None:
         return None
-    x = np.vstack(rows)
-    return {"t": np.array(t), **{n: x[:, i] for i, n in enumerate(names)}}
+    stamps, names, x = truth
+    return {"t": (stamps - t0_ns) * 1e-9, **{n: x[:, i] for i, n in enumerate(names)}}
 
 
 def imu_payloads(stamps_ns: np.ndarray, q: np.ndarray, w_b: np.ndarray,
@@ -434,12 +467,9 @@ def ins_fix_payloads(stamps_ns: np.ndarray, lat: np.ndarray, lon: np.ndarray,
     return cdr.encode_navsatfix(stamps_ns, BODY_FRAME, 0, 0, llh, np.zeros(9), 0)
 
 
-def _stamp_ns(m) -> int:
-    return int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
-
-
 __all__ = ["DROP_REASONS3D", "ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput",
            "REASON_TEXT3D", "TOPICS", "TRUTH_TOPIC", "TYPES", "build_input", "check_messages",
+           "checked_messages", "truth_of_raw", "truth_relative",
            "check_topics", "description_options", "description_vertical",
            "error_model_options", "error_model_used", "from_flight", "input_section3d",
            "model_options_with",

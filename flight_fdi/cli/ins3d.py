@@ -363,20 +363,30 @@ def _truth(bag: str | None, t0_ns: int):
         else None
 
 
-def report_of_run(folder: Path, out: str | Path, doc: dict | None = None) -> Path:
-    """The report of a ``run --model ins3d`` folder, rebuilt from its recording."""
+def report_of_run(folder: Path, out: str | Path, doc: dict | None = None,
+                  analysed: tuple | None = None) -> Path:
+    """The report of a ``run --model ins3d`` folder, rebuilt from its recording -- or of
+    ``analysed``, (Ins3dAnalysis, recording dict, truth of ``truth_of_raw`` or None): what the
+    run itself read and analysed (``cli.run.complete3d``: nothing read or analysed again)."""
+    from flight_fdi.bagio.ins3d_input import truth_relative
     from flight_fdi.cli.report import written
+    from flight_fdi.core.ins3d_result import ins3d_result
     from flight_fdi.nodes.ins3d_recording import analyze_recording3d
     from flight_fdi.report.figures3d import write_report3d
 
     doc = doc or _load_result(folder / "result.json")
-    res, analysis, rec = analyze_recording3d(folder / "recording", bag_label=doc.get("bag"))
+    if analysed is None:
+        res, analysis, rec = analyze_recording3d(folder / "recording", bag_label=doc.get("bag"))
+        truth = _truth(doc.get("bag"), rec["t0_ns"])
+    else:
+        analysis, rec, raw_truth = analysed
+        res = ins3d_result(analysis, doc.get("bag") or str(folder / "recording"))
+        truth = truth_relative(raw_truth, rec["t0_ns"])
     for key in ("source", "input"):         # the run's record: its options, what it received
         if doc.get(key):
             res[key] = doc[key]
     notes = [f"Rebuilt from the recording {folder / 'recording'} of the node pipeline."]
-    return written(write_report3d, res, analysis, out,
-                   truth=_truth(doc.get("bag"), rec["t0_ns"]), notes=notes)
+    return written(write_report3d, res, analysis, out, truth=truth, notes=notes)
 
 
 #: the options a run folder's recording fixes (dest, flag): what its filter ran with

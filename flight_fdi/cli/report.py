@@ -112,11 +112,21 @@ def analyse_run_folder(folder: Path, args: argparse.Namespace):
     # times from the start of the input flight, as in result.json
     run = analyze_recording(rec, flight_start_s=None if flight is None else flight.t0,
                             bag_label=str(input_bag) if input_bag else None)
+    return of_run(run.analysis, rec, flight, doc)
+
+
+def of_run(analysis: Any, rec: Any, flight: Any, doc: dict):
+    """(AnalysisResult, Truth or None, model, notes) for the report of a run: ``analysis`` of
+    its recording ``rec`` -- the smoother's (``flight-fdi run``: no second analysis) or
+    :func:`analyse_run_folder`'s --, ``flight`` the input bag read with its truth (or None) and
+    ``doc`` the run's result (its input bag and ``input`` record)."""
+    if isinstance(doc.get("bag"), str) and doc["bag"]:   # named as in result.json
+        analysis.summary["bag"] = str(Path(doc["bag"]))
     truth = None if flight is None else _truth_of(flight, rec.model, 0.0)
-    notes = [f"Rebuilt from the recording {recording} (gate of the recorded run)."]
+    notes = [f"Rebuilt from the recording {rec.path} (gate of the recorded run)."]
     if isinstance(doc.get("input"), dict):      # what the run received and dropped: its record
-        run.analysis.summary.setdefault("input", doc["input"])
-    return run.analysis, truth, rec.model, notes
+        analysis.summary.setdefault("input", doc["input"])
+    return analysis, truth, rec.model, notes
 
 
 def _load_json(path: Path) -> dict:

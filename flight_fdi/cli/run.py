@@ -23,6 +23,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from flight_fdi.cli.analyze import (add_analysis_options, analysis_config, exit_status,
                                     format_result, input_spec)
@@ -93,7 +94,7 @@ def pipeline_bounds(args: argparse.Namespace) -> dict[str, float]:
 def run(args: argparse.Namespace) -> int:
     from flight_fdi.cli import ins3d
     from flight_fdi.nodes.errors import ParameterError
-    from flight_fdi.nodes.pipeline import PipelineError, run_pipeline
+    from flight_fdi.nodes.pipeline import PipelineError, run_pipeline_detailed
 
     bounds = pipeline_bounds(args)
     if ins3d.is_ins3d(args):  # the 3-D model
@@ -102,14 +103,14 @@ def run(args: argparse.Namespace) -> int:
     config = analysis_config(args)
     spec = input_spec(args)
     try:
-        res = run_pipeline(bag, out, config=config, model=args.model, storage=args.storage,
-                           overwrite=True, spec=spec,
-                           progress=None if args.no_progress else sys.stderr,
-                           on_teardown_timeout=after_blocked_teardown(out, args, complete),
-                           **bounds)
+        run = run_pipeline_detailed(
+            bag, out, config=config, model=args.model, storage=args.storage, overwrite=True,
+            spec=spec, progress=None if args.no_progress else sys.stderr,
+            on_teardown_timeout=after_blocked_teardown(out, args, complete),
+            with_truth=not args.no_report, **bounds)
     except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None
-    return complete(res, out, args)
+    return complete(run, out, args)
 
 
 def bag_and_folder(args: argparse.Namespace) -> tuple[Path, Path]:
@@ -149,21 +150,21 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
                              options=options,
                              progress=None if args.no_progress else sys.stderr,
                              on_teardown_timeout=after_blocked_teardown(out, args, complete3d),
-                             **bounds)
+                             with_truth=not args.no_report, **bounds)
     except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None
-    return complete3d(run.result, out, args)
+    return complete3d(run, out, args)
 
 
 def after_blocked_teardown(out: Path, args: argparse.Namespace, then):
-    """The pipeline's ``on_teardown_timeout``: ``then(result, out, args)`` (:func:`complete`
-    or :func:`complete3d`), in the watchdog's thread, with the one-line error of ``main`` for
-    a user error (status 1)."""
-    def finish(res: dict) -> int:
+    """The pipeline's ``on_teardown_timeout``: ``then(run, out, args)`` (:func:`complete`
+    or :func:`complete3d`; ``run`` the PipelineRun), in the watchdog's thread, with the
+    one-line error of ``main`` for a user error (status 1)."""
+    def finish(run: Any) -> int:
         from flight_fdi.cli.main import EXIT_ERROR, _user_errors
 
         try:
-            return then(res, out, args)
+            return then(run, out, args)
         except _user_errors() as exc:
             print(f"flight-fdi run: error: {exc}", file=sys.stderr, flush=True)
             return EXIT_ERROR
@@ -171,26 +172,32 @@ def after_blocked_teardown(out: Path, args: argparse.Namespace, then):
     return finish
 
 
-def complete3d(res: dict, out: Path, args: argparse.Namespace) -> int:
-    """:func:`complete` of the 3-D model: the report rebuilt from the recording (unless
-    --no-report, ``cli.ins3d.report_of_run``), the result printed; the exit status."""
+def complete3d(run: Any, out: Path, args: argparse.Namespace) -> int:
+    """:func:`complete` of the 3-D model: the report (unless --no-report,
+    ``cli.ins3d.report_of_run``) of the smoother's analysis of the recording and the truth read
+    with the inputs (``run``, the PipelineRun: nothing read or analysed again), the result
+    printed; the exit status."""
     from flight_fdi.cli.ins3d import emit, report_of_run
 
     extra = ["", f"recording and result.json in {out}/"]
     if not args.no_report:
-        extra.append(f"report (figures and verdict): {report_of_run(out, out / 'report')}")
-    return emit(res, args, extra)
+        index = report_of_run(out, out / "report", run.result, (*run.smoother.ins3d, run.read))
+        extra.append(f"report (figures and verdict): {index}")
+    return emit(run.result, args, extra)
 
 
-def complete(res: dict, out: Path, args: argparse.Namespace) -> int:
-    """What ``run`` does with the pipeline's result: the report (unless --no-report), the
-    result printed; the exit status."""
+def complete(run: Any, out: Path, args: argparse.Namespace) -> int:
+    """What ``run`` does with the pipeline's run (PipelineRun): the report (unless
+    --no-report) of the smoother's analysis and the input read before the replay (nothing
+    read or analysed again), the result printed; the exit status."""
+    res = run.result
     index = None
     if not args.no_report:
-        from flight_fdi.cli.report import analyse_run_folder
+        from flight_fdi.cli.report import of_run
         from flight_fdi.report import write_report
 
-        analysis, truth, model, notes = analyse_run_folder(out, args)
+        analysis, truth, model, notes = of_run(run.smoother.analysis, run.smoother.recording,
+                                               run.read, res)
         index = write_report(analysis, out / "report", truth=truth, model=model, notes=notes)
     if args.json:
         json.dump(res, sys.stdout, allow_nan=False)

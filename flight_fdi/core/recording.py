@@ -133,6 +133,8 @@ class SmootherRun:
     recording: Any = None        # flight_fdi.bagio.recording.Recording
     analysis: Any = None          # the core's AnalysisResult (fwd, bwd, seed, glr, ...)
     error: str = ""
+    #: channel ins3d: (Ins3dAnalysis, the recording's dict) (nodes.ins3d_recording)
+    ins3d: Any = None
 
 
 def analyze_recording(rec: Recording, config: Any = None, flight_start_s: float | None = None,

@@ -67,7 +67,7 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                    progress: Any = None, options: dict | None = None,
                    stall_timeout_s: float = STALL_TIMEOUT_S,
                    teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
-                   on_teardown_timeout: Any = None) -> PipelineRun:
+                   on_teardown_timeout: Any = None, with_truth: bool = False) -> PipelineRun:
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
     before any node exists (BagError: topics, types, and every message read raw by bagio's
     reader -- a corrupt bag is one line, never a replay of what rosbags' iterator makes of it:
@@ -78,8 +78,10 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     them, the smoother analyses with them). ``timeout_s``, ``stall_timeout_s``,
     ``teardown_timeout``: the bounds of ``pipeline`` (its module docstring: a stalled stage
     ends the run with PipelineError; the teardown after the result is bounded), and
-    ``on_teardown_timeout`` what is done with the result should that bound be reached."""
-    from flight_fdi.bagio.ins3d_input import check_messages
+    ``on_teardown_timeout`` what is done with the result should that bound be reached.
+    ``with_truth``: that read also takes the simulator's truth (the PipelineRun's ``read``:
+    ``bagio.ins3d_input.truth_of_raw``'s, or None), for a report."""
+    from flight_fdi.bagio.ins3d_input import checked_messages
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.gate import GateConfig
 
@@ -93,7 +95,7 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     bag = Path(bag)
     # every message read once before any node (corrupt data: one line now, not garbage
     # played), which gives the counts for the progress and the player's window
-    names, counts = check_messages(bag, topics)
+    names, counts, truth = checked_messages(bag, topics, with_truth)
     played = list(names.values())
     tick_progress = Progress(sum(counts.values()) or 1, progress)
     out = Path(out_dir)
@@ -124,7 +126,7 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
         run = g.finish(player, flt, rec, AnalysisConfig(gate=gate), {
             "bag": str(recording), "channel": "ins3d", "output_json": str(result_json),
             "publish_smoothed": False}, bag, result_json,
-            extra if source is None else {**extra, "source": source})
+            extra if source is None else {**extra, "source": source}, truth)
     return run
 
 

@@ -184,9 +184,9 @@ def analyze_recording3d(path: str | Path, state_topic: str = "/fdi/state",
 
 
 def smoother_run3d(bag: str, state_topic: str, model_topic: str, gate: Any = None):
-    """What ``smoother_node`` (``channel: ins3d``) runs: a SmootherRun with the result, or for
-    a bag that cannot be analysed a schema-valid ``insufficient_data`` result with the error
-    (never raises for bad input)."""
+    """What ``smoother_node`` (``channel: ins3d``) runs: a SmootherRun with the result (and in
+    its ``ins3d`` the analysis and the recording read), or for a bag that cannot be analysed a
+    schema-valid ``insufficient_data`` result with the error (never raises for bad input)."""
     from flight_fdi.core.errors import CoreError
 
     from .smoother_node import SmootherRun, error_result
@@ -194,8 +194,9 @@ def smoother_run3d(bag: str, state_topic: str, model_topic: str, gate: Any = Non
     try:
         if not bag:
             raise BagError("no bag given (set the 'bag' parameter)")
-        return SmootherRun(result=analyze_recording3d(bag, state_topic, model_topic,
-                                                      bag_label=bag, gate=gate)[0])
+        result, analysis, rec = analyze_recording3d(bag, state_topic, model_topic,
+                                                    bag_label=bag, gate=gate)
+        return SmootherRun(result=result, ins3d=(analysis, rec))
     except (BagError, CoreError, ValueError) as exc:
         return SmootherRun(result={**error_result(bag, "en", str(exc)), "model": "ins3d"},
                            error=str(exc))

@@ -8,7 +8,9 @@ returns the result dict of the smoother (the JSON schema of ``flight-fdi analyze
 in-flight alarms and the localized fault) and leaves in ``out_dir``: ``recording/`` (the bag
 recorded by recorder_node: fdi/innovation, fdi/state, fdi/model) and ``result.json``.
 :func:`run_pipeline_detailed` returns a :class:`PipelineRun` with the same dict plus the
-recording's path, counts and the replay throughput.
+recording's path, counts, the replay throughput, the smoother's analysis and the input read
+before the replay (``flight-fdi run``'s report is drawn from these: no second read or
+analysis).
 
 * The player replays the bag as fast as possible without loss: it paces itself by the filter's
   ``fdi/state`` messages (an end-to-end acknowledgement, see ``bag_player``), so no subscriber
@@ -36,8 +38,9 @@ every node's own work is completed first (the recorder closes its bag), then the
 teardown (all nodes, executor, context) is bounded by ``teardown_timeout`` (runner's
 TeardownWatchdog, 10 s; None: unbounded): one WARN line naming what blocked, the stacks, and exit
 with the pipeline's own status (0 after a result, 1 after an error, 130 after Ctrl-C). After a
-result, ``on_teardown_timeout(result)`` (when given) comes first: what the caller still had to do
-with it (``flight-fdi run`` prints it and writes the report); its return value is the status.
+result, ``on_teardown_timeout(run)`` (when given; ``run`` the :class:`PipelineRun`) comes first:
+what the caller still had to do with it (``flight-fdi run`` prints it and writes the report); its
+return value is the status.
 """
 from __future__ import annotations
 
@@ -82,15 +85,16 @@ def filter_parameters(config: Any, channel: str, model: str, spec: Any = None,
             "buffer_s": max(2.0, 4.0 * float(config.max_gap_s))}
 
 
-def check_inputs(bag: Path, spec: Any, config: Any) -> tuple[Any, dict]:
+def check_inputs(bag: Path, spec: Any, config: Any, with_truth: bool = False
+                 ) -> tuple[Any, dict]:
     """Before any ROS graph: read the bag's inputs as ``flight-fdi analyze`` does (BagError,
     one line, for a missing topic, a wrong type, a topic without a usable sample, no reference
-    within the INS record) and count every unused message. Returns (FlightData, ``input``
-    section)."""
+    within the INS record) and count every unused message. Returns (FlightData, with the
+    simulator's truth when ``with_truth``; ``input`` section)."""
     from flight_fdi.bagio import read_flight
     from flight_fdi.core.align import align_to_reference
 
-    flight = read_flight(bag, spec=spec, with_truth=False)
+    flight = read_flight(bag, spec=spec, with_truth=with_truth)
     aligned, _ = align_to_reference(flight.ins_rel_s, flight.v_ins, flight.ref_rel_s,
                                     max_gap_s=config.max_gap_s)
     if not aligned.any():
@@ -106,7 +110,8 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
                           spec: Any = None, progress: Any = None,
                           stall_timeout_s: float = STALL_TIMEOUT_S,
                           teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
-                          on_teardown_timeout: Any = None) -> PipelineRun:
+                          on_teardown_timeout: Any = None,
+                          with_truth: bool = False) -> PipelineRun:
     """Replay ``bag`` through the node pipeline; see the module docstring.
 
     ``config``: the core's AnalysisConfig (default: its defaults), used by the filter (gate,
@@ -121,8 +126,10 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     result carries the same ``input`` and ``source`` as ``flight-fdi analyze``. ``progress``: a
     stream for "replay NN %" lines per 10 % of the messages (None: silent).
     ``timeout_s``, ``stall_timeout_s``, ``teardown_timeout``: the bounds of the module
-    docstring (validated first: ParameterError); ``on_teardown_timeout``: called with the result
-    when the teardown after it times out, returns the exit status (module docstring).
+    docstring (validated first: ParameterError); ``on_teardown_timeout``: called with the
+    PipelineRun when the teardown after it times out, returns the exit status (module docstring).
+    ``with_truth``: the input read before the replay (the PipelineRun's ``read``, a FlightData)
+    holds the simulator's truth (for a report).
     """
     from flight_fdi.bagio.inputs import InputSpec
     from flight_fdi.core.analysis import AnalysisConfig
@@ -142,7 +149,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
     channel = spec.component
     bag = Path(bag)
     # the inputs are usable, before anything is created (a graph never waits for bad input)
-    flight, input_section = check_inputs(bag, spec, config)
+    flight, input_section = check_inputs(bag, spec, config, with_truth)
     played_topics = [spec.ins_topic, *spec.reference_topics]
     tick_progress = Progress(sum(e["messages"] for e in input_section.values()), progress)
     out = Path(out_dir)
@@ -169,7 +176,7 @@ def run_pipeline_detailed(bag: str | Path, out_dir: str | Path, channel: str = "
             "bag": str(recording), "channel": channel, "output_json": str(result_json),
             # analyze's t0: the earliest usable INS / reference stamp
             "flight_start_s": flight.t0_ns * 1e-9, "publish_smoothed": False},
-            bag, result_json, {"input": input_section, "source": spec.describe()})
+            bag, result_json, {"input": input_section, "source": spec.describe()}, flight)
     return run
 
 

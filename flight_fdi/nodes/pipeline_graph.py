@@ -46,6 +46,8 @@ class PipelineRun:
     replay_s: float = 0.0             # wall time from the first message played to the last output
     analysis_s: float = 0.0           # wall time of the smoother's analysis
     ack_timeouts: int = 0             # the player had to continue without acknowledgement
+    smoother: Any = None              # the smoother's SmootherRun (its analysis, recording)
+    read: Any = None                  # what was read of the input bag before the replay
 
     @property
     def throughput(self) -> float:
@@ -186,19 +188,19 @@ class Graph:
     (ParameterError). ``on_teardown_timeout(result)``: what the caller still does with the
     result (:meth:`finish`'s) should the teardown after it time out -- the watchdog calls it and
     exits with the status it returns (runner.TeardownWatchdog's ``on_timeout``); None: exit
-    with status 0 at once."""
+    with status 0 at once. ``result``: the :class:`PipelineRun` of :meth:`finish`."""
 
     NAME = "flight_fdi_pipeline"
 
     def __init__(self, executor: str = "events", log_level: str = "warn",
                  timeout_s: float = TIMEOUT_S, stall_timeout_s: float = STALL_TIMEOUT_S,
                  teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
-                 on_teardown_timeout: Callable[[dict], int] | None = None) -> None:
+                 on_teardown_timeout: Callable[["PipelineRun"], int] | None = None) -> None:
         self.timeout_s = seconds("timeout_s", timeout_s)
         self.stall = StallWatch(seconds("stall_timeout_s", stall_timeout_s))
         self.teardown_timeout = seconds("teardown_timeout", teardown_timeout, none_ok=True)
         self.on_teardown_timeout = on_teardown_timeout
-        self.result: dict | None = None   # finish's, once written
+        self.result: PipelineRun | None = None   # finish's, once its result is written
         self.nodes: list[Any] = []
         self._stages: Any = None   # the watched stages (watch)
         self._kind, self._log_level = executor, log_level
@@ -338,11 +340,13 @@ class Graph:
 
     def finish(self, player: Any, flt: Any, rec: Any, config: Any,
                params: dict[str, Any], bag: Path, result_json: Path,
-               extra: dict[str, Any]) -> "PipelineRun":
+               extra: dict[str, Any], read: Any = None) -> "PipelineRun":
         """The end of every replay: spin until :meth:`settled` (the recorder holds the filter's
         last outputs), close the recording, retire the three nodes, run the smoother on the
         recording with ``params`` (``params['bag']``: the recording) and write its result --
-        ``bag`` (the input, as analyze names it) and ``extra`` added -- to ``result_json``."""
+        ``bag`` (the input, as analyze names it) and ``extra`` added -- to ``result_json``.
+        The PipelineRun keeps the smoother's run (its analysis: a report needs no second one)
+        and ``read``, what the caller read of the input bag."""
         from .smoother_node import write_json
 
         self.spin_until(self.settled, "recording the filter's last outputs")
@@ -353,18 +357,21 @@ class Graph:
         for node in (player, flt, rec):
             self.retire(node)
         t_analysis = time.monotonic()
-        result = self.smoother_result(config, params)
+        smoother = self.smoother_run(config, params)
+        result = dict(smoother.result)
         result["bag"] = str(bag)
         result.update(extra)
         write_json(result, result_json)
-        self.result = result
-        return PipelineRun(result=result, recording=Path(params["bag"]), result_json=result_json,
-                           messages_played=played, recorded=recorded, replay_s=replay_s,
-                           analysis_s=time.monotonic() - t_analysis, ack_timeouts=ack_timeouts)
+        self.result = PipelineRun(
+            result=result, recording=Path(params["bag"]), result_json=result_json,
+            messages_played=played, recorded=recorded, replay_s=replay_s,
+            analysis_s=time.monotonic() - t_analysis, ack_timeouts=ack_timeouts,
+            smoother=smoother, read=read)
+        return self.result
 
-    def smoother_result(self, config: Any, params: dict[str, Any]) -> dict:
+    def smoother_run(self, config: Any, params: dict[str, Any]) -> Any:
         """Build the smoother node, spin until its analysis of the recording is done and return
-        a copy of its result (PipelineError when it failed)."""
+        its SmootherRun (PipelineError when it failed)."""
         from .smoother_node import SmootherNode
 
         smoother = self.build(SmootherNode, params, config=config)
@@ -373,7 +380,7 @@ class Graph:
         if run is None or run.error:
             raise PipelineError(f"analysis of {params['bag']} failed: "
                                 f"{run.error if run else 'no result'}")
-        return dict(run.result)
+        return run
 
 
 __all__ = ["STALL_TIMEOUT_S", "TEARDOWN_TIMEOUT_S", "TIMEOUT_S", "Graph", "PipelineError",

@@ -130,8 +130,8 @@ def test_a_recorder_that_stops_recording_is_one_line_and_exit_1(small_bag, tmp_p
             real(self, topic, msgtype, data)
 
     monkeypatch.setattr(RecorderNode, "_on_message", stops_after_50)
-    monkeypatch.setattr(pipeline, "run_pipeline",
-                        functools.partial(pipeline.run_pipeline, stall_timeout_s=1.0))
+    monkeypatch.setattr(pipeline, "run_pipeline_detailed",
+                        functools.partial(pipeline.run_pipeline_detailed, stall_timeout_s=1.0))
     code = main(["run", str(small_bag), "--out", str(tmp_path), "--no-report", "--no-progress"])
     err = capfd.readouterr().err.splitlines()
     assert code == 1

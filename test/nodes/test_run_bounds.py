@@ -81,7 +81,7 @@ def test_the_bounds_reach_the_pipeline(tmp_path, monkeypatch, capsys):
         calls.append(kwargs)
         raise pipeline.PipelineError("stopped here")
 
-    monkeypatch.setattr(pipeline, "run_pipeline", fake)
+    monkeypatch.setattr(pipeline, "run_pipeline_detailed", fake)
     bag = tmp_path / "bag"
     bag.mkdir()
     assert main(["run", str(bag), "--out", str(tmp_path / "out"), "--stall-timeout", "2.5",

@@ -73,7 +73,7 @@ def _stop_in(monkeypatch, module, name: str) -> list[dict]:
 def test_the_timeout_reaches_the_single_axis_pipeline(tmp_path, monkeypatch, capsys):
     from flight_fdi.nodes import pipeline
 
-    calls = _stop_in(monkeypatch, pipeline, "run_pipeline")
+    calls = _stop_in(monkeypatch, pipeline, "run_pipeline_detailed")
     bag = tmp_path / "bag"
     bag.mkdir()
     assert main(["run", str(bag), "--out", str(tmp_path / "out"), "--timeout", "1800"]) == 1
