@@ -256,7 +256,7 @@ def check_topics(path: str | Path, topics: dict[str, str] | None = None) -> dict
     metadata.yaml where bagio reads mcap bags without rosbags (``reader._mcap_files``, ~1 ms),
     else from rosbags' Reader (~0.03 s; a missing or foreign bag: its one line)."""
     from .reader import _mcap_files, bag_topics
-    names = _names(topics)
+    names = topic_names(topics)
     listed = _mcap_files(Path(path))
     _check_available(path, names, listed[1] if listed is not None else bag_topics(path))
     return names
@@ -275,7 +275,7 @@ def checked_messages(path: str | Path, topics: dict[str, str] | None = None,
     """``check_messages`` and, in the same pass when ``with_truth``, the simulator's truth
     (``truth_of_raw``; None when the bag has none or it is not asked for)."""
     from .reader import read_topics_raw
-    names = _names(topics)
+    names = topic_names(topics)
     types: dict[str, str] = {}
 
     def check(have: dict[str, str]) -> None:
@@ -289,7 +289,9 @@ def checked_messages(path: str | Path, topics: dict[str, str] | None = None,
     return names, {t: int(raw[t].log_ns.size) for t in names.values()}, truth
 
 
-def _names(topics: dict[str, str] | None) -> dict[str, str]:
+def topic_names(topics: dict[str, str] | None) -> dict[str, str]:
+    """The contract topic names: TOPICS overridden by ``topics`` (BagError unless distinct);
+    not checked against a bag (``check_topics``, ``check_messages``, ``read_ins3d`` do)."""
     names = {**TOPICS, **(topics or {})}
     if len(set(names.values())) != len(names):
         raise BagError(f"the ins3d input topics must be distinct, got {sorted(names.values())}")
@@ -315,7 +317,7 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dI
     description (BagError for a bad ``error_model`` block). Each topic is decoded as a whole
     (``ins3d_series``: the one CDR codec, ~0.1 s for an 1800-s flight)."""
     from .ins3d_series import arrays, read_series
-    names = _names(topics)
+    names = topic_names(topics)
     series = read_series(path, names, lambda have: _check_available(path, names, have))
     *values, t0 = arrays(series, names, path)
     inp = build_input(*values)
@@ -473,4 +475,4 @@ __all__ = ["DROP_REASONS3D", "ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUD
            "check_topics", "description_options", "description_vertical",
            "error_model_options", "error_model_used", "from_flight", "input_section3d",
            "model_options_with",
-           "read_ins3d", "read_truth3d", "section3d", "truth_from_flight", "with_error_model"]
+           "read_ins3d", "read_truth3d", "section3d", "topic_names", "truth_from_flight", "with_error_model"]

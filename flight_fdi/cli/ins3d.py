@@ -201,15 +201,14 @@ def gate_options(gate) -> dict:
 def analyze_bag(bag: str, args: argparse.Namespace):
     """(result dict, Ins3dAnalysis, Ins3dInput) of one bag; the result's ``input`` section
     counts each contract topic's messages, used and dropped (``input_section3d``)."""
-    from flight_fdi.bagio.ins3d_input import (check_topics, input_section3d,
-                                              model_options_with, read_ins3d)
+    from flight_fdi.bagio.ins3d_input import input_section3d, model_options_with, read_ins3d
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
     from flight_fdi.core.ins3d_result import ins3d_result
 
     s = settings(args)
     block = error_model_block(args)
-    names = check_topics(bag, topics(args))
-    inp = read_ins3d(bag, names)
+    inp = read_ins3d(bag, topics(args))    # the topics checked there, before anything is read
+    names = inp.topics
     options = model_options_with(inp, block, f"bag '{bag}'")
     analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], **options)

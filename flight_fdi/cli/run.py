@@ -128,7 +128,7 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
     """``flight-fdi run BAG --model ins3d``: the node pipeline of the 3-D model
     (nodes/ins3d_pipeline.py), with the options of ``analyze --model ins3d`` (cli/ins3d.py)
     and the run's ``bounds`` (:func:`pipeline_bounds`)."""
-    from flight_fdi.bagio.ins3d_input import check_topics, description_options, sim_description
+    from flight_fdi.bagio.ins3d_input import description_options, sim_description, topic_names
     from flight_fdi.cli.ins3d import (error_model_block, recorded_model, settings, source,
                                       topics)
     from flight_fdi.nodes.errors import ParameterError
@@ -138,7 +138,7 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
     bag, out = bag_and_folder(args)
     s = settings(args)
     block = error_model_block(args)
-    names = check_topics(bag, topics(args))
+    names = topic_names(topics(args))  # checked with the bag's messages by run_pipeline3d
     # the model options as ``analyze`` takes them, as filter_node parameters (ins3d_vertical,
     # ...; a baro loop is the node's own, the simulator's default loop)
     options = description_options(sim_description(bag), block, f"bag '{bag}'")
