@@ -30,8 +30,8 @@ def report_task(task: ReportTask) -> dict:
     try:
         doc = json.loads(Path(task.result).read_text(encoding="utf-8"))
         notes = [f"Flight {task.name} of a batch; analysed from the bag {doc['bag']}."]
-        if getattr(task.args, "model", None) == "ins3d":  # the 3-D report (cli/ins3d.py)
-            from flight_fdi.cli.ins3d import report_of_bag
+        if getattr(task.args, "model", None) == "ins3d":  # the 3-D report (cli/ins3d_report.py)
+            from flight_fdi.cli.ins3d_report import report_of_bag
 
             index = report_of_bag(doc["bag"], task.args, task.out, notes)
         else:

@@ -189,12 +189,12 @@ def _no_gate(folder: Path, args: argparse.Namespace) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    from flight_fdi.cli import ins3d
+    from flight_fdi.cli import ins3d_report
     from flight_fdi.cli.analyze import exit_status
     from flight_fdi.report import write_report
 
-    if ins3d.wants_ins3d(args):  # the 3-D model (cli/ins3d.py)
-        return ins3d.run_report(args)
+    if ins3d_report.wants_ins3d(args):  # the 3-D model (cli/ins3d_report.py)
+        return ins3d_report.run_report(args)
     src = Path(args.input)
     if not src.exists():
         raise CliError(f"input {str(src)!r} does not exist")

@@ -174,10 +174,11 @@ def after_blocked_teardown(out: Path, args: argparse.Namespace, then):
 
 def complete3d(run: Any, out: Path, args: argparse.Namespace) -> int:
     """:func:`complete` of the 3-D model: the report (unless --no-report,
-    ``cli.ins3d.report_of_run``) of the smoother's analysis of the recording and the truth read
-    with the inputs (``run``, the PipelineRun: nothing read or analysed again), the result
-    printed; the exit status."""
-    from flight_fdi.cli.ins3d import emit, report_of_run
+    ``cli.ins3d_report.report_of_run``) of the smoother's analysis of the recording and the
+    truth read with the inputs (``run``, the PipelineRun: nothing read or analysed again), the
+    result printed; the exit status."""
+    from flight_fdi.cli.ins3d import emit
+    from flight_fdi.cli.ins3d_report import report_of_run
 
     extra = ["", f"recording and result.json in {out}/"]
     if not args.no_report:
