@@ -67,9 +67,9 @@ from flight_fdi.bagio.cdr import header_stamp_ns
 from flight_fdi.bagio.errors import BagError
 from flight_fdi.bagio.reader import BagStream
 
-from .errors import ParameterError
 from .params import ParamSpec, declare_parameters, fail
 from .qos import wait_for_all_acked
+from .setup import destroyed_on_failure
 
 NODE_NAME = "bag_player"
 
@@ -144,26 +144,20 @@ class BagPlayer(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(kwargs.pop("node_name", NODE_NAME), **kwargs)
+        with destroyed_on_failure(self):    # (destroy_node closes the bag once open)
+            self._setup()
+
+    def _setup(self) -> None:
+        from rclpy.clock import Clock, ClockType
+
+        from .diagnostics import DiagnosticsTimer
+
         self.params = p = declare_parameters(self, PLAYER_PARAMS, validator=_validate)
         topics = [self.resolve_topic_name(t) for t in p["topics"]]
         try:
             self.source = BagStream(p["bag"], topics)
         except BagError as exc:
-            self.destroy_node()
             fail("bag", p["bag"], f"a readable bag with the played topics ({exc})")
-        try:
-            self._setup(topics)
-        except ParameterError:
-            self.source.close()
-            self.destroy_node()
-            raise
-
-    def _setup(self, topics: list[str]) -> None:
-        from rclpy.clock import Clock, ClockType
-
-        from .diagnostics import DiagnosticsTimer
-
-        p = self.params
         self._create_publishers(topics)
         self._clock_pub = None
         if p["publish_clock"]:

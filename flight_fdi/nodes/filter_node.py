@@ -93,6 +93,7 @@ from .qos import INPUT_QOS_CHOICES, input_profile, output_qos
 from .clockutil import ClockReader
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters, fail
+from .setup import destroyed_on_failure
 
 NODE_NAME = "filter_node"
 PARAMS_FILE_HEADER = """\
@@ -365,11 +366,8 @@ class FilterNode(VelocityMode, Node):
 
     def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        try:
+        with destroyed_on_failure(self):
             self._setup()
-        except ParameterError:
-            self.destroy_node()
-            raise
 
     # ------------------------------------------------------------------ set-up
     def _setup(self) -> None:

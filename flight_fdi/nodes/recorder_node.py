@@ -36,6 +36,7 @@ from flight_fdi.bagio.writer import (  # noqa: F401 (re-exported: the recorder's
 
 from .clockutil import ClockReader
 from .params import ParamSpec, declare_parameters, fail
+from .setup import destroyed_on_failure
 
 NODE_NAME = "recorder_node"
 
@@ -122,15 +123,10 @@ class RecorderNode(Node):
     """
 
     def __init__(self, **kwargs: Any) -> None:
-        from .errors import ParameterError
-
         super().__init__(kwargs.pop("node_name", NODE_NAME), **kwargs)
         self.bag: RecordingBag | None = None
-        try:
+        with destroyed_on_failure(self):
             self._setup()
-        except ParameterError:
-            self.destroy_node()
-            raise
 
     def _setup(self) -> None:
         from rclpy.clock import Clock, ClockType

@@ -43,6 +43,7 @@ from flight_fdi.core.recording import (  # noqa: F401 (re-exported for callers o
 
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters
+from .setup import destroyed_on_failure
 
 NODE_NAME = "smoother_node"
 
@@ -104,6 +105,12 @@ class SmootherNode(Node):
     result dict)."""
 
     def __init__(self, config: Any = None, **kwargs: Any) -> None:
+        super().__init__(kwargs.pop("node_name", NODE_NAME), **kwargs)
+        self.config = config
+        with destroyed_on_failure(self):
+            self._setup()
+
+    def _setup(self) -> None:
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.task import Future
         from std_srvs.srv import Trigger
@@ -112,13 +119,7 @@ class SmootherNode(Node):
 
         from .diagnostics import DiagnosticsTimer
 
-        super().__init__(kwargs.pop("node_name", NODE_NAME), **kwargs)
-        self.config = config
-        try:
-            self.params = declare_parameters(self, SMOOTHER_PARAMS, on_change=self._changed)
-        except ParameterError:
-            self.destroy_node()
-            raise
+        self.params = declare_parameters(self, SMOOTHER_PARAMS, on_change=self._changed)
         latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)

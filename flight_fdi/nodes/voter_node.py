@@ -80,6 +80,7 @@ from . import diagnostics as diag
 from . import voter_diagnostics
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters, fail
+from .setup import destroyed_on_failure
 
 NODE_NAME = "voter_node"
 PARAMS_FILE_HEADER = """\
@@ -193,11 +194,8 @@ class VoterNode(Node):
 
     def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        try:
+        with destroyed_on_failure(self):
             self._setup()
-        except ParameterError:
-            self.destroy_node()
-            raise
 
     # ------------------------------------------------------------------ set-up
     def _setup(self) -> None:
