@@ -5,8 +5,10 @@ rosbags yields one message at a time through Python generators (several microsec
 slow for a 3-hour flight. This scanner walks the top-level records of the MCAP data section,
 decompresses each chunk once and locates the messages of the wanted channels with the chunk's
 Message Index records (numpy, no per-message Python work). Chunks without message indexes are
-scanned record by record. Format: https://mcap.dev/spec (magic, then records of
-``opcode u8, length u64, content``; little endian).
+walked record by record for the messages' places, their heads then read with numpy. One walk of
+the records (``_records``) serves the data section, a chunk's channel records and such a chunk.
+Format: https://mcap.dev/spec (magic, then records of ``opcode u8, length u64, content``;
+little endian).
 
 Only what the reader needs is supported: uncompressed or zstd chunks, no nested chunks.
 Anything else raises ``Unsupported`` and the caller falls back to rosbags' reader.
@@ -16,6 +18,7 @@ from __future__ import annotations
 import struct
 import sys
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -56,6 +59,18 @@ def _string(buf: bytes | memoryview, pos: int) -> tuple[str, int]:
     (n,) = _U32.unpack_from(buf, pos)
     pos += 4
     return bytes(buf[pos:pos + n]).decode("utf-8"), pos + n
+
+
+def _records(buf: bytes | memoryview, start: int, end: int) -> Iterator[tuple[int, int, int]]:
+    """(opcode, content start, content end) of each record of ``buf[start:end]``, in order --
+    the one walk of the records (the file's data section, a chunk's records). A record whose
+    length runs past ``end`` is yielded as it is: the caller says what that means."""
+    u64 = _U64.unpack_from
+    pos = start
+    while pos + 9 <= end:
+        content = pos + 9
+        pos = content + u64(buf, pos + 1)[0]
+        yield buf[content - 9], content, pos
 
 
 def _channel_topic(content: bytes) -> tuple[int, str]:
@@ -100,7 +115,7 @@ def scan(path: str, topics: set[str], what: str) -> dict[str, ChannelMessages]:
         if indexes:
             found = _from_index(buf[base:int(bases[k + 1])], indexes, wanted, what, path)
         else:
-            found = _from_records(raw, wanted, what, path)
+            found = _from_records(buf[base:int(bases[k + 1])], raw, wanted, what, path)
         for cid, (log, offs, lens) in found.items():
             order = np.stack([np.full(offs.size, k, dtype=np.int64), offs], axis=1)
             per_topic[wanted[cid]].append((log, offs + base, lens, order))
@@ -125,14 +140,9 @@ def _top_level(data: bytes, path: str, what: str
     channels: dict[int, str] = {}
     pieces: list[_Piece] = []
     loose: list[_Loose] = []
-    pos = 8
     in_data = True
     try:
-        while pos + 9 <= total:
-            op = data[pos]
-            (length,) = _U64.unpack_from(data, pos + 1)
-            start = pos + 9
-            end = start + length
+        for op, start, end in _records(data, 8, total):
             if end > total:
                 raise BagError(f"bag '{what}': {path} is truncated (a record runs past the end)")
             if op == OP_DATA_END:
@@ -151,7 +161,6 @@ def _top_level(data: bytes, path: str, what: str
             elif op == OP_MESSAGE and in_data:
                 cid, _, log, _ = _MSG_HEAD.unpack_from(data, start)
                 loose.append((cid, log, data[start + 22:end]))
-            pos = end
     except (struct.error, UnicodeDecodeError):
         raise BagError(f"bag '{what}': {path} is truncated or corrupt") from None
     return channels, pieces, loose
@@ -237,17 +246,13 @@ def _first_line(exc: BaseException) -> str:
 def _collect_channels(raw: bytes | memoryview, channels: dict[int, str], what: str, path: str,
                       leading_only: bool) -> None:
     """Find the channel records in a chunk: those before its first message, or all of them."""
-    pos, total = 0, len(raw)
     try:
-        while pos + 9 <= total:
-            op = raw[pos]
-            (length,) = _U64.unpack_from(raw, pos + 1)
+        for op, start, end in _records(raw, 0, len(raw)):
             if op == OP_CHANNEL:
-                cid, topic = _channel_topic(raw[pos + 9:pos + 9 + length])
+                cid, topic = _channel_topic(raw[start:end])
                 channels[cid] = topic
             elif op != OP_SCHEMA and leading_only:
                 return
-            pos += 9 + length
     except (struct.error, UnicodeDecodeError):
         raise BagError(f"bag '{what}': {path} has a corrupt chunk") from None
 
@@ -282,28 +287,30 @@ def _from_index(arr: np.ndarray, indexes: list[tuple[int, bytes]], wanted: dict[
     return found
 
 
-def _from_records(raw: bytes | memoryview, wanted: dict[int, str], what: str, path: str
-                  ) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Record-by-record scan of one uncompressed chunk (for files without message indexes)."""
-    acc: dict[int, tuple[list[int], list[int], list[int]]] = {}
-    pos, total = 0, len(raw)
-    try:
-        while pos + 9 <= total:
-            op = raw[pos]
-            (length,) = _U64.unpack_from(raw, pos + 1)
-            if op == OP_MESSAGE:
-                cid, _, log, _ = _MSG_HEAD.unpack_from(raw, pos + 9)
-                if cid in wanted:
-                    lists = acc.setdefault(cid, ([], [], []))
-                    lists[0].append(log)
-                    lists[1].append(pos + 31)
-                    lists[2].append(length - 22)
-            elif op == OP_CHUNK:
-                raise BagError(f"bag '{what}': {path} has a nested chunk")
-            pos += 9 + length
-    except struct.error:
-        raise BagError(f"bag '{what}': {path} has a corrupt chunk") from None
-    if pos != total:
+def _from_records(arr: np.ndarray, raw: memoryview, wanted: dict[int, str], what: str,
+                  path: str) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The messages of one uncompressed chunk without message indexes (``arr``, and ``raw``
+    the same bytes): its records walked once for the messages' places, their heads (channel,
+    log time, length) then read with numpy, as :func:`_from_index` does."""
+    total = len(raw)
+    places: list[int] = []
+    last = 0        # the end of the last record: the chunk's end unless one overruns it
+    for op, start, last in _records(raw, 0, total):
+        if op == OP_MESSAGE:
+            places.append(start)
+        elif op == OP_CHUNK:
+            raise BagError(f"bag '{what}': {path} has a nested chunk")
+    if last != total:
         raise BagError(f"bag '{what}': {path} has a corrupt chunk (records overrun it)")
-    return {cid: tuple(np.array(v, dtype=np.int64) for v in lists)  # type: ignore[misc]
-            for cid, lists in acc.items()}
+    content = np.array(places, dtype=np.int64)
+    rec_len = arr[(content - 8)[:, None] + np.arange(8)].view("<u8").reshape(-1).astype(np.int64)
+    if np.any(rec_len < 22):
+        raise BagError(f"bag '{what}': {path} has a corrupt message record")
+    chan = arr[content[:, None] + np.arange(2)].view("<u2").reshape(-1)
+    log = arr[(content + 6)[:, None] + np.arange(8)].view("<u8").reshape(-1).astype(np.int64)
+    found = {}
+    for cid in np.unique(chan):
+        if int(cid) in wanted:
+            mine = chan == cid
+            found[int(cid)] = (log[mine], content[mine] + 22, rec_len[mine] - 22)
+    return found
