@@ -224,6 +224,7 @@ def format_result(res: dict) -> str:
     table's, ``bagio.inputs.warnings``)."""
     from flight_fdi.bagio.inputs import warnings
     from flight_fdi.bagio.ins3d_input import REASON_TEXT3D
+    from flight_fdi.core.ins3d.observability import bias_line
     from flight_fdi.core.ins3d_result import fault_line
 
     post, inf, summ = res["post_flight"], res["in_flight"], res["ins3d"]
@@ -262,6 +263,9 @@ def format_result(res: dict) -> str:
     turns = [m for m in summ["manoeuvres"] if m[2].startswith("turn")]
     if turns:
         lines.append("turns: " + ", ".join(f"{a:.0f}-{b:.0f} s" for a, b, _ in turns))
+    known = bias_line(summ.get("observability") or {})
+    if known:
+        lines.append(known)
     return "\n".join(lines)
 
 

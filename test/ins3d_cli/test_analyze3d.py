@@ -48,6 +48,9 @@ def test_analyze_options_grade_rows_and_table(bag3d, capsys):
     assert main(["analyze", str(bag3d), "--model", "ins3d"]) == 0
     text = capsys.readouterr().out
     assert "model ins3d (navigation grade" in text and "turns:" in text
+    known = [ln for ln in text.splitlines() if ln.startswith("sensor bias known to half")]
+    assert len(known) == 1                   # the observability report's line, six sensors
+    assert all(f"{s} {a} " in known[0] for s in ("accelerometer", "gyro") for a in "xyz")
 
 
 def test_fail_on_fault_follows_the_verdict(bag3d, capsys):
