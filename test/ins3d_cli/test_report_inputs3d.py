@@ -5,6 +5,7 @@ no inputs part."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 
@@ -35,11 +36,13 @@ def test_report_of_a_bundled_bags_result_json(tmp_path, capsys):
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_report_of_a_run_folder_shows_the_runs_record(bag3d, tmp_path, capfd):
+def test_report_of_a_run_folder_shows_the_runs_record(run3d, tmp_path, capfd):
+    """(``run3d``: ``run BAG --model ins3d --json --fail-on-fault``, conftest.py, copied: this
+    test changes its result.json)"""
     out = tmp_path / "run"
-    assert main(["run", str(bag3d), "--model", "ins3d", "--out", str(out), "--no-progress",
-                 "--json"]) == 0
-    doc = json.loads(capfd.readouterr().out)
+    shutil.copytree(run3d.folder, out)
+    doc = json.loads(run3d.stdout)
+    assert run3d.rc == (3 if doc["post_flight"]["verdict"] != "no_fault" else 0)
     agrees(table_rows((out / "report" / "index.html").read_text()), doc["input"])
     # the record is what is shown: a drop written into result.json appears
     doc["input"]["/ins/imu"]["dropped"] = {"late": 2}

@@ -13,13 +13,12 @@ from flight_fdi.schema import validate_result
 
 @pytest.mark.slow
 @pytest.mark.timeout(300)
-def test_run_equals_analyze_and_reports(bag3d, tmp_path, capfd):
-    out = tmp_path / "run"
+def test_run_equals_analyze_and_reports(bag3d, run3d, tmp_path, capfd):
+    """(``run3d``: ``run BAG --model ins3d --json --fail-on-fault``, conftest.py)"""
+    out, rc = run3d.folder, run3d.rc
     assert main(["analyze", str(bag3d), "--model", "ins3d", "--json"]) == 0
     ref = json.loads(capfd.readouterr().out)
-    rc = main(["run", str(bag3d), "--model", "ins3d", "--out", str(out), "--json",
-               "--no-progress", "--fail-on-fault"])
-    res = json.loads(capfd.readouterr().out)
+    res = json.loads(run3d.stdout)
     validate_result(res)
     assert rc == (3 if res["post_flight"]["verdict"] != "no_fault" else 0)
     # the smoother analysed the recorded inputs: the same numbers as analyze on the bag
