@@ -8,7 +8,8 @@ core to exercise: the 3-D simulator (a short flight with turns) and the 3-D mode
 relinearisation about a large attitude error) and
 its per-message streaming step, on that
 flight. The kernels compile for argument types, not values, so a short flight compiles the same
-signatures a 3-hour one uses."""
+signatures a 3-hour one uses. Last, the triple-IMU voter's kernels (``flight-fdi vote``, the
+voter node) and every strapdown scheme of the simulator (``sim.strapdown.warm_up``)."""
 from __future__ import annotations
 
 import sys
@@ -52,15 +53,40 @@ def warm_ins3d() -> None:
                  np.full((inp.refs.t.size, 6), 0.1))
 
 
+def warm_voter() -> None:
+    """The voter's kernels (core/voter_kernel.py) on 40 s of three identical noisy IMUs: the
+    bundled threshold table's model (the prefilter's moving means, the sequential detector) and
+    the step detector of a "grow" baseline, as ``flight-fdi vote`` and voter_node run them."""
+    from .cli.vote import DEFAULT_TABLE
+    from .core.voter_core import VoterCore, VoterModel
+    from .core.voting import load_table
+
+    table = load_table(DEFAULT_TABLE)
+    n = int(40 * table.rate_hz)
+    stamps = (np.arange(n) * (1e9 / table.rate_hz)).astype(np.int64)
+    P = np.repeat(np.random.default_rng(0).normal(0.0, 1e-4, (n, 6, 1)), 3, axis=2)
+    grow = VoterModel.from_dict({"learn_s": 5.0, "baseline": "grow"})
+    for model in (None, grow):
+        core = VoterCore(table, model=model)
+        core.push(stamps[: n // 2], P[: n // 2])
+        core.push(stamps[n // 2:], P[n // 2:])
+        core.finish()
+
+
 def main() -> int:
     from .core.warmup import warm
+    from .sim.strapdown import warm_up
 
     t0 = time.perf_counter()
     warm()
     t1 = time.perf_counter()
     warm_ins3d()
+    t2 = time.perf_counter()
+    warm_voter()
+    warm_up()
     print(f"[setup] kernels compiled and cached: single-axis {t1 - t0:.1f} s, "
-          f"3-D model and simulator {time.perf_counter() - t1:.1f} s")
+          f"3-D model and simulator {t2 - t1:.1f} s, "
+          f"voter and strapdown schemes {time.perf_counter() - t2:.1f} s")
     return 0
 
 
