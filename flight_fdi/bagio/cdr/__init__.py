@@ -12,7 +12,8 @@ and the per-message codecs 1-4 us. So the project keeps one hand-written codec, 
   NavSatFix (encode; ``decode_doubles`` reads it), :class:`Payloads` (messages stored back to
   back);
 * :mod:`.variable` -- the variable-layout messages read or written in series: std_msgs/String,
-  flight_fdi_msgs/FilterState (leading fields, or every field), nav_msgs/Odometry;
+  flight_fdi_msgs/FilterState (every field as columns, walked with numpy per prefix; or the
+  leading fields, or one record per message, from those columns), nav_msgs/Odometry;
 * :mod:`.message` -- one message at a time for the nodes: the filter node's inputs and outputs
   (Innovation, FilterState), a message's header stamp / header bytes (player, recorder).
 
@@ -36,14 +37,15 @@ in ``test/bagio/test_bagio_cdr.py`` and ``test/nodes/test_wire.py``.
 """
 from .series import (IMU, NAVSATFIX, TWIST_COV_STAMPED, TWIST_STAMPED, Payloads, decode,
                      decode_doubles, encode, encode_doubles, encode_navsatfix, rows, supported)
-from .variable import (FILTER_STATE, LINEAR_COV, ODOMETRY, STRING, FilterStateRecord,
+from .variable import (FILTER_STATE, FILTER_STATE_SEQUENCES, LINEAR_COV, ODOMETRY, STRING,
+                       FilterStateColumns, FilterStateRecord, decode_filter_state_columns,
                        decode_filter_state_x, decode_filter_states, decode_odometry,
                        decode_string, encode_odometry)
 from .message import WireError, header_bytes, header_stamp_ns
 
-__all__ = ["FILTER_STATE", "IMU", "LINEAR_COV", "NAVSATFIX", "ODOMETRY", "STRING",
-           "TWIST_COV_STAMPED", "TWIST_STAMPED", "FilterStateRecord", "Payloads", "WireError",
-           "decode", "decode_doubles", "decode_filter_state_x", "decode_filter_states",
+__all__ = ["FILTER_STATE", "FILTER_STATE_SEQUENCES", "IMU", "LINEAR_COV", "NAVSATFIX", "ODOMETRY",
+           "STRING", "TWIST_COV_STAMPED", "TWIST_STAMPED", "FilterStateColumns",
+           "FilterStateRecord", "Payloads", "WireError", "decode", "decode_doubles",
+           "decode_filter_state_columns", "decode_filter_state_x", "decode_filter_states",
            "decode_odometry", "decode_string", "encode", "encode_doubles", "encode_navsatfix",
-           "encode_odometry",
-           "header_bytes", "header_stamp_ns", "rows", "supported"]
+           "encode_odometry", "header_bytes", "header_stamp_ns", "rows", "supported"]

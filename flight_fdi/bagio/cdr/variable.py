@@ -1,6 +1,7 @@
 """Vectorised CDR of the variable-layout messages the project reads and writes in series:
-std_msgs/String, flight_fdi_msgs/FilterState (walked field by field), nav_msgs/Odometry
-(two strings, then 85 doubles). The wire rules are in :mod:`flight_fdi.bagio.cdr`.
+std_msgs/String, flight_fdi_msgs/FilterState (walked with numpy, all the messages of one prefix
+at once: ``decode_filter_state_columns``), nav_msgs/Odometry (two strings, then 85 doubles). The
+wire rules are in :mod:`flight_fdi.bagio.cdr`.
 """
 from __future__ import annotations
 
@@ -58,20 +59,6 @@ def _state_prefix(data: bytes, e: str) -> tuple[str, str, tuple[str, ...], int]:
     return frame_id, channel, tuple(names), p
 
 
-def _float64s(data: bytes, e: str, p: int) -> tuple[np.ndarray, int]:
-    """The float64[] sequence whose count is at payload position ``p`` and the position after
-    it (the elements 8-aligned; nothing aligned for an empty sequence)."""
-    p = (p + 3) & ~3
-    (n,) = struct.unpack_from(e + "I", data, 4 + p)
-    p += 4
-    if n:
-        p = (p + 7) & ~7
-    if 4 + p + 8 * n > len(data):
-        raise ValueError("message too short")
-    return (np.frombuffer(data, dtype=e + "f8", count=n, offset=4 + p).astype(float, copy=False),
-            p + 8 * n)
-
-
 def _checked(data: bytes) -> str:
     """The struct byte order of a CDR message (ValueError when it is not one)."""
     if len(data) < 16 or data[0] != 0 or data[1] > 1:
@@ -79,34 +66,171 @@ def _checked(data: bytes) -> str:
     return "<" if data[1] == 1 else ">"
 
 
-def _filter_states(payloads: "Payloads | Sequence[bytes | memoryview]", what: str):
-    """Per message: (number, bytes, byte order, stamp ns, (frame_id, channel, state_names,
-    payload position of x's count)). The prefix up to x is the same within one stream: it is
-    decoded once per distinct prefix. Errors raised in the loop body by the caller's decoding
-    (ValueError, struct.error) are turned into BagError naming ``what`` and the message by
-    :func:`_malformed`."""
-    if not isinstance(payloads, Payloads):
-        payloads = Payloads.from_list(payloads)
-    raw = payloads.buf.tobytes() if payloads.buf.size else b""
-    known: list[tuple[bytes, str, tuple[str, str, tuple[str, ...], int]]] = []
-    for i, (start, length) in enumerate(zip(payloads.starts.tolist(), payloads.lengths.tolist())):
-        data = raw[start:start + length]
-        try:
-            e = _checked(data)
-            sec, nsec = struct.unpack_from(e + "iI", data, 4)
-            hit = next((h for pref, ee, h in known if ee == e and data.startswith(pref, 12)),
-                       None)
-            if hit is None:
-                hit = _state_prefix(data, e)
-                if len(known) < 64:
-                    known.append((data[12:4 + hit[3]], e, hit))
-        except (ValueError, struct.error, UnicodeDecodeError) as exc:
-            raise _malformed(what, i, exc) from None
-        yield i, data, e, sec * _NS + nsec, hit
-
-
 def _malformed(what: str, i: int, exc: Exception) -> BagError:
     return BagError(f"{what} #{i}: not a valid {FILTER_STATE} ({exc})")
+
+
+#: the sequences of a FilterState after its state names, in wire order
+FILTER_STATE_SEQUENCES = ("x", "p", "z", "r", "h", "u")
+
+
+@dataclass
+class FilterStateColumns:
+    """A series of flight_fdi_msgs/FilterState messages as columns (N messages): where each
+    float64[] sequence lies in ``buf`` and how long it is, the scalars as arrays. The strings
+    (frame_id, channel, state_names) are those of ``prefixes[prefix[i]]``."""
+
+    buf: np.ndarray             # the messages back to back (read-only uint8)
+    little: np.ndarray          # (N,) bool: CDR_LE (else CDR_BE)
+    stamp_ns: np.ndarray        # (N,) int64
+    prefix: np.ndarray          # (N,) int64 index into prefixes
+    prefixes: list              # [(frame_id, channel, state_names)]
+    offset: np.ndarray          # (6, N) int64: byte in buf of each sequence's first element
+    count: np.ndarray           # (6, N) int64: elements of each sequence
+    dt: np.ndarray              # (N,) float64
+    fused: np.ndarray           # (N,) bool
+    gated: np.ndarray           # (N,) bool
+    reset: np.ndarray           # (N,) bool
+
+    def of_channel(self, channel: str) -> np.ndarray:
+        """The numbers (ascending) of the messages of ``channel``."""
+        hits = [k for k, (_, c, _) in enumerate(self.prefixes) if c == channel]
+        return np.flatnonzero(np.isin(self.prefix, hits))
+
+    def values(self, field: str, index: np.ndarray) -> np.ndarray:
+        """(len(index), k) float64: sequence ``field`` of the messages ``index``, which must all
+        hold k elements (ValueError otherwise; k = 0 for no message)."""
+        f = FILTER_STATE_SEQUENCES.index(field)
+        index = np.asarray(index, dtype=np.int64)
+        counts = self.count[f, index]
+        k = int(counts[0]) if counts.size else 0
+        if np.any(counts != k):
+            raise ValueError(f"FilterState {field} of different lengths")
+        raw = np.ascontiguousarray(self.buf[self.offset[f, index][:, None]
+                                            + np.arange(8 * k)[None, :]])
+        big = ~self.little[index]
+        if np.any(big):
+            raw[big] = raw[big].reshape(-1, k, 8)[:, :, ::-1].reshape(-1, 8 * k)
+        return raw.view("<f8").reshape(index.size, k).astype(float)
+
+    def array(self, field: int, i: int) -> np.ndarray:
+        """Sequence number ``field`` (FILTER_STATE_SEQUENCES) of message ``i``: a read-only
+        view for CDR_LE, a copy for CDR_BE."""
+        o, n = int(self.offset[field, i]), int(self.count[field, i])
+        raw = self.buf[o:o + 8 * n]
+        return raw.view("<f8") if self.little[i] else raw.view(">f8").astype(float)
+
+
+def _gather(buf: np.ndarray, at: np.ndarray, size: int, dtype: str) -> np.ndarray:
+    """One value of ``dtype`` (``size`` bytes) per message at byte ``at`` of ``buf``."""
+    return np.ascontiguousarray(buf[at[:, None] + np.arange(size)]).view(dtype).reshape(-1)
+
+
+def _same_bytes(buf: np.ndarray, at: np.ndarray, pattern: bytes) -> np.ndarray:
+    """Per position in ``at``: whether ``buf`` holds ``pattern`` there (in blocks: the gather
+    indexes with (messages x bytes) int64 arrays)."""
+    want = np.frombuffer(pattern, dtype=np.uint8)
+    out = np.zeros(at.size, dtype=bool)
+    block = max(1, (1 << 20) // max(1, want.size))
+    for k in range(0, at.size, block):
+        out[k:k + block] = np.all(buf[at[k:k + block, None] + np.arange(want.size)] == want,
+                                  axis=1)
+    return out
+
+
+def _prefix_groups(payloads: Payloads, what: str, bad: list[tuple[int, Exception]]
+                   ) -> tuple[np.ndarray, list, list]:
+    """(prefix number per message (-1: malformed), [(frame_id, channel, state_names)],
+    [(byte order, payload position of x's count)]). The prefix up to x is the same within one
+    stream: it is decoded once per distinct prefix and recognised by its bytes. Malformed
+    messages are added to ``bad`` as (number, reason)."""
+    buf, starts, lengths = payloads.buf, payloads.starts, payloads.lengths
+    n = len(payloads)
+    group = np.full(n, -1, dtype=np.int64)
+    prefixes, layouts = [], []
+    head = np.zeros((n, 2), dtype=np.uint8)
+    fits = lengths >= 16
+    head[fits] = buf[starts[fits, None] + np.arange(2)]
+    cdr_ok = fits & (head[:, 0] == 0) & (head[:, 1] <= 1)
+    if not cdr_ok.all():
+        bad.append((int(np.argmin(cdr_ok)), ValueError("not a CDR message")))
+    todo = np.flatnonzero(cdr_ok)
+    while todo.size:
+        i = int(todo[0])
+        data = buf[starts[i]:starts[i] + lengths[i]].tobytes()
+        e = "<" if data[1] else ">"
+        try:
+            frame_id, channel, names, p = _state_prefix(data, e)
+        except (ValueError, struct.error, UnicodeDecodeError) as exc:
+            bad.append((i, exc))
+            break
+        cand = todo[(head[todo, 1] == data[1]) & (lengths[todo] >= 4 + p)]
+        same = cand[_same_bytes(buf, starts[cand] + 12, data[12:4 + p])]
+        group[same] = len(prefixes)
+        prefixes.append((frame_id, channel, names))
+        layouts.append((e, p))
+        todo = todo[group[todo] < 0]
+    return group, prefixes, layouts
+
+
+def _walk(buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray, e: str, p: int
+          ) -> tuple[np.ndarray, ...]:
+    """The fields after the state names of messages of one prefix (byte order ``e``, x's
+    count at payload position ``p``), all at once: (offsets (6, n), counts (6, n), dt, flags
+    (n, 3), ok (n,) False for a message too short for its sequences)."""
+    n = starts.size
+    pos = np.full(n, p, dtype=np.int64)
+    ok = np.ones(n, dtype=bool)
+    offsets, counts = np.zeros((6, n), np.int64), np.zeros((6, n), np.int64)
+    for f in range(6):
+        pos = (pos + 3) & ~3
+        ok &= 4 + pos + 4 <= lengths
+        cnt = np.where(ok, _gather(buf, np.where(ok, starts + 4 + pos, 0), 4, e + "u4"), 0)
+        pos = pos + 4
+        pos = np.where(cnt > 0, (pos + 7) & ~7, pos)
+        offsets[f], counts[f] = starts + 4 + pos, cnt
+        pos = pos + 8 * cnt.astype(np.int64)
+        ok &= 4 + pos <= lengths
+    pos = (pos + 7) & ~7
+    ok &= 4 + pos + 8 + 3 <= lengths
+    at = np.where(ok, starts + 4 + pos, 0)
+    dt = np.where(ok, _gather(buf, at, 8, e + "f8"), 0.0)
+    flags = buf[at[:, None] + 8 + np.arange(3)] != 0
+    return offsets, counts, dt.astype(float), flags, ok
+
+
+def decode_filter_state_columns(payloads: "Payloads | Sequence[bytes | memoryview]",
+                                what: str = "message") -> FilterStateColumns:
+    """Every field of a series of flight_fdi_msgs/FilterState messages (either byte order) as
+    :class:`FilterStateColumns`: the layout is walked with numpy for all the messages of one
+    prefix (frame_id, channel, state_names) at once. BagError naming ``what`` and the first
+    malformed message's number."""
+    if not isinstance(payloads, Payloads):
+        payloads = Payloads.from_list(payloads)
+    n = len(payloads)
+    buf = payloads.buf.view()
+    buf.flags.writeable = False
+    bad: list[tuple[int, Exception]] = []
+    group, prefixes, layouts = _prefix_groups(payloads, what, bad)
+    starts, lengths = payloads.starts, payloads.lengths
+    little = np.zeros(n, dtype=bool)
+    stamp_ns = np.zeros(n, dtype=np.int64)
+    offset, count = np.zeros((6, n), np.int64), np.zeros((6, n), np.int64)
+    dt, flags = np.zeros(n), np.zeros((n, 3), dtype=bool)
+    for g, (e, p) in enumerate(layouts):
+        idx = np.flatnonzero(group == g)
+        s = starts[idx]
+        sec = _gather(buf, s + 4, 4, e + "i4").astype(np.int64)
+        stamp_ns[idx] = sec * _NS + _gather(buf, s + 8, 4, e + "u4").astype(np.int64)
+        little[idx] = e == "<"
+        offset[:, idx], count[:, idx], dt[idx], flags[idx], ok = _walk(buf, s, lengths[idx],
+                                                                      e, p)
+        if not ok.all():
+            bad.append((int(idx[np.argmin(ok)]), ValueError("message too short")))
+    if bad:
+        raise _malformed(what, *min(bad, key=lambda b: b[0]))
+    return FilterStateColumns(buf, little, stamp_ns, group, prefixes, offset, count, dt,
+                              flags[:, 0], flags[:, 1], flags[:, 2])
 
 
 def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",
@@ -115,21 +239,14 @@ def decode_filter_state_x(payloads: "Payloads | Sequence[bytes | memoryview]",
                                      list[np.ndarray]]:
     """The leading fields of flight_fdi_msgs/FilterState messages, without full deserialization.
 
-    Returns (stamp_ns (N,), channel per message, state_names per message, x per message). The
-    layout is walked field by field (header, channel, state_names, x) with CDR alignment, which
-    is ~10x faster than rosbags' generic deserializer for the many truth messages of a long flight.
+    Returns (stamp_ns (N,), channel per message, state_names per message, x per message)
+    (:func:`decode_filter_state_columns`: ~10x faster than rosbags' generic deserializer for
+    the many truth messages of a long flight).
     """
-    stamps, channels, names, xs = [], [], [], []
-    for i, data, e, stamp, (_, channel, state_names, p) in _filter_states(payloads, what):
-        try:
-            x, _ = _float64s(data, e, p)
-        except (ValueError, struct.error) as exc:
-            raise _malformed(what, i, exc) from None
-        stamps.append(stamp)
-        channels.append(channel)
-        names.append(state_names)
-        xs.append(x)
-    return np.array(stamps, dtype=np.int64), channels, names, xs
+    cols = decode_filter_state_columns(payloads, what)
+    pre = [cols.prefixes[g] for g in cols.prefix.tolist()]
+    return (cols.stamp_ns, [q[1] for q in pre], [q[2] for q in pre],
+            [cols.array(0, i) for i in range(len(pre))])
 
 
 @dataclass(slots=True)
@@ -154,25 +271,15 @@ class FilterStateRecord:
 
 def decode_filter_states(payloads: "Payloads | Sequence[bytes | memoryview]",
                          what: str = "message") -> list[FilterStateRecord]:
-    """Every field of a series of flight_fdi_msgs/FilterState messages (either byte order).
-    BagError naming ``what`` and the message number for a malformed one."""
-    out = []
-    for i, data, e, stamp, (frame_id, channel, state_names, p) in _filter_states(payloads, what):
-        try:
-            arrays = []
-            for _ in range(6):  # x, p, z, r, h, u
-                arr, p = _float64s(data, e, p)
-                arrays.append(arr)
-            p = (p + 7) & ~7
-            if 4 + p + 8 + 3 > len(data):
-                raise ValueError("message too short")
-            (dt,) = struct.unpack_from(e + "d", data, 4 + p)
-            flags = data[4 + p + 8:4 + p + 11]
-        except (ValueError, struct.error) as exc:
-            raise _malformed(what, i, exc) from None
-        out.append(FilterStateRecord(stamp, frame_id, channel, state_names, *arrays, dt,
-                                     *(b != 0 for b in flags)))
-    return out
+    """Every field of a series of flight_fdi_msgs/FilterState messages (either byte order),
+    one record per message (:func:`decode_filter_state_columns`). BagError naming ``what`` and
+    the message number for a malformed one."""
+    c = decode_filter_state_columns(payloads, what)
+    return [FilterStateRecord(stamp, *c.prefixes[g], *(c.array(f, i) for f in range(6)), dt,
+                              fused, gated, reset)
+            for i, (stamp, g, dt, fused, gated, reset) in enumerate(zip(
+                c.stamp_ns.tolist(), c.prefix.tolist(), c.dt.tolist(), c.fused.tolist(),
+                c.gated.tolist(), c.reset.tolist()))]
 
 
 # --------------------------------------------------------------------------- nav_msgs/Odometry
