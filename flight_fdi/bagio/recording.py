@@ -109,7 +109,6 @@ def _load(p: Path, channel: str, state_topic: str, model_topic: str
           ) -> tuple[Any, list[cdr.FilterStateRecord]]:
     """(the channel's last ModelInfo, its FilterStates in bag order) of a recording."""
     from .reader import open_bag, read_raw, require_topics
-    from .typestore import get_typestore
 
     reader = open_bag(p)  # (rosbags checks the files: a damaged one is named "cannot be opened")
     try:
@@ -118,16 +117,7 @@ def _load(p: Path, channel: str, state_topic: str, model_topic: str
         raw = read_raw(reader, p, {model_topic, state_topic})
     finally:
         reader.close()
-    store = get_typestore()
-    info_msg = None
-    for i in range(len(raw[model_topic].payloads)):
-        try:
-            msg = store.deserialize_cdr(raw[model_topic].payloads[i], MODEL_INFO)
-        except Exception as exc:
-            raise BagError(f"bag '{p}': {model_topic} message #{i} is not a valid {MODEL_INFO}: "
-                           f"{reason(exc)}") from None
-        if msg.channel == channel:
-            info_msg = msg  # the last description of the channel wins
+    info_msg = last_model_info(raw[model_topic].payloads, channel, f"bag '{p}': {model_topic}")
     if info_msg is None:
         raise BagError(f"bag '{p}': no ModelInfo for channel {channel!r} on {model_topic}")
     rows = [s for s in cdr.decode_filter_states(raw[state_topic].payloads,
@@ -136,6 +126,24 @@ def _load(p: Path, channel: str, state_topic: str, model_topic: str
     if not rows:
         raise BagError(f"bag '{p}': no FilterState for channel {channel!r} on {state_topic}")
     return info_msg, rows
+
+
+def last_model_info(payloads: cdr.Payloads, channel: str, what: str) -> Any:
+    """The last ModelInfo of ``channel`` among raw ModelInfo messages (None: there is none);
+    BagError naming ``what`` (bag and topic) for one that cannot be decoded."""
+    from .typestore import get_typestore
+
+    store = get_typestore()
+    info_msg = None
+    for i in range(len(payloads)):
+        try:
+            msg = store.deserialize_cdr(payloads[i], MODEL_INFO)
+        except Exception as exc:
+            raise BagError(f"{what} message #{i} is not a valid {MODEL_INFO}: "
+                           f"{reason(exc)}") from None
+        if msg.channel == channel:
+            info_msg = msg  # the last description of the channel wins
+    return info_msg
 
 
 def _longest_segment(p: Path, channel: str, rows: list[cdr.FilterStateRecord], model: Any
