@@ -80,7 +80,8 @@ def test_the_3d_run_reports_without_a_second_read_or_analysis(bag3d, tmp_path, m
                  "--no-progress"]) == 0
     assert "report (figures and verdict):" in capfd.readouterr().out
     assert len(analyses) == 1 and len(recordings) == 1
-    assert [Path(r) for r in raw_reads] == [bag3d]      # the inputs and the truth: one pass
+    # the inputs and the truth: one pass; the recording (smoother): one pass
+    assert [Path(r) for r in raw_reads] == [bag3d, out / "recording"]
     page = (out / "report" / "index.html").read_text()
     assert "Rebuilt from the recording" in page and "no /sim/truth" not in page
     assert main(["report", str(out), "--out", str(tmp_path / "again")]) == 0
