@@ -36,11 +36,16 @@ def faulty_bag(tmp_path_factory) -> Path:
 
 # ------------------------------------------------------------------------------ the options
 
-def test_help_lists_the_bounds(capsys):
+def run_help(capsys) -> str:
+    """``flight-fdi run --help`` (exit 0), its whitespace collapsed."""
     with pytest.raises(SystemExit) as exit_:
         main(["run", "--help"])
     assert exit_.value.code == 0
-    text = " ".join(capsys.readouterr().out.split())
+    return " ".join(capsys.readouterr().out.split())
+
+
+def test_help_lists_the_bounds(capsys):
+    text = run_help(capsys)
     assert "--stall-timeout S end the run with an error naming the stage when a stage with " \
            "work waiting makes no progress for S seconds (1 to 3600; default 60)" in text
     assert "--teardown-timeout S bound on the middleware teardown after the run's work " \

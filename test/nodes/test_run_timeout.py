@@ -11,7 +11,7 @@ import harness  # noqa: F401  (private ROS domain)
 import pytest
 # the 20-s flight of the shutdown tests (module fixture, reused)
 from nodes.test_pipeline_shutdown import _assert_closed_cleanly, small_bag  # noqa: F401
-from nodes.test_run_bounds import recorder_stops_after_50  # noqa: F401
+from nodes.test_run_bounds import recorder_stops_after_50, run_help  # noqa: F401
 
 from flight_fdi.cli.main import main
 
@@ -19,10 +19,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def test_help_lists_the_timeout(capsys):
-    with pytest.raises(SystemExit) as exit_:
-        main(["run", "--help"])
-    assert exit_.value.code == 0
-    text = " ".join(capsys.readouterr().out.split())
+    text = run_help(capsys)
     assert "--timeout S end the run with an error when its work (replay, recording, analysis) " \
            "is not done after S seconds (1 to 86400; default 600)" in text
 
