@@ -125,7 +125,7 @@ def filterpy_run(model: Ins3dModel, steps, refs, P0: np.ndarray):
     r = white_variance(model, refs.r)
     rows, n = model.rows, model.n
     ones = np.ones(n)
-    H = [scaled_H(ones, a[j], model.il, model.im if model.n_markov else 0, rows)
+    H = [scaled_H(ones, a[j], *model.row_args())
          for j in range(ref_step.size)]
     R = [np.diag(r[j, :rows]) for j in range(ref_step.size)]
     Fs = np.concatenate([Phi, np.eye(n)[None]])       # Fs[k] propagates k -> k+1

@@ -33,6 +33,7 @@ from flight_fdi.core.ins3d.grades import DEG_H  # noqa: E402
 from flight_fdi.eval import real3d as R  # noqa: E402
 from flight_fdi.eval.real3d_error import model_error_angle  # noqa: E402
 
+HEIGHT_SIGMA = float(np.hypot(0.05, 0.4))     # m: the height row's white and Markov parts
 #: (label, Settings options, with the fault tables): process noise (gyro ARW deg/sqrt(h),
 #: VRW m/s/sqrt(s)) and the reference's INS shape correction (Contract.ref_ins_shape)
 SETTINGS = {
@@ -56,6 +57,10 @@ SETTINGS = {
     "h": ("(d) as before session 15: the fault runs' reference built with the faulty INS's "
           "shape, and the 0.33-rad allowance", {"nominal_reference": False,
                                                 "signature_error": 0.33}, True),
+    "i": ("(d) with the barometric height as a third reference row: white σ 0.05 m and a "
+          "Markov error of σ 0.4 m, τ 5 s; the initial vertical velocity σ 1 m/s",
+          {"contract": R.Contract(height_sigma=HEIGHT_SIGMA), "v0_sigma_up": 1.0,
+           "ref_markov": (1e-3, 0.4, 5.0)}, True),
 }
 #: the recordings the model-error allowance was calibrated on (Settings.signature_error) and
 #: the day held out from it
@@ -234,7 +239,7 @@ def main(argv=None) -> int:
     p.add_argument("--data", type=Path, default=R.default_data_dir())
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--units", default="1,2,3,4")
-    p.add_argument("--settings", default="abcdefgh",
+    p.add_argument("--settings", default="abcdefghi",
                    help="which SETTINGS (letters a-h, default all)")
     p.add_argument("--no-faults", action="store_true")
     p.add_argument("--out", type=Path)
@@ -276,9 +281,10 @@ def main(argv=None) -> int:
     for key in args.settings:
         label, opts, with_faults = SETTINGS[key]
         st = R.Settings(**opts)
+        rows_text = "3 rows (the third the height)" if st.height else f"{st.rows} rows"
         lines += ["", f"### ({key}) {label}", "",
                   f"Grade: residual gyro bias {st.gyro_bias_deg_h:g} deg/h, accelerometer bias "
-                  f"{st.accel_bias:g} m/s²; {st.rows} rows, vertical {st.vertical}; reference "
+                  f"{st.accel_bias:g} m/s²; {rows_text}, vertical {st.vertical}; reference "
                   f"±{st.contract.ref_half * R.GT_DT:g} s central differences every "
                   f"{st.contract.ref_every * R.GT_DT:g} s, INS shape "
                   f"{'on' if st.contract.ref_ins_shape else 'off'}; the decision's model-error "

@@ -26,11 +26,12 @@ def _num(x: Any) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else float(x)
 
 
-def in_flight(fwd: Any) -> dict:
-    """The ``in_flight`` section of a forward pass (core.ins3d.filter.Ins3dForward)."""
+def in_flight(fwd: Any, row_names: tuple[str, ...] = ROW_NAMES) -> dict:
+    """The ``in_flight`` section of a forward pass (core.ins3d.filter.Ins3dForward; its rows
+    named ``row_names``)."""
     alarms = ForwardResult.alarms(SimpleNamespace(t=fwd.t_ref, alarm_state=fwd.alarm,
                                                   beta2=fwd.beta2))
-    rows = ROW_NAMES[:fwd.beta2_row.shape[1]]
+    rows = row_names[:fwd.beta2_row.shape[1]]
     return {
         "gate_threshold": float(fwd.threshold),
         "exceed_fraction": float(np.mean(fwd.exceeded)) if fwd.beta2.size else 0.0,
@@ -58,7 +59,8 @@ def forward_only_post_flight(inf: dict) -> dict:
 def ins3d_result(analysis: Any, bag: str, source: dict | None = None) -> dict:
     """The whole result of one 3-D analysis (core.ins3d.analysis.Ins3dAnalysis)."""
     fwd = analysis.forward
-    inf = in_flight(fwd)
+    height = bool(getattr(analysis.model, "height_row", False))
+    inf = in_flight(fwd, ("east", "north", "height") if height else ROW_NAMES)
     post = analysis.post_flight_dict() if getattr(analysis, "seed", None) is not None \
         else forward_only_post_flight(inf)
     rows = fwd.beta2_row.shape[1]
@@ -66,7 +68,7 @@ def ins3d_result(analysis: Any, bag: str, source: dict | None = None) -> dict:
         "schema": SCHEMA_ID,
         "model": MODEL_NAME,
         "bag": str(bag),
-        "channel": "enu" if rows == 3 else "en",
+        "channel": "en_height" if height else "enu" if rows == 3 else "en",
         "duration_s": float(fwd.t[-1] - fwd.t[0]) if fwd.t.size else 0.0,
         "samples": int(fwd.beta2.size),
         "in_flight": inf,

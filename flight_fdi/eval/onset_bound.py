@@ -121,9 +121,8 @@ class Signatures:
         m = self.an.refs.t.size
         e, d, out = np.empty(m), np.empty(m), np.empty((m, self.rows))
         m_ = self.an.model
-        signature_series(*self.args, np.ascontiguousarray(self.an.refs.a), m_.il,
-                         m_.im if m_.n_markov else 0, self.rows, self.fwd.Ks, self.fwd.S_inv,
-                         self.fwd.nu, int(k0), tau, e, d, out)
+        signature_series(*self.args, np.ascontiguousarray(self.an.refs.a), *m_.row_args(),
+                         self.fwd.Ks, self.fwd.S_inv, self.fwd.nu, int(k0), tau, e, d, out)
         return out / sB[col]
 
     def boundary(self, t_s: float) -> int:

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..bagio.ins3d_input import Ins3dInput, build_input
 from ..core.earth import radii
+from ..core.ins3d.data import with_height
 from ..core.ins3d.grades import DEG_H, DEG_RTH, ImuGrade
 from ..core.rotation import dcm_array
 from .errors import EvalError
@@ -233,6 +234,9 @@ class Contract:
     ref_ins_shape: bool = True
     ref_sigma_h: float = 0.06      # m/s, horizontal RTK-differenced velocity noise (1 sigma)
     ref_sigma_u: float = 0.10      # m/s, up: Down quantised to 0.1 m in the files
+    #: a height reference row: the files' barometric height (Down, 0.1-m steps) at the
+    #: reference stamps, white with this sigma (m); None: no height row
+    height_sigma: float | None = None
 
 
 def initial_state(gt: dict[str, np.ndarray]):
@@ -294,10 +298,13 @@ def contract_arrays(rec: Recording, bg: np.ndarray, ba: np.ndarray,
             mechanize_recording(reference_of, bg, ba)[:2]
         vr = vr + _span_shape(t_s, nav_s.v, tr, cfg.ref_half * GT_DT)
     r = np.array([cfg.ref_sigma_h**2, cfg.ref_sigma_h**2, cfg.ref_sigma_u**2])
-    return {"t_imu": t[idx], "q": nav.q[idx], "f_b": fm, "w_b": wm, "t_vel": t[idx],
-            "v": nav.v[idx], "t_fix": t[idx], "lat": nav.lat[idx], "h": nav.h[idx],
-            "t_ref": tr[inside], "v_ref": vr[inside],
-            "r_ref": np.broadcast_to(r, vr[inside].shape), "lon": nav.lon[idx]}
+    out = {"t_imu": t[idx], "q": nav.q[idx], "f_b": fm, "w_b": wm, "t_vel": t[idx],
+           "v": nav.v[idx], "t_fix": t[idx], "lat": nav.lat[idx], "h": nav.h[idx],
+           "t_ref": tr[inside], "v_ref": vr[inside],
+           "r_ref": np.broadcast_to(r, vr[inside].shape), "lon": nav.lon[idx]}
+    if cfg.height_sigma is not None:
+        out["h_ref"] = np.interp(tr[inside], rec.gt["time"], -rec.gt["down"])
+    return out
 
 
 def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
@@ -307,7 +314,12 @@ def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
     ``reference_of``: ``contract_arrays``)."""
     a = contract_arrays(rec, bg, ba, cfg, reference_of)
     a.pop("lon")
-    return build_input(**a)
+    h_ref = a.pop("h_ref", None)
+    inp = build_input(**a)
+    if h_ref is not None:            # the third row: the barometric height (m)
+        inp.refs = with_height(inp.refs, a["t_fix"], a["h"], a["v"][:, 2], h_ref,
+                               cfg.height_sigma**2)
+    return inp
 
 
 def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str | Path,
@@ -327,6 +339,9 @@ def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str
     from ..bagio.writer import open_writer
     settings = settings or Settings()
     cfg = cfg or settings.contract
+    if cfg.height_sigma is not None:
+        raise EvalError("write_contract_bag: the contract's topics carry no height reference "
+                        "(Contract.height_sigma must be None)")
     a = contract_arrays(rec, bg, ba, cfg)
 
     def ns(t):
@@ -354,7 +369,8 @@ def error_model_of(settings: "Settings") -> dict:
     """The bag description's ``error_model`` block of ``settings`` (``analyze``'s model options:
     vertical channel, latency state, no reference Markov noise, the prior)."""
     return {"vertical": settings.vertical, "latency": bool(settings.latency),
-            "reference_markov": None,
+            "reference_markov": None if settings.ref_markov is None else
+            [float(v) for v in settings.ref_markov],
             "initial_attitude": "levelled" if settings.aligned_prior else "independent"}
 
 
@@ -392,6 +408,17 @@ class Settings:
     #: levelled INS (``Ins3dModel.p0_aligned``: the tilt cancels the horizontal accelerometer
     #: bias), the default before
     aligned_prior: bool = False
+    #: the initial vertical velocity error's sigma (m/s; None: the horizontal 0.05): the first
+    #: GT velocity is a fit to 0.1-m height steps (errors up to ~1 m/s against the height)
+    v0_sigma_up: float | None = None
+    #: the reference's Markov noise (sigma_h m/s, sigma_v, tau s; sigma_v in m for a height row,
+    #: ``Ins3dModel.ref_markov``); None: white
+    ref_markov: tuple[float, float, float] | None = None
+
+    @property
+    def height(self) -> bool:
+        """A height reference row (``Contract.height_sigma``): 3 rows, the position states."""
+        return self.contract.height_sigma is not None
 
     def grade(self) -> ImuGrade:
         return xsens_grade(self.gyro_bias_deg_h * DEG_H, self.accel_bias,
@@ -414,9 +441,11 @@ def analyze(rec: Recording, bg: np.ndarray, ba: np.ndarray, settings: Settings =
     from ..core.ins3d.analysis import analyze_ins3d
     inp = build_contract(rec, bg, ba, settings.contract, reference_of)
     options = error_model_options({ERROR_MODEL: error_model_of(settings)}, "real3d.Settings")
-    return analyze_ins3d(inp.steps, inp.refs, grade=settings.grade(), rows=settings.rows,
-                         diagnosis=settings.diagnosis(),
-                         signature_error=settings.signature_error, **options)
+    height = {"rows": 3, "position": True, "height_row": True} if settings.height else \
+        {"rows": settings.rows}
+    return analyze_ins3d(inp.steps, inp.refs, grade=settings.grade(),
+                         diagnosis=settings.diagnosis(), signature_error=settings.signature_error,
+                         v0_sigma_up=settings.v0_sigma_up, **height, **options)
 
 
 def fault_runs(data_dir: Path, cal: Calibration, names: list[str], units: list[int],

@@ -49,7 +49,7 @@ def signature_error(rec: Recording, fault: Fault, bg: np.ndarray, ba: np.ndarray
     that decides)."""
     a1, a0 = analyze(fault.apply(rec), bg, ba, settings), analyze(rec, bg, ba, settings)
     name = f"{fault.sensor}_{fault.axis}_step"
-    h = next(x for x in hypotheses(a1.model.rows) if x.name == name)
+    h = next(x for x in hypotheses(a1.model.rows, a1.model.height_row) if x.name == name)
     t_on = float(rec.t[0] + fault.onset_s)
     one = np.ones(1)
     cv = GlrCurve(h, np.array([t_on]), one, np.array([fault.magnitude]), one)

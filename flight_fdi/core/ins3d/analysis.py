@@ -20,7 +20,7 @@ from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .defaults import ANALYZE_DEFAULTS as _DEFAULTS
 from .filter import Ins3dForward, run_forward
-from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate
+from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, ref_axes
 from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade, signature_error_of
 from .grades import ImuGrade
 from .model import IBA, IBG, IPHI, Ins3dModel
@@ -68,7 +68,7 @@ class Ins3dAnalysis:
         """Plain numbers for reports and JSON."""
         f = self.forward
         raised = f.t_ref[f.alarm == ALARM_RAISED]
-        names = ("east", "north", "up")[:self.model.rows]
+        names = ref_axes(self.model.height_row)[:self.model.rows]
         out = {
             "model": "ins3d", "grade": self.model.grade.name, "states": list(self.model.names),
             "updates": int(f.beta2.size), "beta2_mean": float(f.beta2.mean()),
@@ -164,7 +164,9 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                   diagnosis: DiagnosisConfig | None = None,
                   with_observability: bool = True,
                   loop: VerticalLoop | None = None,
-                  signature_error: float | None = None) -> Ins3dAnalysis:
+                  signature_error: float | None = None,
+                  height_row: bool = False,
+                  v0_sigma_up: float | None = None) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
     simulated flight). ``grade``: an ImuGrade, a preset name or a YAML grade file
     (``grade_file.resolve_grade``). ``max_dt``: the steps are merged onto the reference grid, at
@@ -176,6 +178,9 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     ``signature_error``: the relative error of the model's fault signatures on this kind of
     flight, which a confident isolation must leave room for (``glr3d.settle``; default the
     grade's: a grade file's ``signature_error_rad``, else its axis misalignment).
+    ``height_row``: the third reference row is a height reference (``data.with_height``; needs
+    ``rows=3`` and ``position=True``); ``v0_sigma_up``: the initial vertical velocity error's
+    sigma (m/s) of a free vertical channel (default: the horizontal ones').
     ``diagnosis``: the seed method's rules (default ``grade_file.diagnosis_config_of`` the
     grade: a grade file's ``seed_episode_probability``, else ``DiagnosisConfig()``)."""
     if vertical == "loop" and steps.t.size:
@@ -183,7 +188,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
         loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))
     model = Ins3dModel.from_grade(resolve_grade(grade), position=position, rows=rows,
                                   vertical=vertical,
-                                  latency=latency, ref_markov=ref_markov, loop=loop)
+                                  latency=latency, ref_markov=ref_markov, loop=loop,
+                                  height_row=height_row, v0_sigma_up=v0_sigma_up)
     if refs.t.size == 0:
         raise CoreError("ins3d analysis: no reference update inside the INS record")
     order = np.argsort(refs.step, kind="stable")

@@ -249,7 +249,7 @@ def _write_faults(j0, j1, zeta, Om, eta_o, I_o):
 
 
 @njit(cache=True, nogil=True)
-def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il, im, rows,
+def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il, im, rows, hu,
                    x_pr, P_pr, K_pr, Si_pr, nu, rank_tol, out, eta_o, I_o, state, k, j1, part,
                    kb, jb, lam_b, Lam_b):
     """The backward sweep (module docstring) from boundary k down (``j1``: the first update
@@ -283,9 +283,9 @@ def backward_sweep(C, f_n, v, lat, h, dt, tt, kp, s, sB, ref_step, z, r, acc, il
             if keep and count == kb.size:
                 break
             for j in range(j1 - 1, j0 - 1, -1):
-                _adjoint_update(lam, Lam, zeta, Z, Om, scaled_H(s, acc[j], il, im, rows),
+                _adjoint_update(lam, Lam, zeta, Z, Om, scaled_H(s, acc[j], il, im, rows, hu),
                                 K_pr[j], Si_pr[j], nu[j], sB, M, KtM, KtZ, Kl, Snu, faults)
-            if comb and not combine_boundary(j0, j1, lam, Lam, s, acc, il, im, rows, z, r,
+            if comb and not combine_boundary(j0, j1, lam, Lam, s, acc, il, im, rows, hu, z, r,
                                              x_pr, P_pr, rank_tol, out, work):
                 return k, j1, count, k
             if keep:

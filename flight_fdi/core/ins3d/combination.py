@@ -99,7 +99,7 @@ def combination_scratch(n, rows):
 
 
 @njit(cache=True)
-def combine_boundary(j0, j1, lam, Lam, s, acc, il, im, rows, z, r, x_pr, P_pr, rank_tol, out,
+def combine_boundary(j0, j1, lam, Lam, s, acc, il, im, rows, hu, z, r, x_pr, P_pr, rank_tol, out,
                      work):
     """The combination at the boundary of the updates j0 .. j1-1 (scaled x_pr, P_pr: the
     forward prior; lam, Lam: the sweep's there) into the rows j0 .. j1-1 of ``out`` = (x_s,
@@ -114,19 +114,19 @@ def combine_boundary(j0, j1, lam, Lam, s, acc, il, im, rows, z, r, x_pr, P_pr, r
     _write_combination(j0, j1, s, x_s, psd, vt, dd, x_s_o, sd_s_o, terms_o, dof_o, norm_o,
                        vt_o, d_o)
     for j in range(j0, j1):
-        _outliers(scaled_H(s, acc[j], il, im, rows), z[j], r[j], x_s, Pf, PW, oe_o[j], oI_o[j],
+        _outliers(scaled_H(s, acc[j], il, im, rows, hu), z[j], r[j], x_s, Pf, PW, oe_o[j], oI_o[j],
                   HP, HPW)
     return True
 
 
 @njit(cache=True, nogil=True)
-def combine_kept(count, kb, jb, lam_b, Lam_b, s, acc, il, im, rows, z, r, x_pr, P_pr, rank_tol,
+def combine_kept(count, kb, jb, lam_b, Lam_b, s, acc, il, im, rows, hu, z, r, x_pr, P_pr, rank_tol,
                  out):
     """``combine_boundary`` at the ``count`` boundaries the sweep kept (``backward_sweep`` with
     ``part`` & 4). Returns the boundary where P_f is not positive definite, or -1."""
     work = combination_scratch(s.size, rows)
     for u in range(count):
-        if not combine_boundary(jb[u, 0], jb[u, 1], lam_b[u], Lam_b[u], s, acc, il, im, rows, z,
+        if not combine_boundary(jb[u, 0], jb[u, 1], lam_b[u], Lam_b[u], s, acc, il, im, rows, hu, z,
                                 r, x_pr, P_pr, rank_tol, out, work):
             return kb[u]
     return -1

@@ -16,6 +16,8 @@ mid-interval navigation values the time-varying F is built from:
 z = v_INS(t) - v_ref(t) (M, 3) ENU and its variance ``r`` (M, 3) per row; ``step`` (M,) is the
 index of the step boundary the update is applied at (the first boundary at or after the stamp);
 ``a`` (M, 3) the INS acceleration over the Earth at the stamps (the latency state's H column).
+With a height reference (``with_height``, ``Ins3dModel.height_row``) the third row is
+z = h_INS(t) - h_ref(t) (m), its variance m^2 and its ``a`` the INS vertical velocity.
 """
 from __future__ import annotations
 
@@ -101,6 +103,24 @@ def ref_rows(steps: NavSteps, t_ins: np.ndarray, v_ins: np.ndarray, t_ref: np.nd
     step = np.searchsorted(steps.t, t_ref - 1e-9 * np.maximum(1.0, np.abs(t_ref)), side="left")
     return RefRows(t_ref, v_i - v_ref, np.ascontiguousarray(r_ref), step.astype(np.int64), a_i)
 
+def with_height(refs: RefRows, t_ins: np.ndarray, h_ins: np.ndarray, v_up: np.ndarray,
+                h_ref: np.ndarray, r_h: float | np.ndarray) -> RefRows:
+    """``refs`` with the third row a height reference at the same stamps: z = h_INS(t) -
+    ``h_ref`` (M,) m, its variance ``r_h`` (m^2), and as its latency column the INS vertical
+    velocity ``v_up`` (a reference late by tau reports h(t - tau) ~ h(t) - v_U tau); INS values
+    linearly interpolated at the stamps."""
+    h_ref = np.asarray(h_ref, dtype=float)
+    r_h = np.broadcast_to(np.asarray(r_h, dtype=float), h_ref.shape)
+    if h_ref.shape != refs.t.shape:
+        raise CoreError(f"with_height: {h_ref.size} heights for {refs.t.size} reference stamps")
+    if not (np.all(np.isfinite(h_ref)) and np.all(np.isfinite(r_h)) and np.all(r_h > 0)):
+        raise CoreError("with_height: the heights must be finite and their variances > 0")
+    z, r, a = refs.z.copy(), refs.r.copy(), refs.a.copy()
+    z[:, 2] = np.interp(refs.t, t_ins, h_ins) - h_ref
+    r[:, 2] = r_h
+    a[:, 2] = np.interp(refs.t, t_ins, v_up)
+    return RefRows(refs.t, z, r, refs.step, a)
+
 
 @njit(cache=True)
 def _weighted_means(y, w, b, dt, out):
@@ -148,4 +168,4 @@ def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSte
     return coarse, RefRows(refs.t, refs.z, refs.r, step, refs.a)
 
 
-__all__ = ["NavSteps", "RefRows", "coarsen", "nav_steps", "ref_rows"]
+__all__ = ["NavSteps", "RefRows", "coarsen", "nav_steps", "ref_rows", "with_height"]

@@ -60,12 +60,14 @@ def propagate(x, P, C, f_n, v, lat, h, dt, bias, qc, ratio, inv_ss, F, Phi, Qd, 
 
 
 @njit(cache=True)
-def scaled_H(s, a, il, im, rows):
-    """H' = H T of one update: the velocity rows, the reference Markov states (im > 0) and the
-    latency column a_n (il >= 0)."""
+def scaled_H(s, a, il, im, rows, hu):
+    """H' = H T of one update: the velocity rows (the third one: state ``hu``, dv_U or, for a
+    height reference, the height error), the reference Markov states (im > 0) and the latency
+    column a (il >= 0: the rate of each row's quantity)."""
     Hs = np.zeros((rows, s.size))
     for i in range(rows):
-        Hs[i, i] = s[i]
+        c = hu if i == 2 else i
+        Hs[i, c] = s[c]
         if im > 0:
             Hs[i, im + i] = s[im + i]
         if il >= 0:
@@ -74,7 +76,7 @@ def scaled_H(s, a, il, im, rows):
 
 
 @njit(cache=True)
-def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o, K_o,
+def _update(x, P, s, z, r, a, il, im, rows, hu, thr, reject, j, nu_o, S_o, b2_o, b2r_o, exc_o, K_o,
             Si_o):
     """One reference update (scaled x, P; z, r physical); fills output row j (and the scaled
     gain K' = T^-1 K and S^-1 into K_o[j], Si_o[j] when they have that row; also of a
@@ -82,7 +84,7 @@ def _update(x, P, s, z, r, a, il, im, rows, thr, reject, j, nu_o, S_o, b2_o, b2r
     (= (I - K H) P (I - K H)' + K R K' for any K), computed in O(n^2 rows^2)."""
     n = x.size
     keep = K_o.shape[0] > j
-    Hs = scaled_H(s, a, il, im, rows)
+    Hs = scaled_H(s, a, il, im, rows, hu)
     HP = np.zeros((rows, n))
     mul_left(Hs, P, HP, False)
     A = np.empty((rows, 2 * rows))              # [S | I] -> [I | S^-1]
@@ -174,7 +176,7 @@ def _discretize_steps(C, f_n, v, lat, h, dt, bias, qc, ratio, inv_ss, k0, k1, Ph
 
 @njit(cache=True, nogil=True)
 def _forward(C, f_n, v, lat, h, dt, bias, qc, s, ratio, inv_ss, b0, b1, Phi_pre, Qd_pre, x, P,
-             j, ref_step, z, r, acc, il, im, rows, thr, reject, keep_cov, keep_prior, x_o, sd_o,
+             j, ref_step, z, r, acc, il, im, rows, hu, thr, reject, keep_cov, keep_prior, x_o, sd_o,
              nu_o, S_o, b2_o, b2r_o, exc_o, Ppost_o, xpr_o, Ppr_o, K_o, Si_o):
     """The boundaries b0 .. b1-1 (scaled x, P in place; j: the first update not yet fused;
     returns the next). Boundary k > 0 first takes step k-1: with its Phi', Qd' from Phi_pre,
@@ -201,7 +203,7 @@ def _forward(C, f_n, v, lat, h, dt, bias, qc, s, ratio, inv_ss, b0, b1, Phi_pre,
                     xpr_o[j, a] = x[a]
                     for b in range(n):
                         Ppr_o[j, a, b] = P[a, b]
-            _update(x, P, s, z[j], r[j], acc[j], il, im, rows, thr, reject, j, nu_o, S_o,
+            _update(x, P, s, z[j], r[j], acc[j], il, im, rows, hu, thr, reject, j, nu_o, S_o,
                     b2_o, b2r_o, exc_o, K_o, Si_o)
             if keep_cov:
                 for a in range(n):
@@ -349,7 +351,7 @@ def run_forward(model: Ins3dModel, steps: NavSteps, refs: RefRows,
     _filter(steps, model.kernel_params(), model.qc(), s, x0, P0,
             (refs.step[order], np.ascontiguousarray(refs.z[order]),
              white_variance(model, refs.r[order]), np.ascontiguousarray(refs.a[order]),
-             model.il, model.im if model.n_markov else 0, rows, thr, gate.action == "reject",
+             *model.row_args(), thr, gate.action == "reject",
              keep_cov, keep_prior, x_o, sd_o, nu, S, b2, b2r, exc, Pp, xpr, Ppr, Ks, Si),
             usable_threads() if threads is None else threads)
     return Ins3dForward(model.names, steps.t, x_o, sd_o, refs.t[order], nu, S, b2, b2r, exc,

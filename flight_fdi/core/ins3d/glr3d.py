@@ -56,6 +56,7 @@ from .backward import GROUP_START, REF
 
 IMU_AXES = ("x", "y", "z")
 REF_AXES = ("east", "north", "up")
+HEIGHT = "height"          # the third row of a height reference (m)
 AMBIGUITY_MARGIN = 2.0 * math.log(100.0)
 #: thresholds of the maximum GLR over the onsets per IMU grade and hypothesis kind
 #: (docs/ins3d.md, "Thresholds": calibrated on nominal simulated flights with scale factors,
@@ -176,17 +177,23 @@ class Hypothesis:
     def unit(self) -> str:
         return {("accelerometer", "step"): "m/s^2", ("accelerometer", "ramp"): "m/s^3",
                 ("gyro", "step"): "rad/s", ("gyro", "ramp"): "rad/s^2"}.get(
-            (self.sensor, self.kind), "m/s")
+            (self.sensor, self.kind), "m" if self.axis == HEIGHT else "m/s")
 
     @property
     def element(self) -> str:
         """The state (or measurement) element the hypothesis acts on."""
         if self.sensor == "reference":
-            return "dv_" + self.axis[0]
+            return "dp_u" if self.axis == HEIGHT else "dv_" + self.axis[0]
         return ("ba_" if self.sensor == "accelerometer" else "bg_") + self.axis
 
 
-def hypotheses(rows: int) -> list[Hypothesis]:
+def ref_axes(height_row: bool = False) -> tuple[str, str, str]:
+    """The reference rows' names: east, north and up, or height (``Ins3dModel.height_row``)."""
+    return (*REF_AXES[:2], HEIGHT) if height_row else REF_AXES
+
+
+def hypotheses(rows: int, height_row: bool = False) -> list[Hypothesis]:
+    axes = ref_axes(height_row)
     out = []
     for sensor, g in (("accelerometer", 0), ("gyro", 1)):
         for c, ax in enumerate(IMU_AXES):
@@ -194,11 +201,10 @@ def hypotheses(rows: int) -> list[Hypothesis]:
             out.append(Hypothesis(f"{sensor}_{ax}_ramp", sensor, ax, "ramp",
                                   GROUP_START[g] + 3 + c))
     for i in range(rows):
-        out.append(Hypothesis(f"reference_{REF_AXES[i]}_jump", "reference", REF_AXES[i], "jump",
-                              REF + i))
+        out.append(Hypothesis(f"reference_{axes[i]}_jump", "reference", axes[i], "jump", REF + i))
     for i in range(rows):
-        out.append(Hypothesis(f"reference_{REF_AXES[i]}_outliers", "reference", REF_AXES[i],
-                              "outliers", i))
+        out.append(Hypothesis(f"reference_{axes[i]}_outliers", "reference", axes[i], "outliers",
+                              i))
     return out
 
 
@@ -471,6 +477,6 @@ def resolved_time(t_upd: np.ndarray, gap: np.ndarray, margin: float = AMBIGUITY_
 
 __all__ = ["AMBIGUITY_MARGIN", "GlrCurve", "HYPOTHESIS_LENGTH_GROWTH",
            "HYPOTHESIS_THRESHOLDS_BY_GRADE", "Hypothesis", "IMU_AXES", "Isolation",
-           "PER_HYPOTHESIS", "REF_AXES", "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves",
-           "growth_of", "hypotheses", "isolate", "joint", "length_growth", "pair_glr",
+           "HEIGHT", "PER_HYPOTHESIS", "REF_AXES", "THRESHOLDS", "THRESHOLDS_BY_GRADE", "curves",
+           "growth_of", "hypotheses", "ref_axes", "isolate", "joint", "length_growth", "pair_glr",
            "resolved_time", "settle", "threshold_of", "thresholds_for"]

@@ -101,10 +101,19 @@ class Ins3dModel:
     latency_sigma_s: float = 0.05
     ref_markov: tuple[float, float, float] | None = None   # (sigma_h, sigma_v m/s, tau s)
     loop: VerticalLoop = VerticalLoop()      # the height loop of vertical="loop"
+    #: the third row is a height reference (z = h_INS - h_ref, m: the height error ``ih``),
+    #: not the vertical velocity
+    height_row: bool = False
+    #: the initial vertical velocity error's sigma (m/s) of a free or looped vertical channel
+    #: (None: ``p0``'s v_sigma; a damped channel's is ``sigma_vertical``)
+    v0_sigma_up: float | None = None
 
     def __post_init__(self) -> None:
         if self.rows not in (2, 3):
             raise CoreError(f"ins3d: the reference has 2 or 3 rows, got {self.rows!r}")
+        if self.height_row and (self.rows != 3 or self.ih < 0):
+            raise CoreError("ins3d: a height reference row needs rows=3 and a height state "
+                            "(position=True or vertical='loop')")
         if self.vertical not in VERTICAL:
             raise CoreError(f"ins3d: vertical must be one of {', '.join(VERTICAL)}, "
                             f"got {self.vertical!r}")
@@ -115,12 +124,16 @@ class Ins3dModel:
         if not (math.isfinite(self.tau_vertical_s) and self.tau_vertical_s > 0
                 and math.isfinite(self.sigma_vertical) and self.sigma_vertical > 0):
             raise CoreError("ins3d: the vertical channel's tau and sigma must be > 0")
+        if self.v0_sigma_up is not None and not (math.isfinite(self.v0_sigma_up)
+                                                 and self.v0_sigma_up > 0):
+            raise CoreError("ins3d: v0_sigma_up must be > 0")
 
     @classmethod
     def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2,
                    vertical: str = "damped", latency: bool = False,
                    ref_markov: tuple[float, float, float] | None = None,
-                   loop: VerticalLoop | None = None) -> "Ins3dModel":
+                   loop: VerticalLoop | None = None, height_row: bool = False,
+                   v0_sigma_up: float | None = None) -> "Ins3dModel":
         if isinstance(name, ImuGrade):
             grade = name
         elif name in GRADES:
@@ -129,7 +142,7 @@ class Ins3dModel:
             raise CoreError(f"ins3d: unknown IMU grade {name!r}; choose one of "
                             f"{', '.join(GRADES)}")
         return cls(grade, position, rows, vertical, latency=latency, ref_markov=ref_markov,
-                   loop=loop or VerticalLoop())
+                   loop=loop or VerticalLoop(), height_row=height_row, v0_sigma_up=v0_sigma_up)
 
     @property
     def n(self) -> int:
@@ -162,6 +175,21 @@ class Ins3dModel:
     def il(self) -> int:
         """Index of the latency state (-1: none)."""
         return self.n - 1 if self.latency else -1
+
+    @property
+    def hu(self) -> int:
+        """The state the third row measures: dv_U, or the height error (``height_row``)."""
+        return self.ih if self.height_row else IV + 2
+
+    @property
+    def row_states(self) -> tuple[int, int, int]:
+        """The state each reference row (east, north, third) measures (the first ``rows``)."""
+        return IV, IV + 1, self.hu
+
+    def row_args(self) -> tuple[int, int, int, int]:
+        """The kernels' row arguments (il, im, rows, hu): latency state (-1: none), first
+        reference Markov state (0: none), rows, the third row's state (``scaled_H``)."""
+        return self.il, self.im if self.n_markov else 0, self.rows, self.hu
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -246,6 +274,8 @@ class Ins3dModel:
         p[IV:IV + 3] = v_sigma**2
         if self.vertical == "damped":
             p[IV + 2] = self.sigma_vertical**2
+        elif self.v0_sigma_up is not None:
+            p[IV + 2] = self.v0_sigma_up**2
         p[IPHI:IPHI + 3] = np.square(phi_sigma)
         p[IBA:IBA + 3] = max(sa, 1e-7) ** 2
         # the body z accelerometer carries ~1 g: its scale-factor error (not a state) is a
@@ -287,9 +317,10 @@ class Ins3dModel:
 
     def H(self, a_n: np.ndarray | None = None) -> np.ndarray:
         """The measurement matrix; with the latency state its column is the INS acceleration
-        a_n at the update (the reference reports v(t - latency) ~ v(t) - a_n latency)."""
+        a_n at the update (the reference reports v(t - latency) ~ v(t) - a_n latency; a height
+        row's entry is the vertical velocity)."""
         h = np.zeros((self.rows, self.n))
-        h[:, :self.rows] = np.eye(self.rows)
+        h[np.arange(self.rows), self.row_states[:self.rows]] = 1.0
         if self.ref_markov:
             h[:, self.im:self.im + self.rows] = np.eye(self.rows)
         if self.latency:

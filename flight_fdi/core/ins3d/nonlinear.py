@@ -157,7 +157,7 @@ def corrected(model: Ins3dModel, steps: NavSteps, refs: RefRows, sensor: str, ax
     h = steps.h - xm[:, model.ih] if model.ih >= 0 else steps.h
     out = NavSteps(steps.t, steps.dt, np.ascontiguousarray(Cc), f_c,
                    steps.w_b - (u if gyro else 0.0), steps.v - xm[:, IV:IV + 3], steps.lat, h)
-    z = refs.z - x[refs.step, IV:IV + 3]
+    z = refs.z - x[refs.step][:, model.row_states]
     return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a)
 
 

@@ -31,7 +31,7 @@ from .sparse import mul_left
 
 
 @njit(cache=True, nogil=True)
-def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, im, rows, report_step, W_o):
+def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, im, rows, hu, report_step, W_o):
     n = s.size
     F = np.empty((n, n))
     Phi = np.empty((n, n))
@@ -52,7 +52,7 @@ def _gramian(C, f_n, v, lat, h, dt, kp, s, ref_step, r, acc, il, im, rows, repor
             mul_left(Phi, M, M2, False)
             M[:, :] = M2
         while j < ref_step.size and ref_step[j] == k:
-            HM = scaled_H(s, acc[j], il, im, rows) @ M
+            HM = scaled_H(s, acc[j], il, im, rows, hu) @ M
             for i in range(rows):
                 w = 1.0 / r[j, i]
                 for a in range(n):
@@ -99,8 +99,7 @@ def observability(model: Ins3dModel, steps: NavSteps, refs: RefRows, every_s: fl
     order = np.argsort(refs.step, kind="stable")
     _gramian(steps.C, steps.f_n, steps.v, steps.lat, steps.h, steps.dt,
              model.kernel_params(), s, refs.step[order], white_variance(model, refs.r[order]),
-             np.ascontiguousarray(refs.a[order]), model.il, model.im if model.n_markov else 0,
-             model.rows, rep.astype(np.int64), W)
+             np.ascontiguousarray(refs.a[order]), *model.row_args(), rep.astype(np.int64), W)
     prior = np.eye(n)
     if P0 is not None:
         Si = np.diag(1.0 / s)

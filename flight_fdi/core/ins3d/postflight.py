@@ -140,12 +140,11 @@ def _sweep_args(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFor
     eta, I3 = np.empty((m, sB.size)), np.zeros((m, 3, 6, 6))
     z, r, a = np.ascontiguousarray(refs.z), white_variance(model, refs.r), \
         np.ascontiguousarray(refs.a)
-    im = model.im if model.n_markov else 0
-    sweep = (*args[:8], *args[9:], z, r, a, model.il, im, rows, fwd.xs_prior, fwd.Ps_prior,
+    sweep = (*args[:8], *args[9:], z, r, a, *model.row_args(), fwd.xs_prior, fwd.Ps_prior,
              fwd.Ks, fwd.S_inv, np.ascontiguousarray(nu), rank_tol, out, eta, I3,
              (np.zeros(n), np.zeros((n, n)), np.zeros(sB.size), np.zeros((n, sB.size)),
               np.zeros((sB.size, sB.size))))
-    combine = (args[9], a, model.il, im, rows, z, r, fwd.xs_prior, fwd.Ps_prior, rank_tol, out)
+    combine = (args[9], a, *model.row_args(), z, r, fwd.xs_prior, fwd.Ps_prior, rank_tol, out)
     return sweep, combine, out, eta, I3
 
 
@@ -217,7 +216,7 @@ def glr_curves(model: Ins3dModel, steps: NavSteps, bwd: Ins3dBackward,
     """The GLR curves of every hypothesis over the onsets; ``eta``, ``I3`` (at the onsets):
     other information than the sweep's (``turn_on``: conditional on faults taken as present)."""
     at = bwd.at_onsets
-    return curves(hypotheses(model.rows), at(bwd.t), float(steps.t[0]),
+    return curves(hypotheses(model.rows, model.height_row), at(bwd.t), float(steps.t[0]),
                   float(steps.t[-1] - steps.t[0]), at(bwd.eta) if eta is None else eta,
                   at(bwd.I3) if I3 is None else I3, bwd.sB, bwd.t, bwd.oe, bwd.oI)
 
@@ -242,9 +241,8 @@ def signature(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForwa
     m = refs.t.size
     e, d, rho = np.zeros(m), np.zeros(m), np.zeros((m, model.rows))
     tau = direction(model, cv, float(steps.t[0]), float(steps.t[-1] - steps.t[0]))
-    signature_series(*args, np.ascontiguousarray(refs.a), model.il,
-                     model.im if model.n_markov else 0, model.rows, fwd.Ks, fwd.S_inv, fwd.nu,
-                     k0, tau, e, d, rho)
+    signature_series(*args, np.ascontiguousarray(refs.a), *model.row_args(), fwd.Ks, fwd.S_inv,
+                     fwd.nu, k0, tau, e, d, rho)
     return e, d, rho
 
 

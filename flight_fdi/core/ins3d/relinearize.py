@@ -118,7 +118,7 @@ def relinearized_input(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                  np.ascontiguousarray(x[:, IPHI:IPHI + 3]), np.ascontiguousarray(x[:, IV:IV + 3]),
                  model.kernel_params(), Cc, fc, w)
     out = NavSteps(steps.t, steps.dt, Cc, fc, steps.w_b, steps.v, steps.lat, steps.h)
-    z = refs.z - w[refs.step, IV:IV + 3]
+    z = refs.z - w[refs.step][:, model.row_states]
     return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a), w
 
 

@@ -25,16 +25,16 @@ from .sparse import row_pattern
 
 
 @njit(cache=True, nogil=True)
-def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows,
+def signature_stats(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows, hu,
                     K_pr, Si_pr, nu, k0, tau, e_o, d_o):
     """Cumulative e and d (module docstring) at every update j (0 before the onset); K_pr,
     Si_pr: the forward filter's scaled gains and S^-1 (``Ins3dForward.Ks``, ``S_inv``)."""
-    signature_series(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows,
+    signature_series(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows, hu,
                      K_pr, Si_pr, nu, k0, tau, e_o, d_o, np.empty((0, rows)))
 
 
 @njit(cache=True, nogil=True)
-def signature_series(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows,
+def signature_series(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il, im, rows, hu,
                      K_pr, Si_pr, nu, k0, tau, e_o, d_o, rho_o):
     """``signature_stats``, and the signature rho_j itself (m/s per scaled unit of tau) into
     ``rho_o`` (M, rows) when it has M rows (0 before the onset; an empty ``rho_o``: not kept)
@@ -61,7 +61,7 @@ def signature_series(C, f_n, v, lat, h, dt, tt, kp, qc, s, sB, ref_step, acc, il
         j += 1
     for k in range(k0, dt.size + 1):
         while j < m and ref_step[j] == k:
-            Hs = scaled_H(s, acc[j], il, im, rows)
+            Hs = scaled_H(s, acc[j], il, im, rows, hu)
             for i in range(rows):               # rho = H mu + D tau
                 r_i = sB[REF + i] * tau[REF + i]
                 for b in range(n):

@@ -89,7 +89,7 @@ class Ins3dStream:
         r_white = white_variance(m, np.asarray(r, dtype=float)[None, :])[0]
         nu, S, b2, b2r, exc = self._out
         _update(self._x, self._P, self.s, np.asarray(z, dtype=float), r_white,
-                np.asarray(a, dtype=float), m.il, m.im if m.n_markov else 0, m.rows,
+                np.asarray(a, dtype=float), *m.row_args(),
                 self.threshold, self.gate.action == "reject", 0, nu, S, b2, b2r, exc,
                 *self._no_gain)
         exceeded = bool(exc[0])

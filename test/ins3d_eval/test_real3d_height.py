@@ -1,0 +1,48 @@
+"""The real excerpt (Xsens DOT unit 1 of straight/path_2) with the recording's barometric height
+as a third reference row (``real3d.Contract.height_sigma``, setting (i) of
+tools/ins3d_real_eval.py; docs/ins3d_real.md "A height reference row"): the vertical
+accelerometer, invisible to the two horizontal rows on a straight leg, is named, and the
+along-track accelerometer is told from it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from flight_fdi.eval import real3d as R
+from flight_fdi.eval.errors import EvalError
+
+#: setting (i): the DJI height (0.1-m steps) white 0.05 m plus a 0.4-m, 5-s Markov error
+HEIGHT = R.Settings(contract=R.Contract(height_sigma=float(np.hypot(0.05, 0.4))),
+                    v0_sigma_up=1.0, ref_markov=(1e-3, 0.4, 5.0))
+
+
+def test_nominal_with_the_height_row(rec, cal):
+    a = R.analyze(rec, *cal, HEIGHT)
+    out = R.record(a)
+    assert out["verdict"] == "no_fault" and R.judge(out, None) == "none"
+    assert set(out["beta2_rows"]) == {"east", "north", "height"}
+    assert out["beta2_rows"]["height"] < 1.5
+    assert a.model.height_row and a.model.position
+
+
+def test_vertical_accelerometer_named_only_with_the_height_row(rec, cal):
+    fault = R.Fault("accelerometer", "z", 1.0, 6.0)
+    faulty = fault.apply(rec)
+    without = R.record(R.analyze(faulty, *cal, reference_of=rec))
+    assert R.judge(without, fault) == "none"          # measured: nothing above threshold
+    out = R.record(R.analyze(faulty, *cal, HEIGHT, reference_of=rec))
+    assert R.judge(out, fault) == "right", out
+    assert abs(out["onset_s"] - 6.0) <= 1.0 and abs(out["magnitude"] - 1.0) < 0.1
+
+
+def test_the_height_row_tells_the_along_track_accelerometer_from_the_vertical(rec, cal):
+    # without it: ambiguous between x and z (test_real3d.py, the 15-deg nose-down airframe)
+    fault = R.Fault("accelerometer", "x", 1.0, 6.0)
+    out = R.record(R.analyze(fault.apply(rec), *cal, HEIGHT, reference_of=rec))
+    assert R.judge(out, fault) == "right", out
+    assert abs(out["magnitude"] - 1.0) < 0.15
+
+
+def test_the_contract_bag_has_no_height_topic(rec, cal, tmp_path):
+    with pytest.raises(EvalError, match="no height reference"):
+        R.write_contract_bag(rec, *cal, tmp_path / "bag", cfg=HEIGHT.contract)
