@@ -49,7 +49,8 @@ from flight_fdi.bagio.ins3d_input import from_flight  # noqa: E402
 from flight_fdi.core.ins3d.analysis import analyze_ins3d  # noqa: E402
 from flight_fdi.core.ins3d.data import RefRows  # noqa: E402
 from flight_fdi.core.ins3d.filter import scaled_H, white_variance  # noqa: E402
-from flight_fdi.core.ins3d.model import Ins3dModel, discretize, fill_F  # noqa: E402
+from flight_fdi.core.ins3d.model import Ins3dModel  # noqa: E402
+from flight_fdi.core.ins3d.dynamics import discretize, fill_F  # noqa: E402
 from flight_fdi.core.threads import ENV  # noqa: E402
 from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d  # noqa: E402
 from flight_fdi.sim.trajectory import TrajectoryConfig  # noqa: E402

@@ -13,7 +13,8 @@ from flight_fdi.core.ins3d.analysis import analyze_ins3d
 from flight_fdi.core.ins3d.backward import ACC_A, ACC_R, GYR_A, GYR_R, fault_gamma
 from flight_fdi.core.ins3d.data import RefRows, coarsen
 from flight_fdi.core.ins3d.filter import run_forward, white_variance
-from flight_fdi.core.ins3d.model import IBA, IBG, IPHI, IV, Ins3dModel, discretize, fill_F
+from flight_fdi.core.ins3d.model import IBA, IBG, IPHI, IV, Ins3dModel
+from flight_fdi.core.ins3d.dynamics import discretize, fill_F
 
 from .conftest import flight
 

@@ -9,7 +9,8 @@ from filterpy.kalman import KalmanFilter
 from flight_fdi.bagio.ins3d_input import from_flight, truth_from_flight
 from flight_fdi.core.ins3d.data import RefRows
 from flight_fdi.core.ins3d.filter import run_forward, white_variance
-from flight_fdi.core.ins3d.model import Ins3dModel, discretize, fill_F
+from flight_fdi.core.ins3d.model import Ins3dModel
+from flight_fdi.core.ins3d.dynamics import discretize, fill_F
 from flight_fdi.core.kalman import GateConfig
 
 from .conftest import flight

@@ -9,8 +9,8 @@ from scipy.linalg import expm
 from flight_fdi.bagio.ins3d_input import from_flight, truth_from_flight
 from flight_fdi.core.errors import CoreError
 from flight_fdi.core.ins3d.data import nav_steps
-from flight_fdi.core.ins3d.model import (IBA, IBG, IPHI, IV, Ins3dModel, F_matrix, discretize,
-                                         gravity, propagate)
+from flight_fdi.core.ins3d.model import IBA, IBG, IPHI, IV, Ins3dModel, gravity
+from flight_fdi.core.ins3d.dynamics import F_matrix, discretize, propagate
 
 from .conftest import flight
 

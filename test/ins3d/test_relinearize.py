@@ -9,7 +9,8 @@ import pytest
 from flight_fdi.bagio.ins3d_input import from_flight, truth_from_flight
 from flight_fdi.core.ins3d import analysis
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
-from flight_fdi.core.ins3d.model import IPHI, IV, Ins3dModel, fill_F
+from flight_fdi.core.ins3d.model import IPHI, IV, Ins3dModel
+from flight_fdi.core.ins3d.dynamics import fill_F
 from flight_fdi.core.ins3d.relinearize import relinearized, remainder
 from flight_fdi.core.rotation import qdcm, qexp
 from flight_fdi.sim.ins3d import Sim3DConfig, simulate3d

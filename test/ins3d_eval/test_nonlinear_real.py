@@ -13,7 +13,8 @@ import pytest
 
 from flight_fdi.core.ins3d.analysis import initial_covariance
 from flight_fdi.core.ins3d.data import coarsen
-from flight_fdi.core.ins3d.model import IBA, IV, Ins3dModel, propagate
+from flight_fdi.core.ins3d.model import IBA, IV, Ins3dModel
+from flight_fdi.core.ins3d.dynamics import propagate
 from flight_fdi.core.ins3d.nonlinear import corrected, neg2_log_likelihood
 from flight_fdi.eval import real3d as R
 

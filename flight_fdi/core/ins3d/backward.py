@@ -74,7 +74,8 @@ from numba import njit
 
 from .combination import combination_scratch, combine_boundary
 from .filter import scaled_H
-from .model import IBA, IBG, IPHI, IV, fill_F, transition
+from .model import IBA, IBG, IPHI, IV
+from .dynamics import fill_F, transition
 from .sparse import congruence, mul_pattern, row_pattern
 
 #: columns of the fault vector b: accelerometer a (x, y, z), r (x, y, z), gyro a, r, then one

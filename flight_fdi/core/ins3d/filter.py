@@ -1,8 +1,8 @@
 """Forward Kalman filter on the time-varying ins3d model, with the beta^2 gate.
 
 One numba kernel (``_forward``, ``njit(cache=True)``) runs the whole flight: per propagation step
-k the continuous F is built from the navigation solution (``model.fill_F``), discretised at the
-step's dt (``model.discretize``), scaled, and the prediction x = Phi x, P = Phi P Phi' + Q is
+k the continuous F is built from the navigation solution (``dynamics.fill_F``), discretised at the
+step's dt (``dynamics.discretize``), scaled, and the prediction x = Phi x, P = Phi P Phi' + Q is
 taken (loops that skip the zeros of Phi); at the step boundaries that carry reference messages
 the update follows (Joseph form, expanded: O(n^2) for the 2-3 rows)::
 
@@ -28,7 +28,8 @@ from ..information import solve
 from ..kalman import GateConfig, alarm_states
 from ..threads import usable_threads
 from .data import NavSteps, RefRows
-from .model import Ins3dModel, discretize, fill_F
+from .model import Ins3dModel
+from .dynamics import discretize, fill_F
 from .sparse import congruence, mul_left, row_pattern
 
 
@@ -50,8 +51,8 @@ def _scale(Phi, Qd, ratio, inv_ss):
 
 @njit(cache=True)
 def propagate(x, P, C, f_n, v, lat, h, dt, bias, qc, ratio, inv_ss, F, Phi, Qd, T, xt, nz, cnt):
-    """One propagation step on the scaled state (in place): F of the step (``model.fill_F``),
-    Phi, Qd (``model.discretize``) scaled, x = Phi x, P = Phi P Phi' + Qd; F, Phi, Qd, T (n, n),
+    """One propagation step on the scaled state (in place): F of the step (``dynamics.fill_F``),
+    Phi, Qd (``dynamics.discretize``) scaled, x = Phi x, P = Phi P Phi' + Qd; F, Phi, Qd, T (n, n),
     xt (n), nz (n, n), cnt (n) scratch."""
     fill_F(F, C, f_n, v, lat, h, bias)
     discretize(F, dt, qc, Phi, Qd)

@@ -78,7 +78,8 @@ from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation
 from .postflight import run_backward
 from .relinearize import MAX_PASSES, relinearized
 from ..rotation import qdcm, qexp
-from .model import IV, Ins3dModel, fill_F, transition
+from .model import IV, Ins3dModel
+from .dynamics import fill_F, transition
 
 #: the attitude a named gyro fault may turn over the flight (rad, |b| (T - onset), a ramp
 #: |b| (T - onset)^2 / 2) before the decision is checked nonlinearly: the linear signature's

@@ -26,7 +26,8 @@ from numba import njit
 from ..errors import CoreError
 from .data import NavSteps, RefRows
 from .filter import scaled_H, white_variance
-from .model import Ins3dModel, fill_F, transition
+from .model import Ins3dModel
+from .dynamics import fill_F, transition
 from .sparse import mul_left
 
 

@@ -43,7 +43,8 @@ from numba import njit
 from ..earth import A, nav_rates
 from ..rotation import qdcm, qexp
 from .data import NavSteps, RefRows
-from .model import IPHI, IV, Ins3dModel, fill_F, transition
+from .model import IPHI, IV, Ins3dModel
+from .dynamics import fill_F, transition
 
 #: the first pass's largest smoothed attitude error (rad, vector norm) above which the model
 #: is relinearised (0.02 rad: g |phi|^2 / 2 = 0.2 mg, a navigation-grade bias level)

@@ -20,7 +20,7 @@ from numba import njit
 
 from .backward import REF, fault_gamma
 from .filter import scaled_H
-from .model import fill_F
+from .dynamics import fill_F
 from .sparse import row_pattern
 
 
