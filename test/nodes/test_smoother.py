@@ -316,9 +316,11 @@ def test_missing_or_corrupt_bag_gives_an_error_result_not_a_crash(ros, flight, t
 
     validate_result(res)
     assert res["post_flight"]["verdict"] == "insufficient_data" and res["samples"] == 0
-    expected = {"missing": "does not exist", "garbage": "cannot be opened",
+    # (the recording is read raw, as the 3-D one: the damaged mcap file is named)
+    expected = {"missing": "does not exist", "garbage": "bag.mcap is truncated",
                 "no_model": "no topic /fdi/model", "empty_dir": "not a rosbag2 bag"}[case]
     assert expected in res["error"] and expected in node.last.error
+    assert "\n" not in res["error"]
     assert _diag_level(node) == b"\x02"  # ERROR
 
 
