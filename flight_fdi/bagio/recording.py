@@ -107,16 +107,12 @@ def read_recording(path: str | Path, channel: str = "x", state_topic: str = "/fd
 
 def _load(p: Path, channel: str, state_topic: str, model_topic: str
           ) -> tuple[Any, list[cdr.FilterStateRecord]]:
-    """(the channel's last ModelInfo, its FilterStates in bag order) of a recording."""
-    from .reader import open_bag, read_raw, require_topics
+    """(the channel's last ModelInfo, its FilterStates in bag order) of a recording, read raw
+    as :func:`~flight_fdi.bagio.recording3d.read_recording3d` reads (``read_topics_raw``: an
+    mcap bag without rosbags' Reader; a damaged one is one BagError line naming the file)."""
+    from .reader import read_topics_raw
 
-    reader = open_bag(p)  # (rosbags checks the files: a damaged one is named "cannot be opened")
-    try:
-        require_topics(p, {c.topic: c.msgtype for c in reader.connections},
-                       [model_topic, state_topic])
-        raw = read_raw(reader, p, {model_topic, state_topic})
-    finally:
-        reader.close()
+    raw = read_topics_raw(p, [model_topic, state_topic])
     info_msg = last_model_info(raw[model_topic].payloads, channel, f"bag '{p}': {model_topic}")
     if info_msg is None:
         raise BagError(f"bag '{p}': no ModelInfo for channel {channel!r} on {model_topic}")

@@ -2,7 +2,7 @@
 inputs into FilterState / ModelInfo messages, and :func:`read_recording3d`, which reads them back
 from a bag into the core's NavSteps / RefRows (raw CDR: ``cdr.decode_filter_state_columns``;
 ``smoother_node`` and ``flight-fdi report`` then run the analysis of ``flight-fdi analyze
---model ins3d``: ``nodes/ins3d_recording.py``).
+--model ins3d``: ``bagio/recording_analysis.py``).
 
 Channel ``ins3d``. ModelInfo: ``model_name`` ``ins3d/<grade>``, state names and units, the
 measurement rows, Qc (diagonal), H (without the latency column), P0 (the aligned prior), the

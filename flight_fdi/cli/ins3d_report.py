@@ -63,7 +63,7 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None,
     from flight_fdi.bagio.ins3d_input import truth_relative
     from flight_fdi.cli.report import written
     from flight_fdi.core.ins3d_result import ins3d_result
-    from flight_fdi.nodes.ins3d_recording import analyze_recording3d
+    from flight_fdi.bagio.recording_analysis import analyze_recording3d
     from flight_fdi.report.figures3d import write_report3d
 
     doc = doc or _load_result(folder / "result.json")

@@ -133,7 +133,7 @@ class SmootherRun:
     recording: Any = None        # flight_fdi.bagio.recording.Recording
     analysis: Any = None          # the core's AnalysisResult (fwd, bwd, seed, glr, ...)
     error: str = ""
-    #: channel ins3d: (Ins3dAnalysis, the recording's dict) (nodes.ins3d_recording)
+    #: channel ins3d: (Ins3dAnalysis, the recording's dict) (bagio.recording_analysis)
     ins3d: Any = None
 
 

@@ -3,8 +3,9 @@
 bag_player (the four contract topics) -> filter_node (``model: ins3d``) -> recorder_node ->
 smoother_node (``channel: ins3d``) on one executor, in the private context of
 ``pipeline.run_pipeline_detailed`` (nothing outside this process hears the replay). The smoother
-rebuilds the 3-D filter's inputs from the recording (``ins3d_recording``) and runs the analysis of
-``flight-fdi analyze --model ins3d``: the same verdict and numbers (test_ins3d_pipeline.py).
+rebuilds the 3-D filter's inputs from the recording and runs the analysis of ``flight-fdi
+analyze --model ins3d`` (``bagio.recording_analysis``): the same verdict and numbers
+(test_ins3d_pipeline.py).
 
 The player paces on ``fdi/state`` with a window of ``ACK_WINDOW`` messages: the ins3d filter
 looks ahead (a step waits for the next /ins/fix sample, 0.2 s at 5 Hz), so the window must cover

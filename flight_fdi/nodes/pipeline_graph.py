@@ -347,7 +347,7 @@ class Graph:
         ``bag`` (the input, as analyze names it) and ``extra`` added -- to ``result_json``.
         The PipelineRun keeps the smoother's run (its analysis: a report needs no second one)
         and ``read``, what the caller read of the input bag."""
-        from .smoother_node import write_json
+        from flight_fdi.core.recording import write_json
 
         self.spin_until(self.settled, "recording the filter's last outputs")
         replay_s = time.monotonic() - player.started_at

@@ -33,13 +33,9 @@ from typing import Any
 
 from rclpy.node import Node
 
-from flight_fdi.bagio.errors import BagError
-from flight_fdi.bagio.recording import Recording, read_recording  # noqa: F401 (re-exported)
+from flight_fdi.bagio.recording_analysis import smoother_run
 from flight_fdi.core.analysis import AnalysisConfig
-from flight_fdi.core.errors import CoreError
-from flight_fdi.core.recording import (  # noqa: F401 (re-exported for callers of the node)
-    SmootherRun, analysis_config, analyze_recording, decorrelated_residual, error_result,
-    measurement_of, model_from_info, summary_line, write_json)
+from flight_fdi.core.recording import SmootherRun, decorrelated_residual, summary_line, write_json
 
 from .errors import ParameterError
 from .params import ParamSpec, declare_parameters
@@ -63,7 +59,7 @@ SMOOTHER_PARAMS = (
               "recorded bag to analyse (recorder_node output); may be set at run time, then call "
               "~/analyze", read_only=False),
     ParamSpec("channel", "string", "x", "channel (velocity axis) to analyse; ins3d: a recording "
-              "of filter_node with model ins3d (nodes/ins3d_recording.py)",
+              "of filter_node with model ins3d (bagio/recording_analysis.py)",
               choices=("x", "y", "ins3d"), read_only=False),
     ParamSpec("output_json", "string", "",
               "write the JSON result here (empty = do not write)", read_only=False),
@@ -159,23 +155,10 @@ class SmootherNode(Node):
         input (the error is in the result and the diagnostics)."""
         p = self.params
         bag, channel = p["bag"], p["channel"]
-        run = SmootherRun(result={})
-        if channel == "ins3d":  # the 3-D model (nodes/ins3d_recording.py)
-            from .ins3d_recording import smoother_run3d
-            run = smoother_run3d(bag, p["state_topic"], p["model_topic"],
-                                 self.config.gate if self.config else None)
-        else:
-            try:
-                if not bag:
-                    raise BagError("no bag given (set the 'bag' parameter)")
-                rec = read_recording(bag, channel, p["state_topic"], p["model_topic"])
-                config = self.config or analysis_config(
-                    gate=rec.gate, fisher_window=p["fisher_window"],
-                    persistence_s=p["persistence_s"], glr_p_false_alarm=p["glr_false_alarm"])
-                run = analyze_recording(rec, config, p["flight_start_s"] or None,
-                                        bag_label=bag)
-            except (BagError, CoreError) as exc:
-                run = SmootherRun(result=error_result(bag, channel, str(exc)), error=str(exc))
+        run = smoother_run(bag, channel, p["state_topic"], p["model_topic"], config=self.config,
+                           flight_start_s=p["flight_start_s"] or None,
+                           fisher_window=p["fisher_window"], persistence_s=p["persistence_s"],
+                           glr_p_false_alarm=p["glr_false_alarm"])
         self.runs += 1
         self.last = run
         rec = run.recording

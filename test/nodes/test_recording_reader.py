@@ -42,12 +42,12 @@ def _model_bytes(channel, model, gate):
     return bytes(store.serialize_cdr(T[MODEL](**fields), MODEL))
 
 
-def _record(path, steps, close=True, extra=()):
+def _record(path, steps, close=True, extra=(), storage="mcap"):
     """A recording of channel x (and one y state, which must be ignored): ``steps`` is a list of
     dicts with t_ns, z, R, H, reset."""
     model, gate = get_model("ins_channel"), GateConfig(alarm_m=2, alarm_n=4)
     rng = np.random.default_rng(4)
-    bag = RecordingBag(path, "mcap")
+    bag = RecordingBag(path, storage)
     bag.add_topic("/fdi/model", MODEL, [qos_dict(depth=1, durability="transient_local")])
     bag.add_topic("/fdi/state", STATE, [qos_dict()])
     bag.write("/fdi/model", T0, _model_bytes("x", model, gate))
@@ -128,3 +128,31 @@ def test_damaged_and_missing_content_are_clear_errors(tmp_path):
         read_recording(tmp_path / "ok", "y")
     with pytest.raises(BagError, match="no topic /other"):
         read_recording(tmp_path / "ok", "x", state_topic="/other")
+
+
+def test_an_mcap_recording_is_read_raw_and_sqlite3_gives_the_same(tmp_path, monkeypatch):
+    """One reader for both recordings (``read_topics_raw``): an mcap recording is read without
+    rosbags' Reader, a sqlite3 one through it, to the same arrays; a damaged file of either is
+    one BagError line naming the bag."""
+    import flight_fdi.bagio.reader as reader
+
+    steps = _steps(20)
+    _record(tmp_path / "mcap", steps)
+    _record(tmp_path / "sqlite3", steps, storage="sqlite3")
+    via_reader = read_recording(tmp_path / "sqlite3", "x")
+    opened: list = []
+    real = reader.open_bag
+    monkeypatch.setattr(reader, "open_bag", lambda p: opened.append(p) or real(p))
+    raw = read_recording(tmp_path / "mcap", "x")
+    assert opened == []                           # the mcap file scanned, no rosbags' Reader
+    for name in ("t", "dt", "z", "R", "H", "x", "P", "fused", "gated"):
+        np.testing.assert_array_equal(getattr(raw, name), getattr(via_reader, name))
+    assert raw.model.name == via_reader.model.name and raw.gate == via_reader.gate
+    read_recording(tmp_path / "sqlite3", "x")
+    assert opened == [tmp_path / "sqlite3"]
+    for storage in ("mcap", "sqlite3"):
+        (data,) = [f for f in (tmp_path / storage).iterdir() if f.suffix in (".mcap", ".db3")]
+        data.write_bytes(data.read_bytes()[:data.stat().st_size // 2])
+        with pytest.raises(BagError) as err:
+            read_recording(tmp_path / storage, "x")
+        assert f"bag '{tmp_path / storage}" in str(err.value) and "\n" not in str(err.value)

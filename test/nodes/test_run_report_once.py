@@ -67,13 +67,13 @@ def test_the_3d_run_reports_without_a_second_read_or_analysis(bag3d, tmp_path, m
                                                              capfd):
     import flight_fdi.bagio.reader
     import flight_fdi.core.ins3d.analysis
-    import flight_fdi.nodes.ins3d_recording
+    import flight_fdi.bagio.recording_analysis
 
     analyses: list = []
     recordings: list = []
     raw_reads: list = []
     _spy(monkeypatch, flight_fdi.core.ins3d.analysis, "analyze_ins3d", analyses)
-    _spy(monkeypatch, flight_fdi.nodes.ins3d_recording, "read_recording3d", recordings)
+    _spy(monkeypatch, flight_fdi.bagio.recording_analysis, "read_recording3d", recordings)
     _spy(monkeypatch, flight_fdi.bagio.reader, "read_topics_raw", raw_reads)
     out = tmp_path / "run"
     assert main(["run", str(bag3d), "--model", "ins3d", "--out", str(out),

@@ -142,7 +142,7 @@ def test_model_info_round_trip():
     from flight_fdi.core.kalman import GateConfig
     from flight_fdi.core.models import get_model
     from flight_fdi.nodes.convert import model_info_msg, s_to_stamp
-    from flight_fdi.nodes.smoother_node import model_from_info
+    from flight_fdi.core.recording import model_from_info
 
     model = get_model("ins_channel", tau_a=1800.0)
     gate = GateConfig(rule="seed", alarm_m=2, alarm_n=4, action="reject")
@@ -239,7 +239,7 @@ def test_analyze_service_reruns_on_a_new_bag_and_channel(ros, flight, tmp_path):
 
 
 def test_reset_segments_use_the_longest(ros, flight, tmp_path):
-    from flight_fdi.nodes.smoother_node import read_recording
+    from flight_fdi.bagio.recording import read_recording
 
     a = flight["analysis"]
     write_recording(tmp_path / "rec", flight["model"], a.fwd, resets=(200,))
@@ -253,7 +253,8 @@ def test_missing_states_are_bridged_by_prediction_and_reported(ros, flight, tmp_
     smoother predicts across each gap, as the filter does over a reference dropout, and reports
     the gaps instead of refusing the flight."""
     from flight_fdi.core.kalman import ForwardResult
-    from flight_fdi.nodes.smoother_node import SmootherNode, read_recording
+    from flight_fdi.bagio.recording import read_recording
+    from flight_fdi.nodes.smoother_node import SmootherNode
 
     a, f = flight["analysis"], flight["flight"]
     skip = (400, 401, 1000)
@@ -315,10 +316,40 @@ def test_missing_or_corrupt_bag_gives_an_error_result_not_a_crash(ros, flight, t
 
     validate_result(res)
     assert res["post_flight"]["verdict"] == "insufficient_data" and res["samples"] == 0
-    expected = {"missing": "does not exist", "garbage": "cannot be opened",
+    # (the recording is read raw, as the 3-D one: the damaged mcap file is named)
+    expected = {"missing": "does not exist", "garbage": "bag.mcap is truncated",
                 "no_model": "no topic /fdi/model", "empty_dir": "not a rosbag2 bag"}[case]
     assert expected in res["error"] and expected in node.last.error
+    assert "\n" not in res["error"]
     assert _diag_level(node) == b"\x02"  # ERROR
+
+
+def test_the_smoothers_analysis_runs_without_ros(flight, tmp_path):
+    """What the node runs on a recording (``bagio.recording_analysis.smoother_run``) needs no
+    rclpy: in a fresh interpreter it imports none and gives the analysis of the flight; a bag it
+    cannot analyse is an insufficient_data result with the one-line error, never a raise."""
+    from flight_fdi.core.analysis import AnalysisConfig, analyze_flight
+
+    a, f = flight["analysis"], flight["flight"]
+    write_recording(tmp_path / "rec", flight["model"], a.fwd)
+    code = ("import json, sys\n"
+            "from flight_fdi.bagio.recording_analysis import smoother_run\n"
+            "run = smoother_run(sys.argv[1], 'x', flight_start_s=float(sys.argv[2]))\n"
+            "bad = smoother_run(sys.argv[1] + '_missing', 'y')\n"
+            "ros = sorted(m for m in sys.modules if m.startswith(('rclpy', 'flight_fdi.nodes')))\n"
+            "print(json.dumps({'result': run.result, 'bad': bad.result, 'error': bad.error,\n"
+            "                  'ros': ros}))\n")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "rec"), repr(f.t0)],
+                         capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "PYTHONPATH": str(REPO)}, check=True)
+    got = json.loads(out.stdout)
+    assert got["ros"] == []
+    expected = analyze_flight(flight["model"], f.t_ins, f.v_ins, f.t_ref, f.v_ref, f.r_ref,
+                              AnalysisConfig(), bag=str(tmp_path / "rec"), channel="x", t0=f.t0)
+    assert_same_result(got["result"], expected)
+    assert got["result"]["post_flight"]["element"] == "accel_bias"
+    assert got["bad"]["post_flight"]["verdict"] == "insufficient_data"
+    assert "does not exist" in got["error"] and got["bad"]["error"] == got["error"]
 
 
 def test_invalid_parameters(ros):
@@ -365,7 +396,7 @@ def test_stacked_reference_rows_merge_into_the_information_equivalent_row():
 
     from flight_fdi.core.kalman import KalmanFilter
     from flight_fdi.core.models import ins_channel
-    from flight_fdi.nodes.smoother_node import measurement_of
+    from flight_fdi.core.recording import measurement_of
 
     model = ins_channel()
     h = [1.0, 0.0, 0.0, 0.0]
