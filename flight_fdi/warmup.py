@@ -83,7 +83,7 @@ def warm_direct() -> None:
     from numba import types as nt
 
     from .core import discretize, earth, information, ldl
-    from .core.ins3d import model
+    from .core.ins3d import dynamics
 
     f8, b1, i8 = nt.float64, nt.boolean, nt.int64
 
@@ -96,8 +96,8 @@ def warm_direct() -> None:
     discretize._terms.compile((f8,))
     earth.gravity.compile((a(1), a(1)))
     earth.radii.compile((a(1),))
-    model._propagate.compile((a(1), a(3), a(2), a(2), a(1), a(1), a(1), a(1), a(2), a(2), b1,
-                              a(2)))
+    dynamics._propagate.compile((a(1), a(3), a(2), a(2), a(1), a(1), a(1), a(1), a(2), a(2), b1,
+                                 a(2)))
     information.combine_step.compile((a(2), a(1), a(1), a(2), f8, a(2), a(1), a(1), a(2), a(1),
                                       a(1), a(1, nt.boolean), a(1), a(1), a(1), a(1, i8), a(1),
                                       a(2), a(3)))
