@@ -104,7 +104,8 @@ def nominal(data: Path, cal, names, units, st: R.Settings, dump=None
         for u in units:
             bg, ba = cal.for_recording(name, u)
             out = R.record(R.analyze(R.read_recording(data, name, u), bg, ba, st))
-            out["outcome"] = outcome[(name, u)] = R.judge(out, None)
+            out["outcome"] = outcome[(name, u)] = R.judge(out, None,
+                                                          R.REFERENCE_GLITCHES.get(name, ()))
             if dump is not None:
                 dump.write(json.dumps({"name": name, "unit": u, "fault": None,
                                        "outcome": out["outcome"], "record": out}) + "\n")
@@ -118,9 +119,10 @@ def nominal(data: Path, cal, names, units, st: R.Settings, dump=None
                       + f"{max(o['max_outliers'] for o in outs):.1f} | "
                       + ", ".join(f"{k} ×{v}" for k, v in sorted(named.items())) + " |")
     rows = ["| day | runs | verdict not no_fault | seed method (χ² J) failure / glitch | "
-            "false IMU isolation | reference named | ambiguous | none | "
+            "false IMU isolation | reference named | the recording's own RTK glitch named | "
+            "ambiguous | none | "
             "β² mean (2 rows) median [max] | largest step GLR median [max] | ramp | jump | "
-            "outliers |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+            "outliers |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     allo = [o for v in per_day.values() for o in v]
     for day, outs in list(per_day.items()) + [("all", allo)]:
         c = Counter(o["outcome"] for o in outs)
@@ -132,7 +134,7 @@ def nominal(data: Path, cal, names, units, st: R.Settings, dump=None
         declared = sum(o["verdict"] not in ("no_fault", "insufficient_data") for o in outs)
         rows.append(f"| {day} | {len(outs)} | {declared} | {seed['failure']} / "
                     f"{seed['glitch']} | {c['false']} | {c['reference']} | "
-                    f"{c['ambiguous']} | {c['none']} | {med_max('beta2')} | "
+                    f"{c['glitch']} | {c['ambiguous']} | {c['none']} | {med_max('beta2')} | "
                     f"{med_max('max_step')} | {med_max('max_ramp')} | {med_max('max_jump')} | "
                     f"{med_max('max_outliers')} |")
     rows += ["", validity_line(allo)]
@@ -147,10 +149,11 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
            dump=None) -> list[str]:
     rows = ["| fault | size | runs | right sensor+axis | confident wrong | of which the nominal "
             "run was clean | ambiguous | of which the right one is a candidate | none | "
+            "the recording's own RTK glitch only (fault missed) | "
             "median onset error (s) | median magnitude error | "
             "most frequent wrong or ambiguous answer | held out (vertical 8-14): right / "
             "confident wrong of 28 |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     smallest, angles, totals, records = {}, {}, Counter(), []
     for sensor, sizes in SIZES.items():
         for axis in R.AXES:
@@ -179,7 +182,7 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                     if o == "right":
                         oe.append(abs(out["onset_s"] - f.onset_s))
                         me.append(out["magnitude"] / f.magnitude - 1.0)
-                n = sum(c[k] for k in ("right", "wrong", "ambiguous", "none"))
+                n = sum(c[k] for k in ("right", "wrong", "ambiguous", "none", "glitch"))
                 if c["right"] > n / 2 and (sensor, axis) not in smallest:
                     smallest[(sensor, axis)] = size
                 rows.append(f"| {sensor} {axis} step | {size:g} {UNIT[sensor]} | {n} | "
@@ -187,6 +190,7 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
                             f"{100 * c['wrong_clean'] / n:.0f} % | "
                             f"{100 * c['ambiguous'] / n:.0f} % | "
                             f"{100 * c['amb_right'] / n:.0f} % | {100 * c['none'] / n:.0f} % | "
+                            f"{c['glitch']} | "
                             + (f"{np.median(oe):.1f} | {100 * np.median(me):+.0f} % | "
                                if oe else "- | - | ")
                             + (f"{other.most_common(1)[0][0]} ×{other.most_common(1)[0][1]} |"
@@ -199,7 +203,8 @@ def faults(data: Path, cal, names, units, st: R.Settings, seed: int, nominal_out
     rows += ["", "All fault runs: " + "; ".join(
         f"{lab} {sum(v for (g, _), v in totals.items() if g == key)} runs: right "
         f"{totals[(key, 'right')]}, confident wrong {totals[(key, 'wrong')]}, ambiguous "
-        f"{totals[(key, 'ambiguous')]}" for key, lab in (("fit", "fit days (straight, "
+        f"{totals[(key, 'ambiguous')]}, the recording's own RTK glitch only "
+        f"{totals[(key, 'glitch')]}" for key, lab in (("fit", "fit days (straight, "
                                                            "vertical 1-7)"),
                                                           ("held", "held out (vertical 8-14)")))
              + "."]

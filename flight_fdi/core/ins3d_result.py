@@ -81,18 +81,31 @@ def ins3d_result(analysis: Any, bag: str, source: dict | None = None) -> dict:
 
 
 def fault_line(res: dict) -> str:
-    """One line naming the isolated sensor and axis (or why none is named)."""
+    """One line naming the isolated sensor and axis (or why none is named), and the reference
+    glitches found beside it (``post_flight.glitches``)."""
     post = res["post_flight"]
     f = post.get("fault")
     if f:
-        return (f"isolated: {f['sensor']} {f['axis']} {f['kind']}, "
+        line = (f"isolated: {f['sensor']} {f['axis']} {f['kind']}, "
                 f"{f.get('magnitude_eng', f['magnitude']):+.4g} {f.get('unit_eng', f['unit'])} "
                 f"at {f['onset_s']:.1f} s")
-    cands = post.get("candidates") or []
-    if cands:
-        return "ambiguous between " + " and ".join(f"{c['sensor']} {c['axis']} {c['kind']}"
-                                                     for c in cands)
-    return f"no sensor isolated ({post['verdict']})"
+    elif post.get("candidates"):
+        line = "ambiguous between " + " and ".join(f"{c['sensor']} {c['axis']} {c['kind']}"
+                                                     for c in post["candidates"])
+    else:
+        line = f"no sensor isolated ({post['verdict']})"
+    removed = post["verdict"] != "glitch"
+    return line + "".join(glitch_text(g, removed) for g in post.get("glitches") or [])
 
 
-__all__ = ["MODEL_NAME", "fault_line", "forward_only_post_flight", "in_flight", "ins3d_result"]
+def glitch_text(g: dict, removed: bool = True) -> str:
+    """"; reference glitch: east, 1 update at 26.5 s (statistic 36.9 > 32), removed before the
+    decision" (``removed``: the decision was taken on the rest of the flight)."""
+    times = ", ".join(f"{t:.1f}" for t in g["times_s"][:5]) + (" ..." if g["count"] > 5 else "")
+    return (f"; reference glitch: {g['axis']}, {g['count']} update{'s' * (g['count'] > 1)} at "
+            f"{times} s (statistic {g['statistic']:.4g} > {g['threshold']:.4g})"
+            + (", removed before the decision" if removed else ""))
+
+
+__all__ = ["MODEL_NAME", "fault_line", "forward_only_post_flight", "glitch_text", "in_flight",
+           "ins3d_result"]

@@ -37,7 +37,7 @@ from ..core.ins3d.data import with_height
 from ..core.ins3d.grades import DEG_H, DEG_RTH, ImuGrade
 from ..core.rotation import dcm_array
 from .errors import EvalError
-from .real3d_record import judge, record
+from .real3d_record import REFERENCE_GLITCHES, judge, record
 
 RATE_HZ = 120.0
 GT_DT = 0.1
@@ -467,7 +467,7 @@ def fault_runs(data_dir: Path, cal: Calibration, names: list[str], units: list[i
             bg, ba = cal.for_recording(name, unit)
             ref = rec if settings.nominal_reference else None
             out = record(analyze(fault.apply(rec), bg, ba, settings, reference_of=ref))
-            yield name, unit, fault, out, judge(out, fault)
+            yield name, unit, fault, out, judge(out, fault, REFERENCE_GLITCHES.get(name, ()))
 
 
 def names_in(data_dir: Path) -> list[str]:
@@ -478,4 +478,4 @@ __all__ = ["AXES", "Calibration", "Contract", "DAYS", "Fault", "Recording", "Set
            "build_contract", "calibrate", "contract_arrays", "day_of", "default_data_dir",
            "error_model_of", "fault_runs", "gt_quaternions", "gt_velocity", "initial_state",
            "judge", "mechanize_recording", "names_in", "read_gt", "read_recording", "record",
-           "recording_biases", "write_contract_bag", "xsens_grade"]
+           "recording_biases", "REFERENCE_GLITCHES", "write_contract_bag", "xsens_grade"]

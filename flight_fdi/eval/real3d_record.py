@@ -27,8 +27,9 @@ def record(analysis, t0: float = 0.0) -> dict:
            "seed_element": pf["seed_method"]["element"],
            "beta2": summ["beta2_mean"], "beta2_rows": summ["beta2_row_mean"],
            "latency_s": summ["final_state"].get("latency")}
-    iso = analysis.isolation
-    cv = analysis.decision_glr
+    dec = analysis.decided           # the decision reported (after removed glitches: the rest's)
+    iso = dec.isolation
+    cv = dec.decision_glr
     out.update({"best": iso.best, "rival": iso.rival, "reason": iso.reason,
                 "best_statistic": cv[iso.best].statistic if iso.best else None,
                 "rival_statistic": cv[iso.rival].statistic if iso.rival else None,
@@ -49,24 +50,73 @@ def record(analysis, t0: float = 0.0) -> dict:
                   key=lambda c: c.statistic)
         out[f"max_{kind}"] = float(top.statistic)
         out[f"max_{kind}_hyp"] = top.hypothesis.name
+    out.update(glitch_fields(analysis, pf))
     return out
 
 
-def judge(rec_out: dict, fault: "Fault | None") -> str:
-    """``right`` (the fault's sensor and axis, verdict failure), ``wrong`` (a confident
-    isolation of anything else: another IMU axis, the reference, a glitch), ``ambiguous``
-    (candidates named, no fault), ``none`` (no isolation). Without a fault: ``false`` for an
-    IMU sensor named, ``reference`` for the reference named, else as above."""
+def glitch_fields(analysis, pf: dict) -> dict:
+    """The reference glitches of a record: the time of the largest outlier statistic over the
+    rows (unconditional, before any removal), the glitches reported (``post_flight.glitches``:
+    row, times, largest statistic), the times of every reference outlier named (those, or the
+    ``glitch`` verdict's outliers without a removal), and whether the removal rounds ran and
+    the rest named a fault (``analysis.sequential``)."""
+    outl = [c for c in analysis.glr.values() if c.hypothesis.kind == "outliers"]
+    top = max(outl, key=lambda c: c.statistic)
+    seq = analysis.sequential
+    named = [t for g in pf["glitches"] for t in g["times_s"]]
+    f = pf.get("fault")
+    if not named and f and f["kind"] == "outliers":
+        named = sorted({f["onset_s"], f["end_s"]})
+    return {"top_outlier_s": float(top.t[top.best]) if top.t.size else None,
+            "glitches": [{"axis": g["axis"], "times_s": g["times_s"],
+                          "statistic": g["statistic"]} for g in pf["glitches"]],
+            "glitch_times_s": named,
+            "glitch_rounds": 0 if seq is None else len(seq.removals),
+            "glitch_rest_named": None if seq is None else bool(seq.found)}
+
+
+#: reference glitches in the recordings themselves (time s from the recording's start, the
+#: 1-Hz reference's update): vertical/path_14's RTK velocity glitch at the hard braking. The
+#: evidence that it is in the RTK and not in a unit (docs/ins3d_real.md, "A reference glitch
+#: and a fault in the same flight"): the four units -- independent IMUs, each with its own
+#: INS -- have their largest east outlier statistic of the nominal run at the same update,
+#: 26.5 s, and they share nothing but the reference.
+REFERENCE_GLITCHES: dict[str, tuple[float, ...]] = {"vertical/path_14": (26.5,)}
+#: a named outlier within this of a listed glitch is that glitch (half the reference period)
+GLITCH_TOLERANCE_S = 0.5
+
+
+def real_glitch(rec_out: dict, real: tuple[float, ...]) -> bool | None:
+    """Whether the reference outliers a record names are all glitches of the recording itself
+    (``REFERENCE_GLITCHES``); None when it names none."""
+    named = rec_out.get("glitch_times_s") or []
+    if not named:
+        return None
+    return all(any(abs(t - g) <= GLITCH_TOLERANCE_S for g in real) for t in named)
+
+
+def judge(rec_out: dict, fault: "Fault | None", real_glitches: tuple[float, ...] = ()) -> str:
+    """``right`` (the fault's sensor and axis, verdict failure; a reference glitch reported
+    beside it only if it is one of the recording's own, ``real_glitches``), ``wrong`` (a
+    confident isolation of anything else: another IMU axis, the reference, a glitch that is
+    not the recording's, or the right sensor beside such a glitch), ``glitch`` (only the
+    recording's own reference glitch named: the injected fault missed, nothing wrong named),
+    ``ambiguous`` (candidates named, no fault), ``none`` (no isolation). Without a fault:
+    ``false`` for an IMU sensor named, ``reference`` for the reference named (``glitch``: only
+    the recording's own glitch), else as above."""
     v, sensor, axis = rec_out["verdict"], rec_out["sensor"], rec_out["axis"]
+    own = real_glitch(rec_out, real_glitches)
     if v == "ambiguous":
         return "ambiguous"
     if sensor is None:
         return "none"
+    if v == "glitch" and own:
+        return "glitch"
     if fault is None:
         return "reference" if sensor == "reference" else "false"
-    if v == "failure" and sensor == fault.sensor and axis == fault.axis:
+    if v == "failure" and sensor == fault.sensor and axis == fault.axis and own is not False:
         return "right"
     return "wrong"
 
 
-__all__ = ["judge", "record"]
+__all__ = ["GLITCH_TOLERANCE_S", "REFERENCE_GLITCHES", "judge", "real_glitch", "record"]

@@ -145,7 +145,8 @@ def post_flight_figure(analysis: Any, res: dict, path: Path) -> Path | None:
     """The two-filter chi-square J over time with its bound, and the GLR statistic of every
     body-axis hypothesis over its onset time (the isolated one and its runner-up drawn bold,
     each with its own threshold dashed in its colour)."""
-    seed, curves = getattr(analysis, "seed", None), getattr(analysis, "glr", None)
+    dec = getattr(analysis, "decided", analysis)    # after removed glitches: the rest's
+    seed, curves = getattr(dec, "seed", None), getattr(dec, "glr", None)
     if seed is None or not curves:
         return None
     glr = res["post_flight"].get("glr") or {}

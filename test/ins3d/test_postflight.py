@@ -84,6 +84,7 @@ def test_sample_nominal_has_no_fault(bag_results):
     assert (pf["verdict"], pf["isolation"], pf["fault"]) == ("no_fault", "none", None)
     assert pf["glr"]["statistic"] < pf["glr"]["threshold"]
     assert pf["seed_method"]["verdict"] == "no_fault"
+    assert a.sequential is None and pf["glitches"] == []
 
 
 @pytest.mark.parametrize("fault,pair,rows", [
@@ -130,10 +131,15 @@ def test_straight_leg_vertical_row_separates_the_forward_and_vertical_accelerome
     ("ref:outliers:t=300,end=500,mag=1.0,freq=0.02,axis=y", ("glitch", "north", "outliers")),
 ])
 def test_reference_jump_and_outliers(fault, expect):
-    """A GNSS velocity jump of +0.3 m/s east reads +0.3 (the reference's error); four 1-m/s
-    spikes on north are outliers (a glitch), not a jump starting at one of them."""
-    inp = from_flight(flight("cruise_turns", 600.0, "navigation", "baro", 4, faults=(fault,)))
-    pf = analyze_ins3d(inp.steps, inp.refs, with_observability=False).post_flight_dict()
+    """A GNSS velocity jump of +0.3 m/s east reads +0.3 (the reference's error); 1-m/s
+    spikes on north are outliers (a glitch), not a jump starting at one of them -- and with
+    their updates removed the rest of the flight shows no other fault, so the verdict stays
+    ``glitch`` (core/ins3d/glitch.py). The jump's decision names no outliers: nothing is
+    removed (its own updates exceed the outlier threshold beside it)."""
+    fl = flight("cruise_turns", 600.0, "navigation", "baro", 4, faults=(fault,))
+    inp = from_flight(fl)
+    a = analyze_ins3d(inp.steps, inp.refs, with_observability=False)
+    pf = a.post_flight_dict()
     validate(pf)
     f = pf["fault"]
     assert (pf["verdict"], f["sensor"], f["axis"], f["kind"]) == ("glitch" if expect[0] ==
@@ -141,8 +147,15 @@ def test_reference_jump_and_outliers(fault, expect):
                                                                  "reference", *expect[1:])
     if f["kind"] == "jump":
         assert f["magnitude"] == pytest.approx(0.3, abs=0.03) and abs(f["onset_s"] - 300) < 1
+        assert a.sequential is None and pf["glitches"] == []
+        assert pf["glr"]["outliers_above_threshold"] >= 1
     else:
         assert 300.0 <= f["onset_s"] <= f["end_s"] <= 500.0 and f["count"] >= 2
+        spikes = fl.gnss.t[fl.gnss.outlier.any(axis=1)]
+        (g,) = pf["glitches"]
+        assert g["axis"] == "north" and np.allclose(g["times_s"], spikes, atol=0.1)
+        assert not a.sequential.found and a.decided is a
+        assert pf["headline"].endswith("(no other fault without the glitch's updates)")
 
 
 def test_too_few_updates_are_insufficient_data_or_a_clear_error():

@@ -20,6 +20,7 @@ from ..kalman import ALARM_RAISED, GateConfig
 from .data import NavSteps, RefRows, coarsen
 from .defaults import ANALYZE_DEFAULTS as _DEFAULTS
 from .filter import Ins3dForward, run_forward
+from .glitch import MAX_ROUNDS, Sequential, sequential
 from .glr3d import THRESHOLDS, GlrCurve, Isolation, isolate, ref_axes
 from .grade_file import diagnosis_config_of, grade_thresholds, resolve_grade, signature_error_of
 from .grades import ImuGrade
@@ -58,6 +59,16 @@ class Ins3dAnalysis:
     relinearization: Relinearization | None = None
     #: whether the model may name a sensor on this flight (``relinearize.Validity``)
     validity: Validity | None = None
+    #: reference outliers named: the decision again without their updates (``glitch``;
+    #: None: no outliers named, the decision above stands)
+    sequential: Sequential | None = None
+
+    @property
+    def decided(self) -> "Ins3dAnalysis":
+        """The analysis whose decision the result reports: this one, or the flight without
+        its reference glitches when that names a fault (``glitch.sequential``)."""
+        seq = self.sequential
+        return seq.rest if seq is not None and seq.found else self
 
     @property
     def decision_glr(self) -> dict[str, GlrCurve]:
@@ -87,6 +98,15 @@ class Ins3dAnalysis:
         """The ``post_flight`` section (times relative to ``t0``)."""
         if self.seed is None or self.isolation is None:
             raise CoreError("analyze_ins3d ran without the post-flight part (post=False)")
+        seq = self.sequential
+        if seq is not None:
+            return seq.post_flight(None if seq.found else self._decision_dict(t0), t0)
+        out = self._decision_dict(t0)
+        out["glitches"] = []
+        return out
+
+    def _decision_dict(self, t0: float) -> dict:
+        """``post_flight`` of this analysis' own decision (without ``glitches``)."""
         turn_on = None if self.turn_on is None else \
             self.turn_on.records(self.glr, self.thresholds, t0)
         out = post_flight(self.decision_glr, self.isolation, self.seed, self.thresholds, t0,
@@ -116,8 +136,9 @@ class Ins3dAnalysis:
         elsewhere and without an isolated IMU fault). The record is the one source: its onset
         and magnitude are the linear GLR's, or the exact fit's when the nonlinear check of a
         large gyro fault named it (``nonlinear.confirm``), so the figures draw what the result
-        says."""
-        b = self.backward
+        says. After a reference glitch's updates were removed and the rest named the fault
+        (``decided``), the smoothed states are those of the rest."""
+        b = self.decided.backward
         out = {"t": b.t, "accelerometer": b.x_s[:, IBA:IBA + 3],
                "accelerometer_sd": b.sd_s[:, IBA:IBA + 3], "gyro": b.x_s[:, IBG:IBG + 3],
                "gyro_sd": b.sd_s[:, IBG:IBG + 3],
@@ -166,7 +187,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                   loop: VerticalLoop | None = None,
                   signature_error: float | None = None,
                   height_row: bool = False,
-                  v0_sigma_up: float | None = None) -> Ins3dAnalysis:
+                  v0_sigma_up: float | None = None,
+                  glitch_rounds: int = MAX_ROUNDS) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
     simulated flight). ``grade``: an ImuGrade, a preset name or a YAML grade file
     (``grade_file.resolve_grade``). ``max_dt``: the steps are merged onto the reference grid, at
@@ -182,7 +204,9 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     ``rows=3`` and ``position=True``); ``v0_sigma_up``: the initial vertical velocity error's
     sigma (m/s) of a free vertical channel (default: the horizontal ones').
     ``diagnosis``: the seed method's rules (default ``grade_file.diagnosis_config_of`` the
-    grade: a grade file's ``seed_episode_probability``, else ``DiagnosisConfig()``)."""
+    grade: a grade file's ``seed_episode_probability``, else ``DiagnosisConfig()``).
+    ``glitch_rounds``: when reference outliers are named, the rounds of removing their updates
+    and deciding again on the rest (``glitch.sequential``; 0: the decision as it was before)."""
     if vertical == "loop" and steps.t.size:
         base = loop or VerticalLoop()
         loop = replace(base, lat=float(steps.lat[0]), h=float(steps.h[0]))
@@ -212,11 +236,35 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
             out.thresholds.update(thresholds)
         if post:
             cfg = diagnosis or diagnosis_config_of(model.grade)
-            out.backward = run_backward(model, steps, refs, fwd, cfg.rank_tol)
-            _relinearize(out, gate, aligned_prior, cfg.rank_tol)
-            _post_flight(out, cfg, signature_error)
+            _post(out, gate, aligned_prior, cfg, signature_error)
+            out.sequential = sequential(
+                out, lambda rest: _decide_without(out, rest, gate, aligned_prior, cfg,
+                                                  signature_error),
+                out.as_recorded()[1], glitch_rounds)
         out.observability = obs.result() if obs is not None else None
     return out
+
+
+def _post(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool, cfg: DiagnosisConfig,
+          signature_error: float | None) -> None:
+    """The post-flight part on ``out``'s steps, updates and forward pass: the backward sweep,
+    the relinearisation when the errors leave small angles, the decision."""
+    out.backward = run_backward(out.model, out.steps, out.refs, out.forward, cfg.rank_tol)
+    _relinearize(out, gate, aligned_prior, cfg.rank_tol)
+    _post_flight(out, cfg, signature_error)
+
+
+def _decide_without(out: Ins3dAnalysis, refs: RefRows, gate: GateConfig, aligned_prior: bool,
+                    cfg: DiagnosisConfig, signature_error: float | None) -> Ins3dAnalysis:
+    """The analysis of ``out``'s flight (as recorded) with the updates ``refs`` (the rest
+    after reference glitches were removed, ``glitch.sequential``): the forward filter from the
+    same P0, then ``_post`` -- the path of ``analyze_ins3d``; the same thresholds."""
+    steps, _, fwd0 = out.as_recorded()
+    fwd = run_forward(out.model, steps, refs, gate=gate, P0=fwd0.P0, keep_prior=True)
+    rest = Ins3dAnalysis(out.model, fwd, None, out.manoeuvres, steps, refs,
+                         thresholds=dict(out.thresholds))
+    _post(rest, gate, aligned_prior, cfg, signature_error)
+    return rest
 
 
 def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,

@@ -1,0 +1,184 @@
+"""A reference glitch and a sensor fault in the same flight: sequential isolation.
+
+``glr3d.isolate`` decides one fault. Reference *outliers* above their threshold whose largest
+statistic is at least that of every detected step / ramp / jump are named (verdict
+``glitch``), and the step / ramp / jump is then not reported at all. A GNSS glitch and an IMU
+fault can happen in the same flight (on a real recording: an RTK velocity glitch at 26.5 s and
+an injected accelerometer step, docs/ins3d_real.md), and a user needs both.
+
+The rule (``sequential``):
+
+* when the decision names reference outliers, every **update** whose outlier statistic exceeds
+  the outlier threshold on any row is removed -- the whole update, all its rows -- and the
+  flight is decided again on the rest by the analysis' own path (``redo``: forward filter,
+  backward sweep, relinearisation, GLR curves, ``isolate``, the turn-on bias, the pair test and
+  the nonlinear check; ``analysis._decide_without``);
+* at most ``MAX_ROUNDS`` removal rounds (the rest may name outliers again);
+* the rest names a fault (``single`` or ``ambiguous``, not outliers): that is the decision,
+  and the removed glitches are reported beside it (``post_flight.glitches``, the headline says
+  both); the rest names nothing (or outliers again after the last round): the glitch decision
+  stands as it was, its glitches listed in ``post_flight.glitches`` too.
+
+Why the whole update and not only the row: the rest is then a flight the analysis already
+handles (one reference message fewer), with no pseudo-infinite variance in the scaled filter
+and no row counted as a degree of freedom of the seed method's chi^2 without data in it; a
+receiver's velocity glitch (multipath, a bad Doppler epoch) is an event of the fix, so its
+other rows are not known to be clean because they stay below the threshold; and the cost is
+one update of the other rows (0.1 s at 10 Hz; 1 of 10-37 on the real 1-Hz contracts).
+
+Why only when the outliers are *named*, not when they are above their threshold beside a
+larger step / ramp / jump: there the decision already names the sustained fault, and the
+outliers beside it are mostly that fault's own first updates -- a reference jump's updates or
+a large step's transient exceed the per-update threshold before the sustained fit explains
+them (docs/ins3d.md, "A glitch and a fault in the same flight", measured); removing them
+would remove the fault's own evidence. They stay counted in ``glr.outliers_above_threshold``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from ..result import _num, describe
+from .data import RefRows
+from .glr3d import HEIGHT, GlrCurve
+
+#: removal rounds at most: one update each (the largest outlier statistic), then a new
+#: decision on the rest
+MAX_ROUNDS = 3
+
+
+def names_outliers(analysis: Any) -> bool:
+    """Whether the analysis' decision names reference outliers (verdict ``glitch``)."""
+    iso = analysis.isolation
+    return iso is not None and iso.isolation == "single" and iso.best is not None and \
+        analysis.decision_glr[iso.best].hypothesis.kind == "outliers"
+
+
+def names_a_fault(analysis: Any) -> bool:
+    """Whether the decision names a sensor fault: ``single`` or ``ambiguous``, not outliers, on
+    enough data (the seed method's ``insufficient_data`` names nothing)."""
+    iso = analysis.isolation
+    return iso is not None and iso.isolation in ("single", "ambiguous") and \
+        not names_outliers(analysis) and analysis.seed.verdict != "insufficient_data"
+
+
+def outlier_curves(cv: dict[str, GlrCurve]) -> list[GlrCurve]:
+    return [c for c in cv.values() if c.hypothesis.kind == "outliers"]
+
+
+def without(refs: RefRows, drop: int) -> RefRows:
+    """``refs`` without the update ``drop`` (an index)."""
+    keep = np.ones(refs.t.size, dtype=bool)
+    keep[drop] = False
+    return RefRows(refs.t[keep], np.ascontiguousarray(refs.z[keep]),
+                   np.ascontiguousarray(refs.r[keep]), refs.step[keep],
+                   np.ascontiguousarray(refs.a[keep]))
+
+
+@dataclass(frozen=True)
+class Removal:
+    """One removed update: the round, its index among that round's updates, its time, the row
+    with the largest outlier statistic there and that row's statistic, the offset of
+    z = v_INS - v_ref (``GlrCurve.mag``) and its sd, the threshold, and every row above it."""
+
+    round: int
+    index: int
+    t: float
+    axis: str
+    hypothesis: str
+    statistic: float
+    offset: float
+    offset_std: float
+    threshold: float
+    rows_above: tuple[str, ...]
+
+    @classmethod
+    def top(cls, rnd: int, cv: dict[str, GlrCurve], threshold: float) -> "Removal":
+        """The update with the largest outlier statistic over the rows of ``cv``."""
+        c = max(outlier_curves(cv), key=lambda o: o.statistic)
+        j = c.best
+        above = tuple(o.hypothesis.axis for o in outlier_curves(cv) if o.stat[j] > threshold)
+        return cls(rnd, j, float(c.t[j]), c.hypothesis.axis, c.hypothesis.name,
+                   float(c.stat[j]), float(c.mag[j]), float(c.sd[j]), threshold, above)
+
+
+def glitch_records(removals: list[Removal], t0: float = 0.0) -> list[dict]:
+    """``post_flight.glitches``: per reference row, the removed updates whose largest outlier
+    statistic is on it, as a fault record (``$defs/fault``, kind ``outliers``: first and last
+    time, count, the largest statistic with its magnitude, signed as the reference's error:
+    -offset) with every time (``times_s``), the removal rounds and the rows above the
+    threshold at those updates."""
+    out = []
+    for axis in dict.fromkeys(r.axis for r in removals):
+        rs = [r for r in removals if r.axis == axis]
+        top = max(rs, key=lambda r: r.statistic)
+        mag = _num(-top.offset)
+        out.append({
+            "sensor": "reference", "axis": axis, "kind": "outliers",
+            "hypothesis": top.hypothesis, "onset_s": _num(min(r.t for r in rs) - t0),
+            "onset_interval_s": None, "end_s": _num(max(r.t for r in rs) - t0),
+            "count": len(rs), "magnitude": mag, "unit": "m" if axis == HEIGHT else "m/s",
+            "magnitude_eng": mag, "unit_eng": "m" if axis == HEIGHT else "m/s",
+            "magnitude_std": _num(top.offset_std), "statistic": top.statistic,
+            "threshold": top.threshold, "runner_up": None,
+            "times_s": [_num(r.t - t0) for r in sorted(rs, key=lambda r: r.t)],
+            "rounds": [r.round for r in sorted(rs, key=lambda r: r.t)],
+            "rows_above": sorted({a for r in rs for a in r.rows_above})})
+    return out
+
+
+@dataclass
+class Sequential:
+    """The removed updates and the decision on the rest (module docstring)."""
+
+    removals: list[Removal]
+    rest: Any                      # the Ins3dAnalysis of the flight without them
+    found: bool                    # the rest names a fault: it is the decision
+    outliers_left: bool = False    # the rest named outliers again after the last round
+
+    def records(self, t0: float = 0.0) -> list[dict]:
+        return glitch_records(self.removals, t0)
+
+    def post_flight(self, original: dict | None, t0: float = 0.0) -> dict:
+        """The ``post_flight`` dict: the rest's decision with the glitches beside it when it
+        names a fault, else ``original`` (the glitch decision); ``glitches`` added."""
+        recs = self.records(t0)
+        told = "; ".join(describe(r) for r in recs)
+        if self.found:
+            out = self.rest.post_flight_dict(t0)
+            out["headline"] = (f"{out['headline']}; and a reference glitch, removed before "
+                               f"this decision: {told}")
+        else:
+            out = dict(original)
+            out["headline"] = original["headline"] + (
+                f" (outliers left after removing {len(self.removals)} updates: not searched "
+                "further)" if self.outliers_left else
+                " (no other fault without the glitch's updates)")
+        out["glitches"] = recs
+        return out
+
+
+def sequential(analysis: Any, redo: Callable[[RefRows], Any], refs: RefRows,
+               max_rounds: int = MAX_ROUNDS) -> Sequential | None:
+    """The sequential decision of ``analysis`` (module docstring); None when its decision does
+    not name outliers (nothing changes) or ``max_rounds`` is 0. ``refs``: the updates as
+    recorded (``Ins3dAnalysis.as_recorded``), in the analysis' order; ``redo(refs)``: the
+    analysis of the same flight with these updates."""
+    if max_rounds <= 0 or not names_outliers(analysis):
+        return None
+    removals, cur = [], analysis
+    for r in range(1, max_rounds + 1):
+        if not names_outliers(cur) or refs.t.size < 2:
+            break
+        removals.append(Removal.top(r, cur.glr, cur.thresholds["outliers"]))
+        refs = without(refs, removals[-1].index)
+        cur = redo(refs)
+    if not removals:
+        return None
+    return Sequential(removals, cur, names_a_fault(cur), names_outliers(cur))
+
+
+__all__ = ["MAX_ROUNDS", "Removal", "Sequential", "glitch_records", "names_a_fault",
+           "names_outliers", "sequential", "without"]
