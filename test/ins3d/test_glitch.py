@@ -100,3 +100,29 @@ def test_without_drops_one_update():
     w = without(r, 1)
     assert w.t.tolist() == [0.0, 2.0, 3.0] and w.z[1].tolist() == [6.0, 7.0, 8.0]
     assert w.step.tolist() == [0, 2, 3] and w.z.flags.c_contiguous
+
+
+def test_glitch_beside_a_larger_step_is_reported_too():
+    """One 0.3-m/s north spike (367.8 s) beside a 1-mg accelerometer x step at 200 s: the
+    step's statistic beats the spike's (~240), so the decision names the step with the outlier
+    counted beside it. With the step removed exactly the spike's update stays above the
+    threshold (a glitch of its own, not the step's effect): it is removed and the flight
+    decided again -- the step and the glitch both reported."""
+    fl = flight("cruise_turns", 600.0, "navigation", "baro", 4,
+                faults=("ref:outliers:t=350,end=375,mag=0.3,freq=0.02,axis=y",
+                        "accel:step:t=200,mag=1mg,axis=x"))
+    inp = from_flight(fl)
+    a = analyze_ins3d(inp.steps, inp.refs, with_observability=False)
+    assert (a.isolation.isolation, a.isolation.best) == ("single", "accelerometer_x_step")
+    assert a.isolation.outliers >= 1 and a.sequential.beside
+    pf = a.post_flight_dict()
+    validate(pf)
+    f = pf["fault"]
+    assert (pf["verdict"], f["sensor"], f["axis"], f["kind"]) == (
+        "failure", "accelerometer", "x", "step")
+    assert abs(f["onset_s"] - 200.0) < 5.0 and f["magnitude_eng"] == pytest.approx(1.0, abs=0.05)
+    (g,) = pf["glitches"]
+    assert (g["axis"], g["count"]) == ("north", 1)
+    assert g["times_s"][0] == pytest.approx(_spikes(fl)[0], abs=0.1) and \
+        abs(g["magnitude"]) == pytest.approx(0.3, abs=0.05)
+    assert "and a reference glitch" in pf["headline"]

@@ -240,7 +240,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
             out.sequential = sequential(
                 out, lambda rest: _decide_without(out, rest, gate, aligned_prior, cfg,
                                                   signature_error),
-                out.as_recorded()[1], glitch_rounds)
+                out.as_recorded()[1], lambda a: _curves_given_fault(a, cfg.rank_tol),
+                glitch_rounds)
         out.observability = obs.result() if obs is not None else None
     return out
 
@@ -333,22 +334,51 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
 def _validity(out: Ins3dAnalysis) -> Validity:
     """The model's validity on the flight (``relinearize.Validity``): of the smoothed errors;
     when those are beyond it and an IMU fault is named, of the forward filter on the flight as
-    recorded with that fault removed exactly (``nonlinear.corrected``; the check's fit, else the
-    GLR's onset and magnitude) -- a large fault leaves a large attitude error in the no-fault
-    model's estimate; what matters is what is left if it is the cause."""
+    recorded with that fault removed exactly (``_without_fault``) -- a large fault leaves a
+    large attitude error in the no-fault model's estimate; what matters is what is left if it
+    is the cause."""
     valid = Validity.of(out.backward.x_s)
-    iso = out.isolation
-    if valid.valid or iso.isolation != "single":
+    if valid.valid:
         return valid
+    rest = _without_fault(out)
+    return valid if rest is None else Validity.of(run_forward(out.model, rest[0], rest[1],
+                                                              P0=rest[2]).x)
+
+
+def _without_fault(out: Ins3dAnalysis) -> tuple[NavSteps, RefRows, np.ndarray] | None:
+    """The flight as recorded with the named IMU fault removed exactly (``nonlinear.corrected``;
+    the nonlinear check's fit, else the GLR's onset and magnitude), and the initial covariance;
+    None unless the decision is a single accelerometer or gyro step or ramp."""
+    iso = out.isolation
+    if iso.isolation != "single":
+        return None
     c = out.decision_glr[iso.best]
     h = c.hypothesis
     if h.sensor not in ("accelerometer", "gyro") or h.kind not in ("step", "ramp"):
-        return valid
+        return None
     fit = None if out.nonlinear is None else out.nonlinear.fit_of(iso.best)
     onset, mag = (fit.onset, fit.magnitude) if fit else (float(c.t[c.best]), float(c.mag[c.best]))
     steps, refs, fwd = out.as_recorded()
     k0 = int(np.searchsorted(steps.t, onset))
     s2, r2 = corrected(out.model, steps, refs, h.sensor, h.axis, h.kind, k0, mag)
-    return Validity.of(run_forward(out.model, s2, r2, P0=fwd.P0).x)
+    return s2, r2, fwd.P0
+
+
+def _curves_given_fault(out: Ins3dAnalysis, rank_tol: float) -> dict[str, GlrCurve] | None:
+    """The GLR curves of the flight with the named fault removed exactly (``_without_fault``),
+    when reference outliers exceed their threshold beside it: whether they are that fault's
+    own effect or a glitch of their own (``glitch.sequential``). None when no outlier exceeds
+    it, or the decision is not a single IMU step / ramp (nor one given a turn-on bias: that
+    bias would stay in the flight). Like ``_validity``, the flight without the fault is taken
+    with the model about zero errors (what is left if the fault is the cause)."""
+    if out.isolation.outliers == 0 or out.turn_on is not None:
+        return None
+    rest = _without_fault(out)
+    if rest is None:
+        return None
+    steps, refs, P0 = rest
+    fwd = run_forward(out.model, steps, refs, P0=P0, keep_prior=True)
+    return glr_curves(out.model, steps, run_backward(out.model, steps, refs, fwd, rank_tol))
+
 
 __all__ = ["Ins3dAnalysis", "analyze_ins3d", "initial_covariance"]

@@ -137,13 +137,14 @@ class Sequential:
     rest: Any                      # the Ins3dAnalysis of the flight without them
     found: bool                    # the rest names a fault: it is the decision
     outliers_left: bool = False    # the rest named outliers again after the last round
+    beside: bool = False           # the first decision named a fault, the glitch beside it
 
     def records(self, t0: float = 0.0) -> list[dict]:
         return glitch_records(self.removals, t0)
 
     def post_flight(self, original: dict | None, t0: float = 0.0) -> dict:
         """The ``post_flight`` dict: the rest's decision with the glitches beside it when it
-        names a fault, else ``original`` (the glitch decision); ``glitches`` added."""
+        names a fault, else ``original`` (the first decision); ``glitches`` added."""
         recs = self.records(t0)
         told = "; ".join(describe(r) for r in recs)
         if self.found:
@@ -153,6 +154,8 @@ class Sequential:
         else:
             out = dict(original)
             out["headline"] = original["headline"] + (
+                f"; and a reference glitch: {told} (without it the flight names no fault: the "
+                "decision with it stands)" if self.beside else
                 f" (outliers left after removing {len(self.removals)} updates: not searched "
                 "further)" if self.outliers_left else
                 " (no other fault without the glitch's updates)")
@@ -160,24 +163,45 @@ class Sequential:
         return out
 
 
-def sequential(analysis: Any, redo: Callable[[RefRows], Any], refs: RefRows,
-               max_rounds: int = MAX_ROUNDS) -> Sequential | None:
-    """The sequential decision of ``analysis`` (module docstring); None when its decision does
-    not name outliers (nothing changes) or ``max_rounds`` is 0. ``refs``: the updates as
-    recorded (``Ins3dAnalysis.as_recorded``), in the analysis' order; ``redo(refs)``: the
-    analysis of the same flight with these updates."""
-    if max_rounds <= 0 or not names_outliers(analysis):
+def _glitch_curves(analysis: Any, given: Callable[[Any], dict | None] | None
+                   ) -> dict[str, GlrCurve] | None:
+    """The outlier curves a glitch is removed by: the decision's when it names outliers; when
+    it names a fault with outliers above their threshold beside it, those of the flight with
+    that fault removed exactly (``given``), if an update stays above the threshold there (else
+    the outliers were the fault's own effect); None: no glitch."""
+    if names_outliers(analysis):
+        return analysis.glr
+    if given is None or not names_a_fault(analysis):
         return None
-    removals, cur = [], analysis
+    cv = given(analysis)
+    thr = analysis.thresholds["outliers"]
+    if cv is None or not any(c.statistic > thr for c in outlier_curves(cv)):
+        return None
+    return cv
+
+
+def sequential(analysis: Any, redo: Callable[[RefRows], Any], refs: RefRows,
+               given: Callable[[Any], dict | None] | None = None,
+               max_rounds: int = MAX_ROUNDS) -> Sequential | None:
+    """The sequential decision of ``analysis`` (module docstring); None when no glitch is
+    found (nothing changes) or ``max_rounds`` is 0. ``refs``: the updates as recorded
+    (``Ins3dAnalysis.as_recorded``), in the analysis' order; ``redo(refs)``: the analysis of
+    the same flight with these updates; ``given(a)``: the GLR curves of ``a``'s flight with
+    its named fault removed exactly (None: not such a decision; None for ``given``: only
+    named outliers are removed)."""
+    if max_rounds <= 0:
+        return None
+    removals, cur, beside = [], analysis, not names_outliers(analysis)
     for r in range(1, max_rounds + 1):
-        if not names_outliers(cur) or refs.t.size < 2:
+        cv = _glitch_curves(cur, given) if refs.t.size > 1 else None
+        if cv is None:
             break
-        removals.append(Removal.top(r, cur.glr, cur.thresholds["outliers"]))
+        removals.append(Removal.top(r, cv, cur.thresholds["outliers"]))
         refs = without(refs, removals[-1].index)
         cur = redo(refs)
     if not removals:
         return None
-    return Sequential(removals, cur, names_a_fault(cur), names_outliers(cur))
+    return Sequential(removals, cur, names_a_fault(cur), names_outliers(cur), beside)
 
 
 __all__ = ["MAX_ROUNDS", "Removal", "Sequential", "glitch_records", "names_a_fault",
