@@ -10,7 +10,9 @@ import pytest
 from flight_fdi.bagio.ins3d_input import from_flight
 from flight_fdi.core.ins3d.analysis import analyze_ins3d
 from flight_fdi.core.ins3d.glitch import MAX_ROUNDS, glitch_records, without
-from flight_fdi.core.ins3d_result import fault_line
+from flight_fdi.cli.ins3d import format_result
+from flight_fdi.core.ins3d_result import fault_line, ins3d_result
+from flight_fdi.report.figures3d import _page
 
 from .conftest import flight
 from .test_postflight import validate
@@ -67,6 +69,13 @@ def test_glitch_and_step_are_both_reported(both):
     line = fault_line({"post_flight": pf})
     assert line.startswith("isolated: accelerometer x step") and \
         "reference glitch: north, 3 updates at 367.8, 381.1, 415.5 s" in line
+    # the text of `analyze --model ins3d` and the HTML report show both
+    res = ins3d_result(a, "sim")
+    text = format_result(res)
+    assert text.startswith("FAILURE: accelerometer x: bias step") and line in text
+    page = _page(res, [], [])
+    assert "accelerometer x: bias step" in page and \
+        "reference glitch: north, 3 updates at 367.8, 381.1, 415.5 s" in page
     # the decision on the rest: the flight without those three updates, the same path
     seq = a.sequential
     assert len(seq.removals) == 3 <= MAX_ROUNDS and seq.found and a.decided is seq.rest
