@@ -40,9 +40,10 @@ one update of the other rows (0.1 s at 10 Hz; 1 of 10-37 on the real 1-Hz contra
 
 Why outliers beside a decision are judged given the fault and not removed as they are: on the
 real recordings 184 fault runs (setting d) had outliers above their threshold beside a named
-fault, 162 of them right answers; with the named fault removed exactly none stayed above it
--- they were the fault's own effect, and removing them would have reported 184 false glitches
-and removed the fault's evidence (docs/ins3d_real.md). Not done beside an ``ambiguous``
+fault, 162 of them right answers; with the named fault removed exactly (160 name a single IMU
+step) none stayed above it -- they were the fault's own effect, and removing them would have
+reported false glitches on most right answers and removed the fault's evidence; in setting
+(i) only vertical/path_14's own glitch stayed (docs/ins3d_real.md). Not done beside an ``ambiguous``
 decision, a reference jump, or a decision given a turn-on bias (the bias would stay in the
 flight).
 """
