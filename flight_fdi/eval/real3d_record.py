@@ -34,8 +34,8 @@ def record(analysis, t0: float = 0.0) -> dict:
                 "best_statistic": cv[iso.best].statistic if iso.best else None,
                 "rival_statistic": cv[iso.rival].statistic if iso.rival else None,
                 "pair": iso.pair, "similarity": iso.similarity, "offset": iso.offset,
-                "nonlinear": None if analysis.nonlinear is None else
-                f"{analysis.nonlinear.before} -> {analysis.nonlinear.after}",
+                "nonlinear": None if dec.nonlinear is None else
+                f"{dec.nonlinear.before} -> {dec.nonlinear.after}",
                 "turn_on": [{k: t[k] for k in ("sensor", "axis", "magnitude", "magnitude_std",
                                                 "prior_sigmas", "statistic")}
                             for t in pf["turn_on_bias"]]})
