@@ -232,7 +232,7 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
                           [out.forward.neg2_log_likelihood()])
     x_s = out.backward.x_s
     for _ in range(MAX_PASSES):
-        steps, refs, w = relinearized_input(model, rel.steps, rel.refs, x_s)
+        steps, refs, _ = relinearized_input(model, rel.steps, rel.refs, x_s)
         P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]),
                                 aligned_prior)
         fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=True)
@@ -241,7 +241,6 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
             break
         bwd = run_backward(model, steps, refs, fwd, rank_tol)
         out.steps, out.refs, out.forward, out.backward = steps, refs, fwd, bwd
-        rel.response = w
         rel.attitude_max_rad.append(largest_attitude(bwd.x_s))
         rel.neg2_log_likelihood.append(nll)
         moved = float(np.abs(bwd.x_s[:, IPHI:IPHI + 3] - x_s[:, IPHI:IPHI + 3]).max())
@@ -273,8 +272,8 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
                                 signature_error_of(model.grade)
                                 if signature_error is None else signature_error,
-                                relinearized=None if out.relinearization is None else
-                                (cfg.rank_tol, out.relinearization, out.forward))
+                                rank_tol=None if out.relinearization is None else
+                                cfg.rank_tol)
     out.validity = _validity(out)
     iso = out.isolation            # beyond the (relinearised) model: no confident name
     if not out.validity.valid and iso.isolation == "single" and iso.rival is not None \
