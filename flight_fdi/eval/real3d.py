@@ -335,7 +335,7 @@ def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str
     import json
 
     from ..bagio import cdr
-    from ..bagio.ins3d_input import imu_payloads, ins_fix_payloads, velocity_payloads
+    from ..bagio.ins3d_payloads import imu_payloads, ins_fix_payloads, velocity_payloads
     from ..bagio.writer import open_writer
     settings = settings or Settings()
     cfg = cfg or settings.contract
