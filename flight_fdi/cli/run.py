@@ -137,6 +137,10 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
 
     bag, out = bag_and_folder(args)
     s = settings(args)
+    if s["height"] is not None:
+        raise CliError("--height-topic: the node pipeline (filter_node) has no height input "
+                       "yet; analyse the bag with 'flight-fdi analyze --model ins3d "
+                       "--height-topic' instead")
     block = error_model_block(args)
     names = topic_names(topics(args))  # checked with the bag's messages by run_pipeline3d
     # the model options as ``analyze`` takes them, as filter_node parameters (ins3d_vertical,
