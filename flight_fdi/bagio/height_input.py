@@ -42,17 +42,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.ins3d.defaults import DATUMS, HEIGHT_DEFAULTS, HEIGHT_TYPES
 from . import cdr
 from .errors import BagError
 
-HEIGHT_TYPES = (cdr.NAVSATFIX, cdr.FLUID_PRESSURE, cdr.POINT_STAMPED)
-DATUMS = ("first", "absolute")
-#: the defaults: the real-data evaluation's setting (i) (docs/ins3d_real.md, "A height reference
-#: row"): white 0.05 m, a Markov error of 0.4 m over 5 s, the initial vertical velocity 1 m/s
-DEFAULT_SIGMA_M = 0.05
-DEFAULT_MARKOV = (0.4, 5.0)
-DEFAULT_V0_SIGMA_UP = 1.0
-MAX_GAP_S = 2.0
+#: the defaults: setting (i) of the real-data evaluation (``core.ins3d.defaults``)
+DEFAULT_SIGMA_M = HEIGHT_DEFAULTS["sigma"]
+DEFAULT_MARKOV = HEIGHT_DEFAULTS["markov"]
+DEFAULT_V0_SIGMA_UP = HEIGHT_DEFAULTS["v0_sigma_up"]
+MAX_GAP_S = HEIGHT_DEFAULTS["max_gap_s"]
 #: the largest shuffle of height stamps that is sorted (the single-axis inputs' default)
 REORDER_WINDOW_S = 10.0
 #: the Markov sigma of the rows the user gave none for, when the other rows have one: the
@@ -215,7 +213,7 @@ def attach_height(inp, raw, msgtype: str, spec: HeightSpec, t_fix: np.ndarray,
     relative to ``inp.t0_ns``) the height of the raw messages ``raw`` (``reader.RawSeries``)
     of ``spec.topic`` (module docstring); ``inp.height`` records what it did. BagError when no
     reference row keeps a height."""
-    from ..core.ins3d.data import RefRows, with_height
+    from ..core.ins3d.data import RefRows, interpolate_height, with_height
     from .inputs import clean_series
 
     what = f"bag '{path}' {spec.topic}"
@@ -239,32 +237,15 @@ def attach_height(inp, raw, msgtype: str, spec: HeightSpec, t_fix: np.ndarray,
         offset = float(np.interp(t_h[0], t_fix, h_fix) - h_ref[0])
         h0 = float(math.sqrt(r_h[0]))
     refs = inp.refs
-    hz, rz, ok = interpolate(refs.t, t_h, h_ref + offset, r_h, spec.max_gap_s)
+    hz, rz, ok = interpolate_height(refs.t, t_h, h_ref + offset, r_h, spec.max_gap_s)
     if not ok.any():
         raise BagError(f"{what}: no reference velocity stamp has a height sample within "
                        f"{spec.max_gap_s:g} s (heights {t_h[0]:.1f}..{t_h[-1]:.1f} s, reference "
                        f"{refs.t[0]:.1f}..{refs.t[-1]:.1f} s from the first stamp)")
     kept = RefRows(refs.t[ok], refs.z[ok], refs.r[ok], refs.step[ok], refs.a[ok])
-    inp.refs = with_height(kept, t_fix, h_fix, np.interp(t_fix, t_vel, v_up), hz[ok], rz[ok])
+    inp.refs = with_height(kept, t_fix, h_fix, v_up, hz[ok], rz[ok], t_v=t_vel)
     inp.height = HeightInput(spec, msgtype, n, dropped, s.reordered, int((~ok).sum()), offset,
                              h0, int(known.sum()))
-
-
-def interpolate(t: np.ndarray, t_h: np.ndarray, h: np.ndarray, r: np.ndarray, max_gap: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(heights, variances, found) at stamps ``t`` from samples (t_h increasing, h, r): linear
-    between the samples at or before and at or after each stamp when they are at most
-    ``max_gap`` apart (an exact stamp: that sample); ``found`` False elsewhere."""
-    j = np.searchsorted(t_h, t, side="left")          # first sample at or after t
-    exact = (j < t_h.size) & (t_h[np.minimum(j, t_h.size - 1)] == t)
-    inside = (j > 0) & (j < t_h.size)
-    a, b = np.maximum(j - 1, 0), np.minimum(j, t_h.size - 1)
-    found = exact | (inside & (t_h[b] - t_h[a] <= max_gap))
-    w = np.where(inside & ~exact, (t - t_h[a]) / np.where(t_h[b] > t_h[a], t_h[b] - t_h[a], 1.0),
-                 1.0)
-    hz = np.where(exact, h[b], (1.0 - w) * h[a] + w * h[b])
-    rz = np.where(exact, r[b], (1.0 - w) * r[a] + w * r[b])
-    return hz, rz, found
 
 
 def _reasons(dropped: dict) -> str:
@@ -274,4 +255,4 @@ def _reasons(dropped: dict) -> str:
 
 __all__ = ["DATUMS", "DEFAULT_MARKOV", "DEFAULT_SIGMA_M", "DEFAULT_V0_SIGMA_UP", "HEIGHT_REASONS",
            "HEIGHT_TYPES", "HeightInput", "HeightSpec", "MAX_GAP_S", "attach_height",
-           "decode_height", "dh_dp", "interpolate", "isa_pressure", "pressure_altitude"]
+           "decode_height", "dh_dp", "isa_pressure", "pressure_altitude"]

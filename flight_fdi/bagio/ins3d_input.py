@@ -269,22 +269,21 @@ def check_messages(path: str | Path, topics: dict[str, str] | None = None
 
 
 def checked_messages(path: str | Path, topics: dict[str, str] | None = None,
-                     with_truth: bool = False) -> tuple[dict[str, str], dict[str, int], Any]:
+                     with_truth: bool = False, height: str | None = None
+                     ) -> tuple[dict[str, str], dict[str, int], Any, str | None]:
     """``check_messages`` and, in the same pass when ``with_truth``, the simulator's truth
-    (``truth_of_raw``; None when the bag has none or it is not asked for)."""
+    (``truth_of_raw``; None when the bag has none or it is not asked for); ``height``: a height
+    topic checked (``_check_height``) and counted too, and its type returned (else None)."""
     from .reader import read_topics_raw
     names = topic_names(topics)
     types: dict[str, str] = {}
-
-    def check(have: dict[str, str]) -> None:
-        _check_available(path, names, have)
-        types.update(have)
-
-    wanted = list(names.values()) + ([TRUTH_TOPIC] if with_truth else [])
-    raw = read_topics_raw(path, wanted, check=check)
+    counted = list(names.values()) + ([] if height is None else [height])
+    raw = read_topics_raw(path, counted + ([TRUTH_TOPIC] if with_truth else []),
+                          check=_checker(path, names, height, types))
     truth = truth_of_raw(raw[TRUTH_TOPIC], path, TRUTH_TOPIC) \
         if with_truth and types.get(TRUTH_TOPIC) == FILTER_STATE else None
-    return names, {t: int(raw[t].log_ns.size) for t in names.values()}, truth
+    return (names, {t: int(raw[t].log_ns.size) for t in counted}, truth,
+            None if height is None else types[height])
 
 
 def topic_names(topics: dict[str, str] | None) -> dict[str, str]:
@@ -322,17 +321,9 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None,
     from .reader import read_topics_raw
     names = topic_names(topics)
     extra = [] if height is None else [height.topic]
-    if height is not None and height.topic in names.values():
-        raise BagError(f"the height topic {height.topic} is also a contract topic")
     types: dict[str, str] = {}
-
-    def check(have: dict[str, str]) -> None:
-        _check_available(path, names, have)
-        if height is not None:
-            _check_height(path, height.topic, have)
-        types.update(have)
-
-    raw = read_topics_raw(path, list(names.values()) + extra, check=check)
+    raw = read_topics_raw(path, list(names.values()) + extra,
+                          check=_checker(path, names, extra[0] if extra else None, types))
     series = decode_series(raw, names, path)
     *values, t0 = arrays(series, names, path)
     inp = build_input(*values)
@@ -346,6 +337,21 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None,
         attach_height(inp, raw[height.topic], types[height.topic], height, t_fix, h, t_vel,
                       v[:, 2], path)
     return inp
+
+
+def _checker(path: str | Path, names: dict[str, str], height: str | None,
+             types: dict[str, str]):
+    """The ``check`` of ``reader.read_topics_raw``: the contract topics (``_check_available``)
+    and a height topic (``_check_height``), the bag's types kept in ``types``."""
+    if height is not None and height in names.values():
+        raise BagError(f"the height topic {height} is also a contract topic")
+
+    def check(have: dict[str, str]) -> None:
+        _check_available(path, names, have)
+        if height is not None:
+            _check_height(path, height, have)
+        types.update(have)
+    return check
 
 
 def _check_height(path: str | Path, topic: str, have: dict[str, str]) -> None:

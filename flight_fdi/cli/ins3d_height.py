@@ -28,7 +28,7 @@ def add_height_options(p: argparse.ArgumentParser) -> None:
         "3-D height reference (--model ins3d; the third reference row; docs/ins3d.md, 'A "
         "height reference')")
     g.add_argument("--height-topic", default=None, metavar="TOPIC",
-                   help=f"a height reference topic ({', '.join(t.split('/')[-1] for t in HEIGHT_TYPES)}"
+                   help=f"a height reference topic ({', '.join(_short(t) for t in HEIGHT_TYPES)}"
                         "): the third row is then the height, interpolated at the reference "
                         "velocity's stamps (default: none)")
     g.add_argument("--height-sigma", type=float, default=None, metavar="M",
@@ -44,6 +44,10 @@ def add_height_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--v0-sigma-up", type=float, default=None, metavar="M/S",
                    help="with a height reference: the initial vertical velocity error's sigma "
                         f"(default {DEFAULT_V0_SIGMA_UP:g})")
+
+
+def _short(msgtype: str) -> str:
+    return msgtype.rsplit("/", 1)[-1]
 
 
 def height_spec(args: argparse.Namespace):

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from flight_fdi.bagio import BagError, cdr, get_typestore
-from flight_fdi.bagio.height_input import (HeightSpec, dh_dp, interpolate, isa_pressure,
-                                           pressure_altitude)
+from flight_fdi.bagio.height_input import HeightSpec, dh_dp, isa_pressure, pressure_altitude
 from flight_fdi.bagio.ins3d_input import input_section3d, read_ins3d
 from flight_fdi.bagio.ins3d_payloads import height_payloads
 from flight_fdi.bagio.writer import open_writer
+from flight_fdi.core.ins3d.data import interpolate_height
 
 EPOCH = 1_700_000_000 * 10**9
 
@@ -86,7 +86,7 @@ def test_isa_pressure_altitude_known_answers():
 def test_interpolation_between_samples_exact_stamps_and_gaps():
     t_h = np.array([0.0, 1.0, 2.0, 6.0])
     h, r = np.array([10.0, 12.0, 11.0, 0.0]), np.array([1.0, 3.0, 1.0, 1.0])
-    hz, rz, ok = interpolate(np.array([-0.5, 0.0, 0.25, 1.0, 1.5, 4.0, 6.0, 6.5]), t_h, h, r,
+    hz, rz, ok = interpolate_height(np.array([-0.5, 0.0, 0.25, 1.0, 1.5, 4.0, 6.0, 6.5]), t_h, h, r,
                              max_gap=2.0)
     assert ok.tolist() == [False, True, True, True, True, False, True, False]
     np.testing.assert_allclose(hz[ok], [10.0, 10.5, 12.0, 11.5, 0.0])

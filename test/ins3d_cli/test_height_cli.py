@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from flight_fdi.cli.main import build_parser, main
@@ -22,7 +23,8 @@ def bags(tmp_path_factory):
     from 80 s."""
     root = tmp_path_factory.mktemp("height3d")
     out = {}
-    for name, extra in (("nominal", []), ("accel_z", ["--fault", "accel:step:t=80,mag=1mg,axis=z"])):
+    for name, extra in (("nominal", []),
+                        ("accel_z", ["--fault", "accel:step:t=80,mag=1mg,axis=z"])):
         assert main(["simulate", str(root / name), "--model", "ins3d", "--duration", "200",
                      "--seed", "4", "--baro-topic", BARO, *extra]) == 0
         out[name] = root / name
@@ -141,12 +143,28 @@ def test_bad_height_options_are_one_line(bags, capsys, opts, code, needle):
     assert err[0].startswith("flight-fdi analyze: error: ")
 
 
-def test_the_height_options_belong_to_the_3d_model_and_run_says_so(bags, capsys, tmp_path):
+def test_the_height_options_belong_to_the_3d_model(bags, capsys):
     capsys.readouterr()
     assert main(["analyze", str(bags["nominal"]), "--height-topic", BARO]) == 1
     assert "--height-topic applies only to --model ins3d" in capsys.readouterr().err
-    assert main(["run", str(bags["nominal"]), "--model", "ins3d", "--height-topic", BARO,
-                 "--out", str(tmp_path / "run")]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "the node pipeline (filter_node) has no height input" in err[0]
-    assert not (tmp_path / "run" / "recording").exists()
+
+
+@pytest.mark.timeout(300)
+def test_run_equals_analyze_with_the_height_topic(bags, results, tmp_path):
+    """``flight-fdi run --height-topic`` (the player plays the height topic, filter_node's ins3d
+    mode subscribes to it -- ``ins3d_height_topic`` -- and records the height row and its
+    options, the smoother analyses the recording) gives ``analyze``'s result."""
+    from .conftest import stdout_of
+    out = tmp_path / "run"
+    rc, text = stdout_of(["run", str(bags["accel_z"]), "--model", "ins3d", "--height-topic",
+                          BARO, "--out", str(out), "--json", "--no-progress", "--no-report",
+                          "--fail-on-fault"])
+    res = json.loads(text)
+    ref = results["accel_z"]
+    assert rc == 3 and res["post_flight"]["fault"]["axis"] == "z"
+    for k in ("post_flight", "in_flight", "ins3d", "samples", "source", "input"):
+        assert res[k] == ref[k], k
+    from flight_fdi.bagio.recording3d import read_recording3d
+    rec = read_recording3d(out / "recording")
+    assert rec["rows"] == 3 and rec["options"]["height_row"] and rec["options"]["position"]
+    assert rec["options"]["h0_sigma"] == pytest.approx(np.hypot(0.1, 0.3))  # the first sample

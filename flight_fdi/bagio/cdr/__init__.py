@@ -45,9 +45,9 @@ from .variable import (FILTER_STATE, FILTER_STATE_SEQUENCES, LINEAR_COV, ODOMETR
 from .message import WireError, header_bytes, header_stamp_ns
 
 __all__ = ["FILTER_STATE", "FILTER_STATE_SEQUENCES", "FLUID_PRESSURE", "IMU", "LINEAR_COV",
-           "NAVSATFIX", "ODOMETRY", "POINT_STAMPED", "STRING", "TWIST_COV_STAMPED", "TWIST_STAMPED", "FilterStateColumns",
-           "FilterStateRecord", "Payloads", "WireError", "decode", "decode_doubles",
-           "decode_filter_state_columns", "decode_filter_state_x", "decode_filter_states",
-           "decode_navsatfix_flags",
-           "decode_odometry", "decode_string", "encode", "encode_doubles", "encode_navsatfix",
-           "encode_odometry", "header_bytes", "header_stamp_ns", "rows", "supported"]
+           "NAVSATFIX", "ODOMETRY", "POINT_STAMPED", "STRING", "TWIST_COV_STAMPED",
+           "TWIST_STAMPED", "FilterStateColumns", "FilterStateRecord", "Payloads", "WireError",
+           "decode", "decode_doubles", "decode_filter_state_columns", "decode_filter_state_x",
+           "decode_filter_states", "decode_navsatfix_flags", "decode_odometry", "decode_string",
+           "encode", "encode_doubles", "encode_navsatfix", "encode_odometry", "header_bytes",
+           "header_stamp_ns", "rows", "supported"]
