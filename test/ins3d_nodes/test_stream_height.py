@@ -13,10 +13,10 @@ from flight_fdi.bagio.height_input import HeightSpec, decode_height
 from flight_fdi.bagio.ins3d_input import read_ins3d
 from flight_fdi.bagio.ins3d_payloads import height_payloads
 from flight_fdi.bagio.writer import open_writer
-from flight_fdi.core.ins3d.stream import HEIGHT, Boundary, HeightRule, Ins3dAssembler, Row
+from flight_fdi.core.ins3d.stream import HEIGHT, HeightRule, Ins3dAssembler
 from flight_fdi.sim.bag3d import encode_topics
 
-from .streams import T0_NS, flight, topic_messages
+from .streams import T0_NS, assert_rows_are, flight, topic_messages
 
 SPEC = HeightSpec("/baro", sigma=0.1, markov=(0.3, 4.0))
 
@@ -58,15 +58,7 @@ def test_the_height_rows_equal_the_bag_readers(data, delay_s):
         assert not isinstance(got, str), got
         events += got
     events += asm.finish()
-    rows = [e for e in events if isinstance(e, Row)]
-    refs = inp.refs
-    np.testing.assert_array_equal([r.t for r in rows], refs.t)
-    np.testing.assert_array_equal([r.k for r in rows], refs.step)
-    np.testing.assert_array_equal(np.array([r.z for r in rows]), refs.z)
-    np.testing.assert_array_equal(np.array([r.r for r in rows]), refs.r)
-    np.testing.assert_allclose(np.array([r.a for r in rows]), refs.a, rtol=1e-12, atol=1e-15)
-    order = [(e.k, 0 if isinstance(e, Boundary) else 1) for e in events]
-    assert order == sorted(order)
+    assert_rows_are(events, inp.refs)
     hi = inp.height
     assert asm.offset == hi.offset_m and asm.h0_sigma == hi.h0_sigma == pytest.approx(
         np.sqrt(0.2))                          # the first sample in the record: a known one
