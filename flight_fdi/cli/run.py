@@ -143,6 +143,10 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
     # ...; a baro loop is the node's own, the simulator's default loop)
     options = description_options(sim_description(bag), block, f"bag '{bag}'")
     options.pop("loop", None)
+    if s["height"] is not None:     # the velocity reference's Markov noise with the height's
+        from flight_fdi.core.ins3d.defaults import ANALYZE_DEFAULTS
+        options["ref_markov"] = s["height"].ref_markov(
+            options.get("ref_markov", ANALYZE_DEFAULTS["ref_markov"]))
     try:
         run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], storage=args.storage, overwrite=True,
@@ -150,7 +154,7 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
                              options=options,
                              progress=None if args.no_progress else sys.stderr,
                              on_teardown_timeout=after_blocked_teardown(out, args, complete3d),
-                             with_truth=not args.no_report, **bounds)
+                             with_truth=not args.no_report, height=s["height"], **bounds)
     except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None
     return complete3d(run, out, args)

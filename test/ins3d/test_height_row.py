@@ -108,3 +108,18 @@ def test_nominal_flight_with_a_height_row_names_nothing():
     assert an.isolation.isolation == "none"
     assert 0.3 < an.forward.beta2_row[:, 2].mean() < 1.5
     assert an.forward.x.shape[1] == an.model.n and an.model.names[IP + 2] == "dp_u"
+
+
+def test_the_initial_height_error_prior_of_a_datum():
+    """``h0_sigma`` (``bagio.height_input``'s datum "first") sets the height error's prior
+    variance and nothing else; it needs a height state."""
+    base = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True)
+    m = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True, h0_sigma=0.4)
+    p, p_base = m.p0(), base.p0()
+    assert p[m.ih] == pytest.approx(0.16) and p_base[m.ih] == pytest.approx(25.0)
+    assert np.array_equal(np.delete(p, m.ih), np.delete(p_base, m.ih))
+    loop = Ins3dModel.from_grade("tactical", rows=3, vertical="loop", h0_sigma=0.4)
+    assert loop.p0()[loop.ih] == pytest.approx(0.16)
+    for bad in (dict(h0_sigma=0.0, position=True), dict(h0_sigma=1.0)):
+        with pytest.raises(CoreError, match="h0_sigma must be > 0, with a height state"):
+            Ins3dModel.from_grade("tactical", **bad)

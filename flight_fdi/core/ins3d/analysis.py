@@ -166,7 +166,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                   loop: VerticalLoop | None = None,
                   signature_error: float | None = None,
                   height_row: bool = False,
-                  v0_sigma_up: float | None = None) -> Ins3dAnalysis:
+                  v0_sigma_up: float | None = None,
+                  h0_sigma: float | None = None) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
     simulated flight). ``grade``: an ImuGrade, a preset name or a YAML grade file
     (``grade_file.resolve_grade``). ``max_dt``: the steps are merged onto the reference grid, at
@@ -180,7 +181,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     grade's: a grade file's ``signature_error_rad``, else its axis misalignment).
     ``height_row``: the third reference row is a height reference (``data.with_height``; needs
     ``rows=3`` and ``position=True``); ``v0_sigma_up``: the initial vertical velocity error's
-    sigma (m/s) of a free vertical channel (default: the horizontal ones').
+    sigma (m/s) of a free vertical channel (default: the horizontal ones'); ``h0_sigma``: the
+    initial height error's sigma (m; default the position's 5 m: ``bagio.height_input``'s datum).
     ``diagnosis``: the seed method's rules (default ``grade_file.diagnosis_config_of`` the
     grade: a grade file's ``seed_episode_probability``, else ``DiagnosisConfig()``)."""
     if vertical == "loop" and steps.t.size:
@@ -189,7 +191,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     model = Ins3dModel.from_grade(resolve_grade(grade), position=position, rows=rows,
                                   vertical=vertical,
                                   latency=latency, ref_markov=ref_markov, loop=loop,
-                                  height_row=height_row, v0_sigma_up=v0_sigma_up)
+                                  height_row=height_row, v0_sigma_up=v0_sigma_up,
+                                  h0_sigma=h0_sigma)
     if refs.t.size == 0:
         raise CoreError("ins3d analysis: no reference update inside the INS record")
     order = np.argsort(refs.step, kind="stable")

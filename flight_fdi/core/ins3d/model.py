@@ -105,6 +105,10 @@ class Ins3dModel:
     #: the initial vertical velocity error's sigma (m/s) of a free or looped vertical channel
     #: (None: ``p0``'s v_sigma; a damped channel's is ``sigma_vertical``)
     v0_sigma_up: float | None = None
+    #: the initial height error's sigma (m; None: ``p0``'s position sigma, or the loop's): a
+    #: height reference offset to the INS height at its first sample (``bagio.height_input``,
+    #: datum "first") knows it to that reference's own error
+    h0_sigma: float | None = None
 
     def __post_init__(self) -> None:
         if self.rows not in (2, 3):
@@ -125,13 +129,17 @@ class Ins3dModel:
         if self.v0_sigma_up is not None and not (math.isfinite(self.v0_sigma_up)
                                                  and self.v0_sigma_up > 0):
             raise CoreError("ins3d: v0_sigma_up must be > 0")
+        if self.h0_sigma is not None and not (math.isfinite(self.h0_sigma) and self.h0_sigma > 0
+                                              and self.ih >= 0):
+            raise CoreError("ins3d: h0_sigma must be > 0, with a height state")
 
     @classmethod
     def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2,
                    vertical: str = "damped", latency: bool = False,
                    ref_markov: tuple[float, float, float] | None = None,
                    loop: VerticalLoop | None = None, height_row: bool = False,
-                   v0_sigma_up: float | None = None) -> "Ins3dModel":
+                   v0_sigma_up: float | None = None,
+                   h0_sigma: float | None = None) -> "Ins3dModel":
         if isinstance(name, ImuGrade):
             grade = name
         elif name in GRADES:
@@ -140,7 +148,8 @@ class Ins3dModel:
             raise CoreError(f"ins3d: unknown IMU grade {name!r}; choose one of "
                             f"{', '.join(GRADES)}")
         return cls(grade, position, rows, vertical, latency=latency, ref_markov=ref_markov,
-                   loop=loop or VerticalLoop(), height_row=height_row, v0_sigma_up=v0_sigma_up)
+                   loop=loop or VerticalLoop(), height_row=height_row, v0_sigma_up=v0_sigma_up,
+                   h0_sigma=h0_sigma)
 
     @property
     def n(self) -> int:
@@ -259,7 +268,7 @@ class Ins3dModel:
         """(n,) initial variances: velocity v_sigma, attitude phi_sigma (default: levelling
         tilt from the accelerometer bias, heading from the grade: gyrocompassing or external),
         biases from the grade (sigma0^2 + sigma^2; body z accelerometer: + (scale g)^2),
-        position p_sigma."""
+        position p_sigma (the height: ``h0_sigma`` when given)."""
         g = self.grade
         sa = math.hypot(g.accel_bias, g.accel_instability)
         sg = math.hypot(g.gyro_bias, g.gyro_instability)
@@ -287,6 +296,8 @@ class Ins3dModel:
             p[self.ih] = min(p_sigma, 1.0) ** 2 if not self.position else p[self.ih]
             p[self.im - 2] = 1.0
             p[self.im - 1] = max(lp.bias**2 + lp.instability**2, 1e-6)
+        if self.h0_sigma is not None:
+            p[self.ih] = self.h0_sigma**2
         if self.ref_markov:
             p[self.im:self.im + self.n_markov] = self.markov_sigma()**2
         if self.latency:
