@@ -125,16 +125,18 @@ class HeightSpec:
         return self.sigma**2 + (self.markov[0] ** 2 if self.markov else 0.0)
 
     def ref_markov(self, velocity: tuple[float, float, float] | None
-                   ) -> tuple[float, float, float] | None:
+                   ) -> tuple[float, ...] | None:
         """The model's reference Markov noise (``Ins3dModel.ref_markov``: sigma_h m/s, the
-        third row's sigma -- here m --, one tau for all rows) of the velocity reference's
-        ``velocity`` (sigma_h, sigma_v, tau) and this height's: the height's sigma and tau;
-        a side without Markov noise gets ``NEGLIGIBLE_MARKOV``; None when neither has any."""
+        third row's sigma -- here m --, tau, the third row's tau) of the velocity reference's
+        ``velocity`` (sigma_h, sigma_v, tau) and this height's (sigma, tau): each row keeps its
+        own sigma and tau; a side without Markov noise gets ``NEGLIGIBLE_MARKOV`` (with the
+        other side's tau); None when neither has any."""
         if self.markov is None:
             return None if velocity is None else \
                 (float(velocity[0]), NEGLIGIBLE_MARKOV, float(velocity[2]))
-        return (NEGLIGIBLE_MARKOV if velocity is None else float(velocity[0]),
-                self.markov[0], self.markov[1])
+        if velocity is None:
+            return NEGLIGIBLE_MARKOV, self.markov[0], self.markov[1]
+        return float(velocity[0]), self.markov[0], float(velocity[2]), self.markov[1]
 
     def describe(self) -> dict:
         """The plain-data form a result's ``source.height`` records (``from_source``)."""

@@ -43,6 +43,7 @@ ROW_NAMES = ("east", "north", "up")
 GRADE_PREFIX = "grade."
 OPTION_PREFIX = "model."
 _MARKOV = ("ref_markov_sigma_h", "ref_markov_sigma_v", "ref_markov_tau_s")
+_MARKOV_TAU_THIRD = "ref_markov_tau_third_s"
 _HEIGHT = ("v0_sigma_up", "h0_sigma")
 _UNITS = {"dv": "m/s", "ph": "rad", "ba": "m/s^2", "bg": "rad/s", "dp": "m", "re": "m/s",
           "la": "s"}
@@ -85,6 +86,8 @@ def option_params(options: dict[str, Any]) -> tuple[list[str], list[float]]:
             **{k: float(v) for k, v in zip(_MARKOV, mk)}}
     if options.get("height_row"):
         vals.update({"height_row": 1.0, **{k: float(options.get(k) or 0.0) for k in _HEIGHT}})
+    if len(mk) == 4:                     # the height row's own tau
+        vals[_MARKOV_TAU_THIRD] = float(mk[3])
     return [OPTION_PREFIX + k for k in vals], list(vals.values())
 
 
@@ -97,7 +100,8 @@ def recorded_options(params: dict[str, float]) -> dict[str, Any]:
     if not p:
         return {}
     try:
-        mk = tuple(float(p[k]) for k in _MARKOV)
+        mk = tuple(float(p[k]) for k in _MARKOV) + \
+            ((float(p[_MARKOV_TAU_THIRD]),) if _MARKOV_TAU_THIRD in p else ())
         out = {"vertical": VERTICAL[int(p["vertical"])], "latency": bool(p["latency"]),
                "aligned_prior": bool(p["aligned_prior"]),
                "ref_markov": mk if any(mk) else None}

@@ -217,12 +217,13 @@ def analyze_bag(bag: str, args: argparse.Namespace):
     inp = read_ins3d(bag, topics(args), height=s["height"])
     names = inp.topics
     options = model_options_with(inp, block, f"bag '{bag}'")
-    rows = {"rows": s["rows"]}
-    if inp.height is not None:       # the third row the height (options: its model)
+    rows, model = {"rows": s["rows"]}, dict(options)
+    if inp.height is not None:       # the third row the height (with its own Markov noise; the
+        #                              source records the velocity reference's, options')
         rows = inp.height.options(options.get("ref_markov", ANALYZE_DEFAULTS["ref_markov"]))
-        options["ref_markov"] = rows.pop("ref_markov")
+        model["ref_markov"] = rows.pop("ref_markov")
     analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], gate=s["gate"], **rows,
-                             **options)
+                             **model)
     res = ins3d_result(analysis, bag, source(names, s, recorded_model(options, block)))
     section = input_section3d(inp)    # what was read and left out (batch's dropped_samples)
     if section is not None:

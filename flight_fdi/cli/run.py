@@ -142,11 +142,8 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
     # the model options as ``analyze`` takes them, as filter_node parameters (ins3d_vertical,
     # ...; a baro loop is the node's own, the simulator's default loop)
     options = description_options(sim_description(bag), block, f"bag '{bag}'")
-    options.pop("loop", None)
-    if s["height"] is not None:     # the velocity reference's Markov noise with the height's
-        from flight_fdi.core.ins3d.defaults import ANALYZE_DEFAULTS
-        options["ref_markov"] = s["height"].ref_markov(
-            options.get("ref_markov", ANALYZE_DEFAULTS["ref_markov"]))
+    options.pop("loop", None)     # (with a height topic filter_node adds the height's Markov
+    #                               noise to the velocity reference's: HeightSpec.ref_markov)
     try:
         run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], storage=args.storage, overwrite=True,

@@ -52,8 +52,8 @@ INS3D_PARAMS = (
               "ins3d mode: white sigma of a height message without a known variance", "m",
               min=0.0, min_exclusive=True),
     ParamSpec("ins3d_height_markov", "double_array", list(HEIGHT_DEFAULTS["markov"]),
-              "ins3d mode: the height's Markov error [sigma m, tau s] (both > 0; the model's "
-              "one tau of all rows' Markov states), or [0, 0]: none", min=0.0),
+              "ins3d mode: the height's Markov error [sigma m, tau s] (both > 0; the third "
+              "row's own, beside ins3d_reference_markov's), or [0, 0]: none", min=0.0),
     ParamSpec("ins3d_height_datum", "string", HEIGHT_DEFAULTS["datum"],
               "ins3d mode: first -- the height offset to the INS height at its first sample; "
               "absolute -- as published", choices=DATUMS),

@@ -151,7 +151,7 @@ def test_the_height_row_known_answer_between_samples(flight, tmp_path):
                                atol=1e-9)
     opts = inp.height.options((0.02, 0.03, 30.0))
     assert opts == {"rows": 3, "position": True, "height_row": True, "v0_sigma_up": 1.0,
-                    "h0_sigma": inp.height.h0_sigma, "ref_markov": (0.02, 0.3, 4.0)}
+                    "h0_sigma": inp.height.h0_sigma, "ref_markov": (0.02, 0.3, 30.0, 4.0)}
 
 
 def test_bad_height_messages_are_dropped_and_counted(flight, tmp_path):

@@ -40,6 +40,29 @@ def test_the_third_row_measures_the_height_error(kw):
     assert np.array_equal(scaled_H(np.ones(v.n), a, *v.row_args()), v.H(a))
 
 
+def test_the_height_row_s_markov_state_has_its_own_time_constant():
+    """ref_markov (sigma_h, sigma_v, tau, tau_third): the third row's Markov state decays with
+    its own tau in F and gets q = 2 sigma^2 / tau from it; the horizontal ones keep tau; three
+    values give every row tau (as before); a fifth value or a non-positive one is refused."""
+    from flight_fdi.core.ins3d.dynamics import fill_F
+    m = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True,
+                              ref_markov=(0.02, 0.4, 30.0, 5.0))
+    F = np.empty((m.n, m.n))
+    fill_F(F, np.eye(3), np.array([0.0, 0.0, 9.8]), np.array([100.0, 0.0, 0.0]), 0.8, 1000.0,
+           m.kernel_params())
+    im = m.im
+    assert [F[im + i, im + i] for i in range(3)] == [-1 / 30.0, -1 / 30.0, -1 / 5.0]
+    assert np.allclose(m.qc()[im:im + 3], [2 * 0.02**2 / 30, 2 * 0.02**2 / 30, 2 * 0.4**2 / 5])
+    same = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True,
+                                 ref_markov=(0.02, 0.4, 30.0))
+    fill_F(F, np.eye(3), np.array([0.0, 0.0, 9.8]), np.array([100.0, 0.0, 0.0]), 0.8, 1000.0,
+           same.kernel_params())
+    assert [F[im + i, im + i] for i in range(3)] == [-1 / 30.0] * 3
+    for bad in ((0.02, 0.4, 30.0, 5.0, 1.0), (0.02, 0.4, 30.0, 0.0)):
+        with pytest.raises(CoreError, match="ref_markov"):
+            Ins3dModel.from_grade("tactical", rows=3, position=True, ref_markov=bad)
+
+
 @pytest.mark.parametrize("kw", [dict(rows=2, position=True), dict(rows=3)])
 def test_a_height_row_needs_three_rows_and_a_height_state(kw):
     with pytest.raises(CoreError, match="height reference row needs rows=3"):

@@ -63,8 +63,9 @@ def test_nominal_names_nothing_and_the_third_row_is_the_height(results):
     assert src["rows"] == 3 and src["height"] == {
         "topic": BARO, "sigma_m": 0.05, "markov": [0.4, 5.0], "datum": "first",
         "v0_sigma_up": 1.0, "max_gap_s": 2.0}
-    # the velocity reference's Markov sigma (the default 0.02) with the height's sigma and tau
-    assert src["error_model"]["reference_markov"] == [0.02, 0.4, 5.0]
+    # the source keeps the velocity reference's Markov noise (the defaults); the height row has
+    # its own sigma and tau (HeightSpec.ref_markov: (0.02, 0.4, 30.0, 5.0) in the model)
+    assert src["error_model"]["reference_markov"] == [0.02, 0.03, 30.0]
     entry = res["input"][BARO]
     assert entry["type"] == "sensor_msgs/msg/FluidPressure" and entry["role"] == "height"
     assert entry["messages"] == 2001 and entry["used"] == 2000      # the one at 0 s: before

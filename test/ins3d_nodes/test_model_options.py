@@ -141,7 +141,7 @@ def test_the_height_parameters_become_the_node_model_and_round_trip():
     values = {**d, "model": "ins3d", "ins3d_height_topic": "/baro"}
     m = build_model(values, d)
     assert (m.rows, m.height_row, m.position, m.v0_sigma_up) == (3, True, True, 1.0)
-    assert m.ref_markov == (0.02, 0.4, 5.0) and m.h0_sigma is None
+    assert m.ref_markov == (0.02, 0.4, 30.0, 5.0) and m.h0_sigma is None   # each row its tau
     spec = HeightSpec("/b", sigma=0.2, markov=None, datum="absolute", v0_sigma_up=0.3)
     params = height_parameters(spec, "sensor_msgs/msg/NavSatFix")
     for k, v in params.items():
