@@ -113,7 +113,8 @@ def test_the_ins3d_height_parameters_round_trip_through_the_dump(tmp_path):
     model, dumped = node.model, _dump(node)
     _close(node, ctx)
     assert (first["ins3d_height_markov"], first["ins3d_v0_sigma_up"]) == ([0.5, 8.0], 2.0)
-    assert model.height_row and model.ref_markov == (0.02, 0.5, 8.0) and model.v0_sigma_up == 2
+    assert model.height_row and model.ref_markov == (0.02, 0.5, 30.0, 8.0) \
+        and model.v0_sigma_up == 2
     path = tmp_path / "f.yaml"
     path.write_text(dumped)
     node, ctx, second = _build(FilterNode, ["--ros-args", "--params-file", str(path)])
