@@ -38,10 +38,6 @@ TYPES = {"ins_velocity": "geometry_msgs/msg/TwistStamped", "ins_imu": "sensor_ms
          "ins_fix": "sensor_msgs/msg/NavSatFix",
          "ref_velocity": "geometry_msgs/msg/TwistWithCovarianceStamped"}
 TRUTH_TOPIC = "/sim/truth"
-#: frames of the contract topics (docs/sim3d.md, "Topics")
-ENU_FRAME, BODY_FRAME = "enu", "base_link"
-#: the variance written on the covariance diagonal of what a message does not measure
-UNMEASURED_VARIANCE = 1e6
 #: the description's block of error-model options and its keys
 ERROR_MODEL = "error_model"
 ERROR_MODEL_KEYS = ("vertical", "latency", "reference_markov", "initial_attitude")
@@ -61,6 +57,8 @@ class Ins3dInput:
     #: read from a bag: the contract topics ({role: topic}) and the messages read per topic
     topics: dict | None = None
     messages: dict | None = None
+    #: the height reference row, when one was asked for (``bagio.height_input.HeightInput``)
+    height: Any = None
 
     def vertical(self) -> dict:
         """``description_vertical`` of this input's description."""
@@ -271,22 +269,21 @@ def check_messages(path: str | Path, topics: dict[str, str] | None = None
 
 
 def checked_messages(path: str | Path, topics: dict[str, str] | None = None,
-                     with_truth: bool = False) -> tuple[dict[str, str], dict[str, int], Any]:
+                     with_truth: bool = False, height: str | None = None
+                     ) -> tuple[dict[str, str], dict[str, int], Any, str | None]:
     """``check_messages`` and, in the same pass when ``with_truth``, the simulator's truth
-    (``truth_of_raw``; None when the bag has none or it is not asked for)."""
+    (``truth_of_raw``; None when the bag has none or it is not asked for); ``height``: a height
+    topic checked (``_check_height``) and counted too, and its type returned (else None)."""
     from .reader import read_topics_raw
     names = topic_names(topics)
     types: dict[str, str] = {}
-
-    def check(have: dict[str, str]) -> None:
-        _check_available(path, names, have)
-        types.update(have)
-
-    wanted = list(names.values()) + ([TRUTH_TOPIC] if with_truth else [])
-    raw = read_topics_raw(path, wanted, check=check)
+    counted = list(names.values()) + ([] if height is None else [height])
+    raw = read_topics_raw(path, counted + ([TRUTH_TOPIC] if with_truth else []),
+                          check=_checker(path, names, height, types))
     truth = truth_of_raw(raw[TRUTH_TOPIC], path, TRUTH_TOPIC) \
         if with_truth and types.get(TRUTH_TOPIC) == FILTER_STATE else None
-    return names, {t: int(raw[t].log_ns.size) for t in names.values()}, truth
+    return (names, {t: int(raw[t].log_ns.size) for t in counted}, truth,
+            None if height is None else types[height])
 
 
 def topic_names(topics: dict[str, str] | None) -> dict[str, str]:
@@ -312,13 +309,22 @@ def _check_available(path: str | Path, names: dict[str, str], have: dict[str, st
             raise BagError(f"bag '{path}': {v} carries {have[v]}, expected {TYPES[k]}")
 
 
-def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dInput:
+def read_ins3d(path: str | Path, topics: dict[str, str] | None = None,
+               height: Any = None) -> Ins3dInput:
     """Decode a bag's contract topics (names configurable) into the estimator's input, with its
     description (BagError for a bad ``error_model`` block). Each topic is decoded as a whole
-    (``ins3d_series``: the one CDR codec, ~0.1 s for an 1800-s flight)."""
-    from .ins3d_series import arrays, read_series
+    (``ins3d_series``: the one CDR codec, ~0.1 s for an 1800-s flight). ``height``: a
+    ``bagio.height_input.HeightSpec``: its topic, read in the same pass, becomes the third
+    reference row (``height_input.attach_height``; ``inp.height`` says what it did)."""
+    from .height_input import attach_height
+    from .ins3d_series import arrays, decode_series
+    from .reader import read_topics_raw
     names = topic_names(topics)
-    series = read_series(path, names, lambda have: _check_available(path, names, have))
+    extra = [] if height is None else [height.topic]
+    types: dict[str, str] = {}
+    raw = read_topics_raw(path, list(names.values()) + extra,
+                          check=_checker(path, names, extra[0] if extra else None, types))
+    series = decode_series(raw, names, path)
     *values, t0 = arrays(series, names, path)
     inp = build_input(*values)
     inp.t0_ns = t0
@@ -326,7 +332,37 @@ def read_ins3d(path: str | Path, topics: dict[str, str] | None = None) -> Ins3dI
     error_model_options(inp.description, f"bag '{path}'")     # a bad block: said here, once
     inp.topics = dict(names)
     inp.messages = {v: int(series[k][0].size) for k, v in names.items()}
+    if height is not None:
+        t_vel, v, t_fix, _, h = values[4:9]
+        attach_height(inp, raw[height.topic], types[height.topic], height, t_fix, h, t_vel,
+                      v[:, 2], path)
     return inp
+
+
+def _checker(path: str | Path, names: dict[str, str], height: str | None,
+             types: dict[str, str]):
+    """The ``check`` of ``reader.read_topics_raw``: the contract topics (``_check_available``)
+    and a height topic (``_check_height``), the bag's types kept in ``types``."""
+    if height is not None and height in names.values():
+        raise BagError(f"the height topic {height} is also a contract topic")
+
+    def check(have: dict[str, str]) -> None:
+        _check_available(path, names, have)
+        if height is not None:
+            _check_height(path, height, have)
+        types.update(have)
+    return check
+
+
+def _check_height(path: str | Path, topic: str, have: dict[str, str]) -> None:
+    """BagError, one line, unless the bag has the height topic with a height type."""
+    from .height_input import HEIGHT_TYPES
+    from .reader import topic_list
+    if topic not in have:
+        raise BagError(f"bag '{path}': no height topic {topic} (topics: {topic_list(have)})")
+    if have[topic] not in HEIGHT_TYPES:
+        raise BagError(f"bag '{path}': {topic} carries {have[topic]}, expected a height: "
+                       f"{', '.join(HEIGHT_TYPES)}")
 
 
 #: why the 3-D input leaves a message out (``input_section3d``): the first; the others only the
@@ -343,7 +379,10 @@ REASON_TEXT3D = {
     "invalid_covariance": "a variance not > 0 (dropped)",
     "core_error": "refused by the filter (dropped)",
     "non_finite": "non-finite value (dropped)",
-    "out_of_order": "header stamp older than the previous one (dropped)"}
+    "out_of_order": "header stamp older than the previous one (dropped)",
+    "no_height": "no height sample within the height reference's max gap (not used: the "
+                 "height row needs one)",
+    "no_fix": "NavSatFix status NO_FIX (dropped)"}
 
 
 def input_section3d(inp: Ins3dInput) -> dict | None:
@@ -353,12 +392,20 @@ def input_section3d(inp: Ins3dInput) -> dict | None:
     only: reference rows outside the IMU record (no step for them: ``core.ins3d.data.ref_rows``;
     a simulated bag's first reference, at 0 s, before the first IMU message). It refuses nothing
     else -- messages are sorted by stamp, a non-finite value or a repeated IMU stamp is not
-    dropped (the latter fails the analysis). None for an input not read from a bag."""
+    dropped (the latter fails the analysis). With a height reference, reference rows without a
+    height sample (``no_height``) and the height topic's own entry (``HeightInput.section``:
+    its drops, where its variances came from, the datum offset). None for an input not read
+    from a bag."""
     if inp.topics is None or inp.messages is None:
         return None
     n_ref = int(inp.messages[inp.topics["ref_velocity"]])
-    return section3d(inp.topics, inp.messages,
-                     {"ref_velocity": {"outside_imu_record": n_ref - int(inp.refs.t.size)}})
+    no_height = 0 if inp.height is None else inp.height.ref_no_height
+    out = section3d(inp.topics, inp.messages, {"ref_velocity": {
+        "outside_imu_record": n_ref - int(inp.refs.t.size) - no_height,
+        **({"no_height": no_height} if inp.height is not None else {})}})
+    if inp.height is not None:
+        out[inp.height.spec.topic] = inp.height.section()
+    return out
 
 
 def section3d(topics: dict[str, str], messages: dict[str, int],
@@ -427,46 +474,6 @@ def truth_relative(truth: tuple | None, t0_ns: int) -> dict[str, np.ndarray] | N
         return None
     stamps, names, x = truth
     return {"t": (stamps - t0_ns) * 1e-9, **{n: x[:, i] for i, n in enumerate(names)}}
-
-
-def imu_payloads(stamps_ns: np.ndarray, q: np.ndarray, w_b: np.ndarray,
-                 f_b: np.ndarray) -> list[bytes]:
-    """/ins/imu messages (sensor_msgs/Imu, ``BODY_FRAME``): orientation = q_b^n (w, x, y, z
-    given), angular_velocity = w_b, linear_acceleration = f_b; covariances 0 (unknown)."""
-    from . import cdr
-
-    vals = np.zeros((len(stamps_ns), 37))
-    vals[:, 0:3], vals[:, 3] = q[:, 1:4], q[:, 0]
-    vals[:, 13:16], vals[:, 25:28] = w_b, f_b
-    return cdr.encode_doubles(cdr.IMU, stamps_ns, BODY_FRAME, vals)
-
-
-def velocity_payloads(stamps_ns: np.ndarray, v: np.ndarray,
-                      var: np.ndarray | None = None) -> tuple[str, list[bytes]]:
-    """(type, messages) of ENU velocities ``v`` (``ENU_FRAME``): TwistStamped (the INS), or with
-    the per-axis variances ``var`` TwistWithCovarianceStamped (the reference; the angular part
-    ``UNMEASURED_VARIANCE``)."""
-    from . import cdr
-
-    twist = np.zeros((len(stamps_ns), 6))
-    twist[:, :3] = v
-    if var is None:
-        return cdr.TWIST_STAMPED, cdr.encode(cdr.TWIST_STAMPED, stamps_ns, ENU_FRAME, twist)
-    cov = np.zeros(36)
-    cov[[0, 7, 14]] = var
-    cov[[21, 28, 35]] = UNMEASURED_VARIANCE
-    return cdr.TWIST_COV_STAMPED, cdr.encode(cdr.TWIST_COV_STAMPED, stamps_ns, ENU_FRAME,
-                                             twist, cov)
-
-
-def ins_fix_payloads(stamps_ns: np.ndarray, lat: np.ndarray, lon: np.ndarray,
-                     h: np.ndarray) -> list[bytes]:
-    """/ins/fix messages (sensor_msgs/NavSatFix, ``BODY_FRAME``): latitude and longitude (rad
-    given, degrees written), height; covariance unknown."""
-    from . import cdr
-
-    llh = np.stack([np.degrees(lat), np.degrees(lon), h], axis=1)
-    return cdr.encode_navsatfix(stamps_ns, BODY_FRAME, 0, 0, llh, np.zeros(9), 0)
 
 
 __all__ = ["DROP_REASONS3D", "ERROR_MODEL", "ERROR_MODEL_KEYS", "INITIAL_ATTITUDE", "Ins3dInput",

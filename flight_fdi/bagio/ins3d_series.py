@@ -35,7 +35,12 @@ def read_series(path: str | Path, names: dict[str, str],
     """The contract topics ``names`` ({role: topic}) of a bag, each decoded as a whole;
     ``check`` receives the bag's {topic: type} before anything is read (``read_topics_raw``)."""
     from .reader import read_topics_raw
-    raw = read_topics_raw(path, list(names.values()), check=check)
+    return decode_series(read_topics_raw(path, list(names.values()), check=check), names, path)
+
+
+def decode_series(raw: dict, names: dict[str, str], path: str | Path) -> Series:
+    """``read_series`` of the raw messages ``raw`` ({topic: ``reader.RawSeries``}) already
+    read (``ins3d_input.read_ins3d`` reads a height topic in the same pass)."""
     return {role: cdr.decode_doubles(TYPES[role], raw[topic].payloads, COLUMNS[role],
                                      f"bag '{path}' {topic}")
             for role, topic in names.items()}
@@ -99,4 +104,4 @@ def arrays(series: Series, names: dict[str, str], path: str | Path) -> tuple:
             cols("ref_velocity", 3, 6), t0_ns)
 
 
-__all__ = ["COLUMNS", "Series", "arrays", "read_series", "read_series_messages"]
+__all__ = ["COLUMNS", "Series", "arrays", "decode_series", "read_series", "read_series_messages"]

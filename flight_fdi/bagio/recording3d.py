@@ -10,7 +10,9 @@ scale, ``param_names`` ``rows, t0_sec, t0_nanosec`` (t0: the stamp all times are
 the earliest first stamp of the four inputs, as the bag reader takes it), the model options
 ``model.vertical`` (index in ``core.ins3d.model.VERTICAL``), ``model.latency``,
 ``model.aligned_prior`` (1/0) and ``model.ref_markov_sigma_h`` / ``_sigma_v`` / ``_tau_s`` (0:
-none) (``option_params``; a recording without them: the ``analyze_ins3d`` defaults) and, for a
+none), with a height reference row ``model.height_row`` (1), ``model.v0_sigma_up`` and
+``model.h0_sigma`` (0: none) (``option_params``; a recording without them: the
+``analyze_ins3d`` defaults; the rows are then east, north, height) and, for a
 grade that is not a preset (a YAML grade file), its numbers ``grade.<field>`` (SI) and GLR
 thresholds ``grade.threshold_<kind>`` (``grade_params``: the smoother analyses with the same
 grade and options), and the gate.
@@ -20,7 +22,8 @@ FilterState, two kinds, in the filter's order:
   boundary, x and P predicted to it, ``u`` = the step's navigation values (C_b^n row-major 9,
   f^n 3, body rate 3, v 3, latitude, height: ``STEP_U``), empty z, r, h;
 * an **update** (``dt`` = 0, z not empty): header stamp = the reference stamp, x and P after it,
-  z = v_INS - v_ref (ENU, 3), r = its published variances as a 3 x 3 diagonal, h = the rows of H
+  z = v_INS - v_ref (ENU, 3; the third h_INS - h_ref with a height row), r = its published
+  variances as a 3 x 3 diagonal, h = the rows of H
   used (with the latency column), u = the INS acceleration a^n (3), ``fused``, ``gated``.
 """
 from __future__ import annotations
@@ -40,6 +43,8 @@ ROW_NAMES = ("east", "north", "up")
 GRADE_PREFIX = "grade."
 OPTION_PREFIX = "model."
 _MARKOV = ("ref_markov_sigma_h", "ref_markov_sigma_v", "ref_markov_tau_s")
+_MARKOV_TAU_THIRD = "ref_markov_tau_third_s"
+_HEIGHT = ("v0_sigma_up", "h0_sigma")
 _UNITS = {"dv": "m/s", "ph": "rad", "ba": "m/s^2", "bg": "rad/s", "dp": "m", "re": "m/s",
           "la": "s"}
 
@@ -71,13 +76,18 @@ def grade_params(grade: Any) -> tuple[list[str], list[float]]:
 
 def option_params(options: dict[str, Any]) -> tuple[list[str], list[float]]:
     """The ModelInfo parameters of the model options (vertical, latency, ref_markov,
-    aligned_prior; module docstring)."""
+    aligned_prior; with a height row also ``height_row`` 1, ``v0_sigma_up``, ``h0_sigma`` (0:
+    none); module docstring)."""
     from flight_fdi.core.ins3d.model import VERTICAL
 
     mk = options["ref_markov"] or (0.0, 0.0, 0.0)
     vals = {"vertical": float(VERTICAL.index(options["vertical"])),
             "latency": float(options["latency"]), "aligned_prior": float(options["aligned_prior"]),
             **{k: float(v) for k, v in zip(_MARKOV, mk)}}
+    if options.get("height_row"):
+        vals.update({"height_row": 1.0, **{k: float(options.get(k) or 0.0) for k in _HEIGHT}})
+    if len(mk) == 4:                     # the height row's own tau
+        vals[_MARKOV_TAU_THIRD] = float(mk[3])
     return [OPTION_PREFIX + k for k in vals], list(vals.values())
 
 
@@ -90,10 +100,15 @@ def recorded_options(params: dict[str, float]) -> dict[str, Any]:
     if not p:
         return {}
     try:
-        mk = tuple(float(p[k]) for k in _MARKOV)
-        return {"vertical": VERTICAL[int(p["vertical"])], "latency": bool(p["latency"]),
-                "aligned_prior": bool(p["aligned_prior"]),
-                "ref_markov": mk if any(mk) else None}
+        mk = tuple(float(p[k]) for k in _MARKOV) + \
+            ((float(p[_MARKOV_TAU_THIRD]),) if _MARKOV_TAU_THIRD in p else ())
+        out = {"vertical": VERTICAL[int(p["vertical"])], "latency": bool(p["latency"]),
+               "aligned_prior": bool(p["aligned_prior"]),
+               "ref_markov": mk if any(mk) else None}
+        if p.get("height_row"):
+            out.update({"position": True, "height_row": True,
+                        **{k: float(p[k]) or None for k in _HEIGHT}})
+        return out
     except (KeyError, IndexError, ValueError) as exc:
         raise BagError(f"ins3d recording: bad model options {p} ({exc})") from None
 

@@ -21,6 +21,8 @@ from pathlib import Path
 
 from flight_fdi.cli.analyze import exit_status, gate_defaults
 from flight_fdi.cli.errors import CliError
+from flight_fdi.cli.ins3d_height import (HEIGHT_OPTIONS, add_height_options,
+                                         height_args_of_source, height_line, height_spec)
 
 #: the single-axis input options that mean nothing to the 3-D model
 SINGLE_AXIS_ONLY = (("channel", "--channel"), ("nav_frame", "--nav-frame"),
@@ -36,7 +38,7 @@ ERROR_MODEL_OPTIONS = (("vertical", "--vertical"), ("latency", "--latency/--no-l
                        ("initial_attitude", "--initial-attitude"))
 #: the options that apply only to --model ins3d (dest, flag)
 INS3D_ONLY = (("grade", "--grade"), ("rows", "--rows"), ("imu_topic", "--imu-topic"),
-              ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS
+              ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS + HEIGHT_OPTIONS
 
 
 def add_ins3d_options(p: argparse.ArgumentParser) -> None:
@@ -46,14 +48,15 @@ def add_ins3d_options(p: argparse.ArgumentParser) -> None:
                         "navigation) or a YAML grade file (docs/ins3d.md, 'IMU grade from a "
                         "file'; e.g. config/grades/example_mems_custom.yaml)")
     g.add_argument("--rows", type=int, default=None, choices=(2, 3),
-                   help="reference rows: 2 (east, north) or 3 (with up) (default 3: the vertical "
-                        "row sees the INS height loop's response to a vertical accelerometer "
-                        "error)")
+                   help="reference rows: 2 (east, north) or 3 (with up, or with "
+                        "--height-topic the height) (default 3: the vertical row sees the INS "
+                        "height loop's response to a vertical accelerometer error)")
     g.add_argument("--imu-topic", default=None,
                    help="INS attitude and IMU means, sensor_msgs/Imu (default /ins/imu)")
     g.add_argument("--fix-topic", default=None,
                    help="INS latitude and height, sensor_msgs/NavSatFix (default /ins/fix)")
     add_error_model_options(p)
+    add_height_options(p)
 
 
 def add_error_model_options(p: argparse.ArgumentParser) -> None:
@@ -157,11 +160,12 @@ def topics(args: argparse.Namespace) -> dict[str, str]:
 
 
 def settings(args: argparse.Namespace) -> dict:
-    """grade, rows and the gate of the options."""
+    """grade, rows, the gate and the height reference (``ins3d_height.height_spec``: None or
+    a HeightSpec) of the options."""
     from flight_fdi.cli.analyze import analysis_config
 
     return {"grade": grade_option(args.grade or "navigation"), "rows": args.rows or 3,
-            "gate": analysis_config(args).gate}
+            "gate": analysis_config(args).gate, "height": height_spec(args)}
 
 
 def grade_option(value: str) -> str:
@@ -186,10 +190,11 @@ def grade_option(value: str) -> str:
 def source(names: dict[str, str], s: dict, model: dict | None = None) -> dict:
     """A result's ``source``: topics, grade, rows, the gate (``gate_options``) and ``model``
     (``recorded_model``)."""
+    height = s.get("height")
     return {"ins_topic": names["ins_velocity"], "reference_topics": [names["ref_velocity"]],
             "imu_topic": names["ins_imu"], "fix_topic": names["ins_fix"],
             "grade": s["grade"], "rows": s["rows"], "gate": gate_options(s["gate"]),
-            **(model or {})}
+            **({} if height is None else {"height": height.describe()}), **(model or {})}
 
 
 def gate_options(gate) -> dict:
@@ -203,15 +208,22 @@ def analyze_bag(bag: str, args: argparse.Namespace):
     counts each contract topic's messages, used and dropped (``input_section3d``)."""
     from flight_fdi.bagio.ins3d_input import input_section3d, model_options_with, read_ins3d
     from flight_fdi.core.ins3d.analysis import analyze_ins3d
+    from flight_fdi.core.ins3d.defaults import ANALYZE_DEFAULTS
     from flight_fdi.core.ins3d_result import ins3d_result
 
     s = settings(args)
     block = error_model_block(args)
-    inp = read_ins3d(bag, topics(args))    # the topics checked there, before anything is read
+    # the topics checked there, before anything is read
+    inp = read_ins3d(bag, topics(args), height=s["height"])
     names = inp.topics
     options = model_options_with(inp, block, f"bag '{bag}'")
-    analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], rows=s["rows"],
-                             gate=s["gate"], **options)
+    rows, model = {"rows": s["rows"]}, dict(options)
+    if inp.height is not None:       # the third row the height (with its own Markov noise; the
+        #                              source records the velocity reference's, options')
+        rows = inp.height.options(options.get("ref_markov", ANALYZE_DEFAULTS["ref_markov"]))
+        model["ref_markov"] = rows.pop("ref_markov")
+    analysis = analyze_ins3d(inp.steps, inp.refs, grade=s["grade"], gate=s["gate"], **rows,
+                             **model)
     res = ins3d_result(analysis, bag, source(names, s, recorded_model(options, block)))
     section = input_section3d(inp)    # what was read and left out (batch's dropped_samples)
     if section is not None:
@@ -239,6 +251,8 @@ def format_result(res: dict) -> str:
                      f"{src['fix_topic']}, reference {', '.join(src['reference_topics'])}")
     if src.get("error_model"):
         lines.append(model_line(src["error_model"], src.get("error_model_overrides") or []))
+    if height_line(src, res.get("input") or {}):
+        lines.append(height_line(src, res.get("input") or {}))
     lines += warnings(res.get("input") or {}, REASON_TEXT3D)  # what was left out, as 1-axis
     rows = ", ".join(f"{k} {v:.3f}" for k, v in summ["beta2_row_mean"].items())
     lines += ["",
@@ -347,7 +361,8 @@ def options_of_result(args: argparse.Namespace, doc: dict) -> None:
 
 def settings_of_result(args: argparse.Namespace, source: dict) -> None:
     """``report RESULT.json``: the bag is analysed again as the result was made -- its grade,
-    reference rows, contract topics, gate and error-model overrides (``source``) for every
+    reference rows, contract topics, height reference, gate and error-model overrides
+    (``source``) for every
     option the command leaves unset (an option given on the command line wins; a gate option
     at its default counts as unset). A part of ``source`` of the wrong type is left out (the
     checks of ``options_of_result`` see the values)."""
@@ -363,6 +378,7 @@ def settings_of_result(args: argparse.Namespace, source: dict) -> None:
     refs = part("reference_topics", list)
     if not args.reference_topic and len(refs) == 1:
         args.reference_topic = list(refs)
+    height_args_of_source(args, source)
     defaults = gate_defaults()
     for attr, value in part("gate", dict).items():          # at its default: the result's
         if attr in defaults and getattr(args, attr, defaults[attr]) == defaults[attr]:

@@ -14,6 +14,7 @@ from pathlib import Path
 from flight_fdi.cli.analyze import exit_status, gate_flags_given
 from flight_fdi.cli.errors import CliError
 from flight_fdi.cli.ins3d import ERROR_MODEL_OPTIONS, analyze_bag, is_ins3d, options_of_result
+from flight_fdi.cli.ins3d_height import HEIGHT_OPTIONS
 
 
 def _load_result(path: Path) -> dict:
@@ -84,7 +85,7 @@ def report_of_run(folder: Path, out: str | Path, doc: dict | None = None,
 #: the options a run folder's recording fixes (dest, flag): what its filter ran with
 RUN_FIXED = (("grade", "--grade"), ("rows", "--rows"), ("ins_topic", "--ins-topic"),
              ("reference_topic", "--reference-topic"), ("imu_topic", "--imu-topic"),
-             ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS
+             ("fix_topic", "--fix-topic")) + ERROR_MODEL_OPTIONS + HEIGHT_OPTIONS
 
 
 def refuse_for_run(args: argparse.Namespace, folder: Path, bag: str | None) -> None:

@@ -142,7 +142,8 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
     # the model options as ``analyze`` takes them, as filter_node parameters (ins3d_vertical,
     # ...; a baro loop is the node's own, the simulator's default loop)
     options = description_options(sim_description(bag), block, f"bag '{bag}'")
-    options.pop("loop", None)
+    options.pop("loop", None)     # (with a height topic filter_node adds the height's Markov
+    #                               noise to the velocity reference's: HeightSpec.ref_markov)
     try:
         run = run_pipeline3d(bag, out, topics=names, grade=s["grade"], rows=s["rows"],
                              gate=s["gate"], storage=args.storage, overwrite=True,
@@ -150,7 +151,7 @@ def run3d(args: argparse.Namespace, bounds: dict[str, float]) -> int:
                              options=options,
                              progress=None if args.no_progress else sys.stderr,
                              on_teardown_timeout=after_blocked_teardown(out, args, complete3d),
-                             with_truth=not args.no_report, **bounds)
+                             with_truth=not args.no_report, height=s["height"], **bounds)
     except (PipelineError, ParameterError) as exc:
         raise CliError(str(exc)) from None
     return complete3d(run, out, args)

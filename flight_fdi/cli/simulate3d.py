@@ -17,7 +17,8 @@ EPILOG_3D = """\
     flight-fdi simulate out/lat --model ins3d --fault ref:latency:t=900,end=1200,mag=80ms
   topics: /ins/velocity (TwistStamped, ENU), /ins/imu (Imu: attitude, body rate, specific
   force), /ins/fix (NavSatFix), /reference/velocity (TwistWithCovarianceStamped, ENU),
-  /reference/fix (NavSatFix), /sim/truth (FilterState 'truth3d'), /sim/fault (JSON)
+  /reference/fix (NavSatFix), /sim/truth (FilterState 'truth3d'), /sim/fault (JSON); with
+  --baro-topic T a height reference on T (FluidPressure by default: --baro-type)
 """
 
 
@@ -61,6 +62,42 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--gnss", action="append", default=[], metavar="NAME=VALUE",
                    help="GNSS reference parameter (repeatable): " + ", ".join(
                        f.name for f in _gnss_fields()))
+    g.add_argument("--baro-topic", default=None, metavar="TOPIC",
+                   help="also write a height reference on TOPIC (e.g. /reference/baro): a "
+                        "second barometer, independent of the INS's (analyse it with analyze "
+                        "--height-topic TOPIC; docs/sim3d.md)")
+    g.add_argument("--baro-type", choices=tuple(BARO_TYPES), default=None,
+                   help="the height topic's message: pressure (sensor_msgs/FluidPressure, the "
+                        "ISA pressure; default), navsatfix (sensor_msgs/NavSatFix altitude) or "
+                        "point (geometry_msgs/PointStamped z)")
+    g.add_argument("--baro-rate", type=float, default=None, metavar="HZ",
+                   help="the height topic's rate; divides --ins-rate (default 10)")
+    g.add_argument("--baro", action="append", default=[], metavar="NAME=VALUE",
+                   help="the height reference's errors (repeatable): bias, instability, tau_s, "
+                        "white (m, s) and drift_mps (default 10 m turn-on offset, 0.3 m "
+                        "Gauss-Markov over 20 s, 0.1 m white, 1 m/h drift)")
+
+
+#: ``--baro-type``: the height topic's message type
+BARO_TYPES = {"pressure": "sensor_msgs/msg/FluidPressure", "navsatfix": "sensor_msgs/msg/NavSatFix",
+              "point": "geometry_msgs/msg/PointStamped"}
+
+
+def _height_reference(args: argparse.Namespace):
+    """The simulated height reference of ``--baro-topic`` and ``--baro`` (None without a
+    topic; SimError for ``--baro*`` options without one or a bad value)."""
+    from flight_fdi.sim.errors import SimError
+    from flight_fdi.sim.gnss import HEIGHT_REFERENCE
+
+    if args.baro_topic is None:
+        given = [f for f, v in (("--baro-type", args.baro_type), ("--baro-rate", args.baro_rate),
+                                ("--baro", args.baro)) if v]
+        if given:
+            raise SimError(f"{', '.join(given)} need{'s' if len(given) == 1 else ''} "
+                           "--baro-topic")
+        return None
+    names = [f.name for f in dataclasses.fields(HEIGHT_REFERENCE)]
+    return dataclasses.replace(HEIGHT_REFERENCE, **name_values(args.baro, "--baro", names))
 
 
 def _gnss_fields():
@@ -133,7 +170,8 @@ def run3d(args: argparse.Namespace) -> int:
                       gnss=_gnss(args.gnss, 10.0 if args.ref_rate is None else args.ref_rate),
                       vertical=args.vertical, tau_vertical_s=args.tau_vertical,
                       alignment=args.alignment, seed=args.seed,
-                      faults=tuple(parse_fault(s, FaultSpec3D) for s in args.fault))
+                      faults=tuple(parse_fault(s, FaultSpec3D) for s in args.fault),
+                      height_reference=_height_reference(args))
     start = time.perf_counter()
     flight = simulate3d(cfg)
     counts = write_bag3d(flight, args.output, velocity_rate_hz=args.velocity_rate,
@@ -141,7 +179,9 @@ def run3d(args: argparse.Namespace) -> int:
                          truth_rate_hz=args.truth_rate,
                          epoch_s=EPOCH_S if args.epoch is None else args.epoch,
                          storage=args.storage, compression=args.compression,
-                         overwrite=args.force)
+                         overwrite=args.force, height_topic=args.baro_topic,
+                         height_type=BARO_TYPES[args.baro_type or "pressure"],
+                         height_rate_hz=10.0 if args.baro_rate is None else args.baro_rate)
     elapsed = time.perf_counter() - start
     size = sum(f.stat().st_size for f in Path(args.output).rglob("*") if f.is_file())
     dv = abs(flight.velocity_error()).max(axis=0)

@@ -322,27 +322,32 @@ def build_contract(rec: Recording, bg: np.ndarray, ba: np.ndarray,
     return inp
 
 
+#: the height reference topic of a contract bag with ``Contract.height_sigma``
+HEIGHT_TOPIC = "/reference/height"
+
+
 def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str | Path,
                        cfg: Contract | None = None, epoch_s: int = 1_700_000_000,
-                       overwrite: bool = False, settings: "Settings | None" = None
-                       ) -> dict[str, int]:
+                       overwrite: bool = False, settings: "Settings | None" = None,
+                       reference_of: Recording | None = None) -> dict[str, int]:
     """The same contract as a bag (the topics and frames of ``sim.bag3d``): the user-facing path.
     Its metadata ``flight_fdi.sim3d`` says ``vertical: free`` (the INS) and, in its
     ``error_model`` block (``error_model_of``), how ``settings`` (default ``Settings()``) models
     this INS and reference -- what ``flight-fdi analyze/run --model ins3d`` then use
     (``bagio.ins3d_input.error_model_options``). ``cfg``: the contract (default
-    ``settings.contract``). Returns message counts."""
+    ``settings.contract``); with ``Contract.height_sigma`` also ``HEIGHT_TOPIC``: the GT height
+    ``build_contract`` interpolates, as NavSatFix (Up variance height_sigma^2; the GT's latitude
+    and longitude, unmeasured) for ``--height-topic`` (datum ``absolute``: the INS starts at the
+    GT's height). ``reference_of``: ``contract_arrays``'. Returns message counts."""
     import json
 
     from ..bagio import cdr
-    from ..bagio.ins3d_input import imu_payloads, ins_fix_payloads, velocity_payloads
+    from ..bagio.ins3d_payloads import (height_payloads, imu_payloads, ins_fix_payloads,
+                                        velocity_payloads)
     from ..bagio.writer import open_writer
     settings = settings or Settings()
     cfg = cfg or settings.contract
-    if cfg.height_sigma is not None:
-        raise EvalError("write_contract_bag: the contract's topics carry no height reference "
-                        "(Contract.height_sigma must be None)")
-    a = contract_arrays(rec, bg, ba, cfg)
+    a = contract_arrays(rec, bg, ba, cfg, reference_of)
 
     def ns(t):
         return epoch_s * 1_000_000_000 + np.round(np.asarray(t) * 1e9).astype(np.int64)
@@ -354,11 +359,18 @@ def write_contract_bag(rec: Recording, bg: np.ndarray, ba: np.ndarray, path: str
         ("/ins/velocity", ins_kind, s_imu, ins_v),
         ("/ins/fix", cdr.NAVSATFIX, s_imu, ins_fix_payloads(s_imu, a["lat"], a["lon"], a["h"])),
         ("/reference/velocity", ref_kind, s_ref, ref_v)]
+    contract = {"imu_rate_hz": cfg.imu_rate_hz, "ref_half": cfg.ref_half,
+                "ref_every": cfg.ref_every, "ref_ins_shape": cfg.ref_ins_shape}
+    if cfg.height_sigma is not None:   # the GT's barometric height at its own 10-Hz stamps
+        enu, lat0, s_gt = gt_enu(rec.gt), math.radians(LAT0_DEG), ns(rec.gt["time"])
+        r_n, r_m = radii(lat0)
+        series.append((HEIGHT_TOPIC, cdr.NAVSATFIX, s_gt, height_payloads(
+            cdr.NAVSATFIX, s_gt, "baro", enu[:, 2], cfg.height_sigma**2,
+            lat0 + enu[:, 1] / r_m, enu[:, 0] / (r_n * math.cos(lat0)))))
+        contract.update(height_sigma=cfg.height_sigma, height_topic=HEIGHT_TOPIC)
     doc = json.dumps({"vertical": "free", "source": f"mimu_quadrotor {rec.name} IMU_{rec.unit}",
-                      "contract": {"imu_rate_hz": cfg.imu_rate_hz, "ref_half": cfg.ref_half,
-                                   "ref_every": cfg.ref_every,
-                                   "ref_ins_shape": cfg.ref_ins_shape},
-                      "error_model": error_model_of(settings)}, sort_keys=True)
+                      "contract": contract, "error_model": error_model_of(settings)},
+                     sort_keys=True)
     with open_writer(Path(path), storage="mcap", overwrite=overwrite) as bag:
         bag.set_metadata("flight_fdi.sim3d", doc)
         bag.write_series(series)

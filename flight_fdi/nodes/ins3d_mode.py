@@ -4,7 +4,12 @@ Inputs, the four topics of the 3-D contract (docs/sim3d.md; names are parameters
 ``imu_topic`` (sensor_msgs/Imu: INS attitude, mean body rate and specific force),
 ``ins_topic`` (geometry_msgs/TwistStamped: INS velocity ENU), ``fix_topic``
 (sensor_msgs/NavSatFix: INS latitude, height) and ``reference_topic``
-(geometry_msgs/TwistWithCovarianceStamped: reference velocity and its variances).
+(geometry_msgs/TwistWithCovarianceStamped: reference velocity and its variances); optionally
+``ins3d_height_topic`` (``ins3d_height_type``: NavSatFix, FluidPressure or PointStamped, taken
+raw and decoded by ``bagio.height_input.decode_height`` as ``analyze`` does), a height reference
+as the third row: the assembler interpolates it at the reference stamps with the datum of
+``ins3d_height_datum`` (``core.ins3d.stream.HeightRule``; the filter starts once the datum is
+known, its prior ``h0_sigma`` from the data) -- docs/ins3d.md, "A height reference".
 
 Per message the core's ``Ins3dAssembler`` builds the propagation steps (the IMU stamps are the
 step boundaries) and the reference rows exactly as ``flight-fdi analyze --model ins3d`` reads a
@@ -14,7 +19,7 @@ stream to pass it, at most ``ins3d_wait_s`` of IMU time. The filter starts at th
 (the aligned prior needs its attitude and specific force).
 
 End of input: the last steps and reference rows wait for samples that come only with later
-messages. When no message arrived on any of the four inputs for ``ins3d_end_idle_s`` (steady
+messages. When no message arrived on any of the inputs for ``ins3d_end_idle_s`` (steady
 clock: a replay's stopped /clock does not stop it; counted from the end of the node's own
 work on the last message, and confirmed by the next timer tick, so that a node that was busy or
 starved of CPU first takes the messages queued meanwhile), the node flushes them as at the end of a
@@ -27,13 +32,15 @@ Outputs (channel ``ins3d``): ``fdi/state`` (FilterState per step and per update,
 ``fdi/innovation`` (Innovation per update: nu, S, beta^2 over the rows and per row, the gate and
 the M-of-N alarm), ``fdi/model`` (ModelInfo once t0 is known, transient local), ``/diagnostics``.
 Bad input is dropped and counted (``dropped_<topic key>_<reason>``: non_finite,
-duplicate_stamp, out_of_order, invalid_covariance, core_error), never stopping the node.
+duplicate_stamp, out_of_order, invalid_covariance, core_error; the height's also no_fix), never
+stopping the node.
 """
 from __future__ import annotations
 
 import inspect
 import math
 import time
+from dataclasses import replace
 from types import SimpleNamespace
 from typing import Any
 
@@ -45,17 +52,19 @@ from ..core.ins3d.analysis import analyze_ins3d, initial_covariance
 from ..core.ins3d.grade_file import is_grade_file, resolve_grade
 from ..core.ins3d.grades import GRADES as PRESETS
 from ..core.ins3d.model import Ins3dModel
-from ..core.ins3d.stream import Boundary, Ins3dAssembler, Ins3dStream
+from ..core.ins3d.glr3d import ref_axes
+from ..core.ins3d.stream import HEIGHT, Boundary, HeightRule, Ins3dAssembler, Ins3dStream
 from . import diagnostics as diag
 from .convert import header
-from .ins3d_recording import (CHANNEL, ROW_NAMES, grade_params, option_params, pack_step,
-                              state_units, t0_params)
+from .ins3d_recording import (CHANNEL, grade_params, option_params, pack_step, state_units,
+                              t0_params)
 from .ins3d_params import (INS3D_ONLY, INS3D_PARAMS, MODEL, USED,  # noqa: F401 (re-exported)
                            refuse_in_other_modes)
 from .params import fail
 
 #: the grade presets an analysis takes (core/ins3d/grades.py; "perfect" is for tests)
 GRADES = tuple(g for g in PRESETS if g != "perfect")
+_COUNT = {4: "four", 5: "five"}   # the distinct input topics
 #: the defaults of ``analyze_ins3d`` (those of its model options, which are also the node
 #: parameters' defaults: ``core.ins3d.defaults.ANALYZE_DEFAULTS``)
 _ANALYZE = {k: v.default for k, v in inspect.signature(analyze_ins3d).parameters.items()}
@@ -66,32 +75,76 @@ def build_model(values: dict[str, Any], defaults: dict[str, Any]) -> Ins3dModel:
     for k, v in values.items():
         if k not in USED and k in defaults and v != defaults[k]:
             fail(k, v, f"its default ({defaults[k]!r}): it does not apply to the ins3d mode")
-    if values["imu_topic"] in (values["ins_topic"], values["fix_topic"],
-                               values["reference_topic"]) or len(
-            {values["ins_topic"], values["fix_topic"], values["reference_topic"]}) < 3:
-        fail("imu_topic", values["imu_topic"], "four distinct topics (imu_topic, ins_topic, "
-             "fix_topic, reference_topic)")
+    topics = [values[k] for k in ("imu_topic", "ins_topic", "fix_topic", "reference_topic")]
+    if values["ins3d_height_topic"]:
+        topics.append(values["ins3d_height_topic"])
+    if len(set(topics)) < len(topics):
+        fail("imu_topic", values["imu_topic"], f"{_COUNT[len(topics)]} distinct topics "
+             "(imu_topic, ins_topic, fix_topic, reference_topic"
+             + (", ins3d_height_topic)" if len(topics) == 5 else ")"))
     grade = values["ins3d_grade"]
     if grade not in GRADES and not is_grade_file(grade):
         fail("ins3d_grade", grade, f"a preset ({', '.join(GRADES)}) or a YAML grade file")
     opts = model_options(values)
     try:
-        return Ins3dModel.from_grade(resolve_grade(grade), position=_ANALYZE["position"],
+        return Ins3dModel.from_grade(resolve_grade(grade),
+                                     position=opts.get("position", _ANALYZE["position"]),
                                      rows=values["ins3d_rows"], vertical=opts["vertical"],
-                                     latency=opts["latency"], ref_markov=opts["ref_markov"])
+                                     latency=opts["latency"], ref_markov=opts["ref_markov"],
+                                     height_row=opts.get("height_row", False),
+                                     v0_sigma_up=opts.get("v0_sigma_up"))
     except CoreError as exc:   # a bad grade file
         fail("ins3d_grade", grade, f"a valid YAML grade file ({exc})")
 
 
 def model_options(values: dict[str, Any]) -> dict[str, Any]:
     """The ``analyze_ins3d`` model options of the node parameters (ParameterError for a bad
-    ``ins3d_reference_markov``)."""
+    ``ins3d_reference_markov``); with a height topic those of its row (``height_spec``,
+    ``HeightInput.options`` but the datum's ``h0_sigma``, which the data give)."""
     mk = [float(v) for v in values["ins3d_reference_markov"]]
     if len(mk) != 3 or not (all(v > 0 for v in mk) or not any(mk)):
         fail("ins3d_reference_markov", mk, "[sigma_h, sigma_v, tau], all > 0, or [0, 0, 0]")
-    return {"vertical": values["ins3d_vertical"], "latency": bool(values["ins3d_latency"]),
-            "ref_markov": tuple(mk) if any(mk) else None,
-            "aligned_prior": bool(values["ins3d_aligned_prior"])}
+    out = {"vertical": values["ins3d_vertical"], "latency": bool(values["ins3d_latency"]),
+           "ref_markov": tuple(mk) if any(mk) else None,
+           "aligned_prior": bool(values["ins3d_aligned_prior"])}
+    spec = height_spec(values)
+    if spec is not None:
+        out.update(position=True, height_row=True, v0_sigma_up=spec.v0_sigma_up,
+                   ref_markov=spec.ref_markov(out["ref_markov"]))
+    return out
+
+
+def height_spec(values: dict[str, Any]) -> Any:
+    """The ``bagio.height_input.HeightSpec`` of the height parameters (None: no
+    ``ins3d_height_topic``); ParameterError for a bad one."""
+    from ..bagio.errors import BagError
+    from ..bagio.height_input import HeightSpec
+
+    topic = values["ins3d_height_topic"]
+    if not topic:
+        return None
+    if values["ins3d_rows"] != 3:
+        fail("ins3d_rows", values["ins3d_rows"], "3 with ins3d_height_topic (the height is the "
+             "third row)")
+    mk = [float(v) for v in values["ins3d_height_markov"]]
+    if len(mk) != 2 or not (all(v > 0 for v in mk) or not any(mk)):
+        fail("ins3d_height_markov", mk, "[sigma m, tau s], both > 0, or [0, 0]")
+    try:
+        return HeightSpec(topic, sigma=float(values["ins3d_height_sigma"]),
+                          markov=tuple(mk) if any(mk) else None,
+                          datum=values["ins3d_height_datum"],
+                          v0_sigma_up=float(values["ins3d_v0_sigma_up"]))
+    except BagError as exc:
+        fail("ins3d_height_topic", topic, f"a valid height reference ({exc})")
+
+
+def height_parameters(spec: Any, msgtype: str) -> dict[str, Any]:
+    """The node parameters of a ``HeightSpec`` whose topic carries ``msgtype`` (``run``)."""
+    return {"ins3d_height_topic": spec.topic, "ins3d_height_type": msgtype,
+            "ins3d_height_sigma": float(spec.sigma),
+            "ins3d_height_markov": [0.0, 0.0] if spec.markov is None else list(spec.markov),
+            "ins3d_height_datum": spec.datum, "ins3d_v0_sigma_up": float(spec.v0_sigma_up),
+            "ins3d_rows": 3}
 
 
 def option_parameters(options: dict[str, Any]) -> dict[str, Any]:
@@ -115,6 +168,19 @@ def is_ins3d(model: Any) -> bool:
     return isinstance(model, Ins3dModel)
 
 
+def _ns(m: Any) -> int:
+    return int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+
+
+def height_class(msgtype: str) -> Any:
+    """The message class of a height type (``core.ins3d.defaults.HEIGHT_TYPES``)."""
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import FluidPressure, NavSatFix
+
+    return {NavSatFix.__name__: NavSatFix, FluidPressure.__name__: FluidPressure,
+            PointStamped.__name__: PointStamped}[msgtype.rsplit("/", 1)[-1]]
+
+
 class Ins3dMode:
     """The ins3d mode of a FilterNode (module docstring); built by the node after its
     parameters are declared. ``finish()`` flushes the steps that wait for samples that will
@@ -130,13 +196,17 @@ class Ins3dMode:
                       "ins_velocity": node._resolve("ins_topic", p["ins_topic"]),
                       "ins_fix": node._resolve("fix_topic", p["fix_topic"]),
                       "ref_velocity": node._resolve("reference_topic", p["reference_topic"])}
-        if len(set(self.names.values())) < 4:
-            fail("imu_topic", p["imu_topic"], f"four distinct topics (they resolve to "
-                 f"{sorted(self.names.values())})")
+        self.height = height_spec(p)
+        if self.height is not None:
+            self.names[HEIGHT] = node._resolve("ins3d_height_topic", self.height.topic)
+        if len(set(self.names.values())) < len(self.names):
+            fail("imu_topic", p["imu_topic"], f"{_COUNT[len(self.names)]} distinct topics (they "
+                 f"resolve to {sorted(self.names.values())})")
+        self.row_names = list(ref_axes(model.height_row)[:model.rows])
         self._new_record()
         self.counters = node.counters = diag.Counters(
-            ("received_ins", "received_reference", "published", "published_states",
-             "records_ended"))
+            ("received_ins", "received_reference", "received_height", "published",
+             "published_states", "records_ended"))
         self._last_msg = time.monotonic()
         self._idle_seen: float | None = None      # the _last_msg an idle tick saw (to confirm)
         self._idle_s = float(p["ins3d_end_idle_s"])
@@ -150,6 +220,9 @@ class Ins3dMode:
               "ref_velocity": (TwistWithCovarianceStamped, self._on_ref)}
         for key, (cls, fn) in cb.items():
             node.create_subscription(cls, self.names[key], fn, qos)
+        if self.height is not None:       # raw: decoded by bagio.height_input, as analyze does
+            node.create_subscription(height_class(p["ins3d_height_type"]), self.names[HEIGHT],
+                                     self._on_height, qos, raw=True)
         self.inputs = node.inputs = diag.InputMonitor(node._now, list(self.names.values()),
                                                       window_s=p["rate_window_s"],
                                                       stale_after_s=p["stale_after_s"])
@@ -161,7 +234,9 @@ class Ins3dMode:
             f"{gate.alarm_m} of {gate.alarm_n}, action {gate.action})")
 
     def _new_record(self) -> None:
-        self.asm = Ins3dAssembler(wait_s=self.p["ins3d_wait_s"])
+        rule = None if self.height is None else HeightRule(
+            self.height.max_gap_s, self.height.datum == "first", self.height.variance())
+        self.asm = Ins3dAssembler(wait_s=self.p["ins3d_wait_s"], height=rule)
         self.stream: Ins3dStream | None = None
         self._held: list = []
         self.last: Any = None
@@ -188,30 +263,50 @@ class Ins3dMode:
     # ------------------------------------------------------------------ inputs
     def _on_imu(self, m: Any) -> None:
         o, w, f = m.orientation, m.angular_velocity, m.linear_acceleration
-        self._add("ins_imu", "received_ins", m, np.array([o.w, o.x, o.y, o.z]),
+        self._add("ins_imu", "received_ins", _ns(m), np.array([o.w, o.x, o.y, o.z]),
                   np.array([f.x, f.y, f.z]), np.array([w.x, w.y, w.z]))
 
     def _on_vel(self, m: Any) -> None:
         v = m.twist.linear
-        self._add("ins_velocity", "received_ins", m, np.array([v.x, v.y, v.z]))
+        self._add("ins_velocity", "received_ins", _ns(m), np.array([v.x, v.y, v.z]))
 
     def _on_fix(self, m: Any) -> None:
-        self._add("ins_fix", "received_ins", m, np.radians(np.array([m.latitude]))[0],
+        self._add("ins_fix", "received_ins", _ns(m), np.radians(np.array([m.latitude]))[0],
                   float(m.altitude))
 
     def _on_ref(self, m: Any) -> None:
         v = m.twist.twist.linear
-        self._add("ref_velocity", "received_reference", m, np.array([v.x, v.y, v.z]),
+        self._add("ref_velocity", "received_reference", _ns(m), np.array([v.x, v.y, v.z]),
                   np.asarray(m.twist.covariance)[[0, 7, 14]])
 
-    def _add(self, key: str, counter: str, msg: Any, *values: Any) -> None:
+    def _on_height(self, data: bytes) -> None:
+        """A height reference message (raw; counted as a reference and as a height)."""
+        from ..bagio.errors import BagError
+        from ..bagio.height_input import decode_height
+
+        name = self.names[HEIGHT]
+        self.counters.inc("received_height")
+        try:
+            stamp, h, var, no_fix = decode_height(self.p["ins3d_height_type"], [data], name)
+        except BagError as exc:
+            stamp, why = None, ("core_error", str(exc))
+        else:
+            why = ("no_fix", f"{name} message at {stamp[0] * 1e-9:.3f} s: status NO_FIX") \
+                if no_fix[0] else None
+        if why is not None:
+            self.inputs.seen(name)
+            self.counters.inc("received_reference")
+            self.node._drop(f"{HEIGHT}_{why[0]}", why[1])
+            return
+        self._add(HEIGHT, "received_reference", int(stamp[0]), float(h[0]), float(var[0]))
+
+    def _add(self, key: str, counter: str, ns: int, *values: Any) -> None:
         name = self.names[key]
         self.inputs.seen(name)
         self.counters.inc(counter)
         self._last_msg = time.monotonic()
         if self.asm.finished:                     # the record ended: this one starts anew
             self._new_record()
-        ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
         try:
             got = self.asm.add(key, ns, *values)
             if isinstance(got, str):
@@ -235,6 +330,8 @@ class Ins3dMode:
                     self._held.append(e)
                     continue
                 s = e.step
+                if self.height is not None:       # the datum's prior, from the data
+                    self.model = replace(self.model, h0_sigma=self.asm.h0_sigma)
                 P0 = initial_covariance(self.model, s.C[0], s.f_n[0], float(s.lat[0]),
                                         self.p["ins3d_aligned_prior"])
                 self.stream = Ins3dStream(self.model, self.gate, P0=P0)
@@ -293,7 +390,7 @@ class Ins3dMode:
                             threshold=self.stream.threshold, exceeded=res.exceeded,
                             alarm_state=res.alarm)
         self.node.pub_innovation.publish(innovation_msg(
-            self._stamp(ns), CHANNEL, list(ROW_NAMES[:rows]), r, frame_id=self.p["frame_id"]))
+            self._stamp(ns), CHANNEL, self.row_names, r, frame_id=self.p["frame_id"]))
         self.counters.inc("published")
 
     def _publish_model(self) -> None:
@@ -301,12 +398,13 @@ class Ins3dMode:
 
         m, g, st = self.model, self.gate, self.stream
         names, values = grade_params(m.grade)
-        opt_names, opt_values = option_params(model_options(self.p))
+        opt_names, opt_values = option_params({**model_options(self.p),
+                                               "h0_sigma": m.h0_sigma})
         flat = lambda a: np.asarray(a, dtype=float).reshape(-1).tolist()
         self.node.pub_model.publish(ModelInfo(
             header=header(self.node.get_clock().now().to_msg(), self.p["frame_id"]),
             channel=CHANNEL, model_name=f"{MODEL}/{m.grade.name}", state_names=list(m.names),
-            state_units=state_units(m.names), measurement_names=list(ROW_NAMES[:m.rows]),
+            state_units=state_units(m.names), measurement_names=self.row_names,
             n=m.n, m=m.rows, p=0, a=[], qc=flat(np.diag(m.qc())), h=flat(m.H()), r=[],
             p0=flat(st.P), b=[], scale=flat(st.s),
             param_names=["rows", "t0_sec", "t0_nanosec", *opt_names, *names],
@@ -332,7 +430,7 @@ class Ins3dMode:
             ("alarm_since_s", "" if self.alarm_since is None else f"{self.alarm_since:.3f}"),
             ("last_stamp_s", "" if self.last_t is None else f"{self.last_t:.3f}")]
         if res is not None:
-            vals += [(f"beta2_{r}", float(b)) for r, b in zip(ROW_NAMES, res.beta2_row)]
+            vals += [(f"beta2_{r}", float(b)) for r, b in zip(self.row_names, res.beta2_row)]
         if self.stream is not None:
             vals += [(n, float(v)) for n, v in zip(self.model.names, self.stream.x)]
         if self.alarm_since is not None:
@@ -347,5 +445,6 @@ class Ins3dMode:
         return out
 
 
-__all__ = ["INS3D_ONLY", "INS3D_PARAMS", "Ins3dMode", "MODEL", "build_model", "is_ins3d",
-           "model_options", "option_parameters", "refuse_in_other_modes"]
+__all__ = ["INS3D_ONLY", "INS3D_PARAMS", "Ins3dMode", "MODEL", "build_model", "height_class",
+           "height_parameters", "height_spec", "is_ins3d", "model_options", "option_parameters",
+           "refuse_in_other_modes"]

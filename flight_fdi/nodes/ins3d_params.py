@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..core.ins3d.defaults import ANALYZE_DEFAULTS, VERTICAL
+from ..core.ins3d.defaults import (ANALYZE_DEFAULTS, DATUMS, HEIGHT_DEFAULTS, HEIGHT_TYPES,
+                                   VERTICAL)
 from .params import ParamSpec, fail
 
 MODEL = "ins3d"
@@ -42,12 +43,29 @@ INS3D_PARAMS = (
               "ins3d mode: the initial covariance of an INS levelled on its own accelerometers "
               "(the tilt cancels the horizontal accelerometer bias); false: independent states "
               "(its attitude came from elsewhere)"),
+    ParamSpec("ins3d_height_topic", "string", "",
+              "ins3d mode: a height reference as the third reference row (a barometer or an "
+              "altitude, ins3d_height_type; docs/ins3d.md, 'A height reference'); empty: none"),
+    ParamSpec("ins3d_height_type", "string", HEIGHT_TYPES[1],
+              "ins3d mode: the height topic's message type", choices=HEIGHT_TYPES),
+    ParamSpec("ins3d_height_sigma", "double", HEIGHT_DEFAULTS["sigma"],
+              "ins3d mode: white sigma of a height message without a known variance", "m",
+              min=0.0, min_exclusive=True),
+    ParamSpec("ins3d_height_markov", "double_array", list(HEIGHT_DEFAULTS["markov"]),
+              "ins3d mode: the height's Markov error [sigma m, tau s] (both > 0; the third "
+              "row's own, beside ins3d_reference_markov's), or [0, 0]: none", min=0.0),
+    ParamSpec("ins3d_height_datum", "string", HEIGHT_DEFAULTS["datum"],
+              "ins3d mode: first -- the height offset to the INS height at its first sample; "
+              "absolute -- as published", choices=DATUMS),
+    ParamSpec("ins3d_v0_sigma_up", "double", HEIGHT_DEFAULTS["v0_sigma_up"],
+              "ins3d mode, with a height topic: the initial vertical velocity error's sigma",
+              "m/s", min=0.0, min_exclusive=True),
     ParamSpec("ins3d_wait_s", "double", 1.0,
               "ins3d mode: longest wait (in IMU stamps) of a step for the reference stream to "
               "pass it; after that a late reference sample is dropped", "s",
               min=0.0, max=60.0, min_exclusive=True),
     ParamSpec("ins3d_end_idle_s", "double", 2.0,
-              "ins3d mode: end of input -- after this long without a message on any of the four "
+              "ins3d mode: end of input -- after this long without a message on any of the "
               "inputs (steady clock) the waiting steps and reference rows are flushed and the "
               "record ends; the next message starts a new record (0: never)", "s",
               min=0.0, max=3600.0),

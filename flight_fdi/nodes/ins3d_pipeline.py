@@ -43,12 +43,14 @@ def ack_window(counts: dict[str, int], reference_topic: str) -> int:
 
 
 def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any,
-                        options: dict | None = None) -> dict:
+                        options: dict | None = None, height: Any = None,
+                        height_type: str | None = None) -> dict:
     """filter_node parameters of the ins3d mode for a replay (reliable inputs); ``options``: the
-    model options of the bag's description (``bagio.ins3d_input.error_model_options``). The
+    model options of the bag's description (``bagio.ins3d_input.error_model_options``);
+    ``height``: a ``bagio.height_input.HeightSpec`` whose topic carries ``height_type``. The
     end-of-input idle flush is off (``ins3d_end_idle_s`` 0): the pipeline flushes at the end of
     its bag itself, and a replay starved of CPU for 2 s must not split the record in two."""
-    from .ins3d_mode import option_parameters
+    from .ins3d_mode import height_parameters, option_parameters
 
     return {**option_parameters(options or {}), "model": "ins3d",
             "imu_topic": names["ins_imu"], "ins_topic": names["ins_velocity"],
@@ -58,7 +60,8 @@ def filter_parameters3d(names: dict[str, str], grade: str, rows: int, gate: Any,
             "input_qos": "reliable",
             "gate_rule": gate.rule, "gate_probability": float(gate.probability),
             "alarm_m": int(gate.alarm_m), "alarm_n": int(gate.alarm_n),
-            "gate_action": gate.action}
+            "gate_action": gate.action,
+            **({} if height is None else height_parameters(height, height_type))}
 
 
 def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, str] | None = None,
@@ -68,7 +71,8 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
                    progress: Any = None, options: dict | None = None,
                    stall_timeout_s: float = STALL_TIMEOUT_S,
                    teardown_timeout: float | None = TEARDOWN_TIMEOUT_S,
-                   on_teardown_timeout: Any = None, with_truth: bool = False) -> PipelineRun:
+                   on_teardown_timeout: Any = None, with_truth: bool = False,
+                   height: Any = None) -> PipelineRun:
     """Replay ``bag`` through the ins3d pipeline (module docstring); the inputs are checked
     before any node exists (BagError: topics, types, and every message read raw by bagio's
     reader -- a corrupt bag is one line, never a replay of what rosbags' iterator makes of it:
@@ -81,7 +85,9 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     ends the run with PipelineError; the teardown after the result is bounded), and
     ``on_teardown_timeout`` what is done with the result should that bound be reached.
     ``with_truth``: that read also takes the simulator's truth (the PipelineRun's ``read``:
-    ``bagio.ins3d_input.truth_of_raw``'s, or None), for a report."""
+    ``bagio.ins3d_input.truth_of_raw``'s, or None), for a report. ``height``: a
+    ``bagio.height_input.HeightSpec``: its topic is checked, played and filtered as the third
+    row (``analyze --height-topic``)."""
     from flight_fdi.bagio.ins3d_input import checked_messages
     from flight_fdi.core.analysis import AnalysisConfig
     from flight_fdi.core.gate import GateConfig
@@ -96,14 +102,16 @@ def run_pipeline3d(bag: str | Path, out_dir: str | Path, *, topics: dict[str, st
     bag = Path(bag)
     # every message read once before any node (corrupt data: one line now, not garbage
     # played), which gives the counts for the progress and the player's window
-    names, counts, truth = checked_messages(bag, topics, with_truth)
-    played = list(names.values())
+    names, counts, truth, height_type = checked_messages(
+        bag, topics, with_truth, None if height is None else height.topic)
+    played = list(counts)
     tick_progress = Progress(sum(counts.values()) or 1, progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     recording, result_json = out / "recording", out / "result.json"
     with graph as g:
-        flt = g.build(FilterNode, filter_parameters3d(names, grade, rows, gate, options))
+        flt = g.build(FilterNode, filter_parameters3d(names, grade, rows, gate, options,
+                                                      height, height_type))
         rec = g.build(RecorderNode, {"output": str(recording), "storage": storage,
                                      "overwrite": overwrite})
         player = g.build(BagPlayer, {"bag": str(bag), "fast": True, "ack_topic": "fdi/state",
@@ -149,9 +157,29 @@ def input_section_of_run(mode: Any, names: dict[str, str]) -> dict:
     ref["outside_imu_record"] = int(mode.asm.outside)
     if mode.asm.late:
         ref["late"] = int(mode.asm.late)
+    height = getattr(mode, "height", None)
+    if height is not None:
+        ref["no_height"] = int(mode.asm.no_height)
     received = {names[role]: mode.inputs.count(mode.names[role]) for role in names}
-    return section3d(names, received, dropped)
+    out = section3d(names, received, dropped)
+    if height is not None:
+        out[mode.height.topic] = height_section_of_run(mode, counters)
+    return out
 
 
-__all__ = ["ACK_WINDOW", "ack_window", "filter_parameters3d", "input_section_of_run",
-           "run_pipeline3d"]
+def height_section_of_run(mode: Any, counters: dict[str, int]) -> dict:
+    """The height topic's entry (``bagio.height_input.HeightInput.section``'s form) of what the
+    filter counted."""
+    from flight_fdi.bagio.height_input import HeightInput
+
+    asm, head = mode.asm, "dropped_height_"
+    dropped = {k[len(head):]: int(n) for k, n in counters.items() if k.startswith(head)}
+    dropped["outside_imu_record"] = int(asm.height_outside)
+    return HeightInput(mode.height, mode.p["ins3d_height_type"],
+                       mode.inputs.count(mode.names["height"]), dropped, 0, int(asm.no_height),
+                       float(asm.offset or 0.0), asm.h0_sigma,
+                       int(asm.height_from_message)).section()
+
+
+__all__ = ["ACK_WINDOW", "ack_window", "filter_parameters3d", "height_section_of_run",
+           "input_section_of_run", "run_pipeline3d"]

@@ -132,7 +132,8 @@ def gate_figure3d(analysis: Any, res: dict, path: Path) -> Path:
                    alpha=0.7, lw=0, label="alarm" if k == 0 else None)
     a1.set_ylabel("beta^2 (rows together)")
     _turns(a2, res["ins3d"]["manoeuvres"])
-    for j, row in enumerate(("east", "north", "up")[:fwd.beta2_row.shape[1]]):
+    rows = list(res["ins3d"]["beta2_row_mean"])       # east, north, up or height
+    for j, row in enumerate(rows[:fwd.beta2_row.shape[1]]):
         t, b = maxpool(fwd.t_ref, fwd.beta2_row[:, j])
         a2.semilogy(t, np.maximum(b, 1e-6), lw=0.7, label=row)
     a2.axhline(fwd.threshold_row, color="#c03030", lw=1, label=f"row gate {fwd.threshold_row:.3g}")

@@ -30,6 +30,10 @@ topic               type                                        content
 /sim/truth          flight_fdi_msgs/FilterState, channel        named truth values (TRUTH_NAMES)
                     ``truth3d``
 /sim/fault          std_msgs/String (transient local, once)     JSON: ``Flight3D.description``
+(optional, e.g.     sensor_msgs/FluidPressure (``baro``), or    the height reference
+/reference/baro)    NavSatFix / PointStamped                    (``height_series``): a second
+                                                                barometer's ISA pressure, or
+                                                                its height as altitude / z
 ==================  ==========================================  =============================
 
 /ins/velocity, /ins/imu, /ins/fix and /sim/truth are decimations of the INS states (the rates
@@ -44,8 +48,8 @@ import math
 
 import numpy as np
 
-from flight_fdi.bagio.ins3d_input import (BODY_FRAME, ENU_FRAME, UNMEASURED_VARIANCE,
-                                          imu_payloads, ins_fix_payloads, velocity_payloads)
+from flight_fdi.bagio.ins3d_payloads import (BODY_FRAME, ENU_FRAME, UNMEASURED_VARIANCE,
+                                             imu_payloads, ins_fix_payloads, velocity_payloads)
 
 from .errors import SimError
 from .imu3d import AXES
@@ -55,6 +59,7 @@ from .rotation import attitude_error_array
 EPOCH_S = 1_700_000_000
 _NS = 1_000_000_000
 GNSS_FRAME = "gnss"
+BARO_FRAME = "baro"
 FILTER_STATE = "flight_fdi_msgs/msg/FilterState"
 STRING = "std_msgs/msg/String"
 TOPICS = {"ins_velocity": "/ins/velocity", "ins_imu": "/ins/imu", "ins_fix": "/ins/fix",
@@ -153,11 +158,34 @@ def encode_topics(flight: Flight3D, velocity_rate_hz: float, imu_rate_hz: float,
     return series
 
 
+def height_series(flight: Flight3D, topic: str, msgtype: str, rate_hz: float,
+                  epoch_s: int = EPOCH_S) -> tuple[str, str, np.ndarray, list[bytes]]:
+    """The height reference topic (``Sim3DConfig.height_reference``'s heights every 1/rate s,
+    frame ``baro``; ``ins3d_payloads.height_payloads``: FluidPressure, NavSatFix or
+    PointStamped) with the published variance white^2 + instability^2 (not for PointStamped)."""
+    from flight_fdi.bagio.ins3d_payloads import height_payloads
+
+    cfg = flight.config.height_reference
+    if flight.height_ref is None or cfg is None:
+        raise SimError(f"a height topic ({topic}) needs a simulated height reference "
+                       "(Sim3DConfig.height_reference)")
+    idx = np.arange(0, flight.t.size, _every(rate_hz, flight.config.trajectory.rate_hz,
+                                             "height reference"))
+    stamp = epoch_s * _NS + np.round(flight.t[idx] * _NS).astype(np.int64)
+    nav = flight.truth.nav
+    return (topic, msgtype, stamp,
+            height_payloads(msgtype, stamp, BARO_FRAME, flight.height_ref[idx],
+                            cfg.white**2 + cfg.instability**2, nav.lat[idx], nav.lon[idx]))
+
+
 def write_bag3d(flight: Flight3D, path: str, velocity_rate_hz: float = 20.0,
                 imu_rate_hz: float = 20.0, fix_rate_hz: float = 5.0, truth_rate_hz: float = 1.0,
                 epoch_s: int = EPOCH_S, storage: str = "mcap", compression: str = "zstd",
-                overwrite: bool = False) -> dict[str, int]:
-    """Write the flight (topics in the module docstring); returns the message count per topic."""
+                overwrite: bool = False, height_topic: str | None = None,
+                height_type: str = "sensor_msgs/msg/FluidPressure",
+                height_rate_hz: float = 10.0) -> dict[str, int]:
+    """Write the flight (topics in the module docstring); returns the message count per topic.
+    ``height_topic``: also the height reference (``height_series``) on that topic."""
     from flight_fdi.bagio.typestore import get_typestore
     from flight_fdi.bagio.writer import open_writer
 
@@ -175,6 +203,12 @@ def write_bag3d(flight: Flight3D, path: str, velocity_rate_hz: float = 20.0,
     desc["topics"] = {"velocity_rate_hz": velocity_rate_hz, "imu_rate_hz": imu_rate_hz,
                       "fix_rate_hz": fix_rate_hz, "truth_rate_hz": truth_rate_hz,
                       "epoch_s": int(epoch_s)}
+    if height_topic is not None:
+        if height_topic in TOPICS.values():
+            raise SimError(f"the height topic {height_topic} is already a topic of the bag")
+        series.append(height_series(flight, height_topic, height_type, height_rate_hz, epoch_s))
+        desc["topics"].update({"height_topic": height_topic, "height_type": height_type,
+                               "height_rate_hz": height_rate_hz})
     doc = json.dumps(desc, sort_keys=True)
     payload = bytes(get_typestore().serialize_cdr(get_typestore().types[STRING](data=doc),
                                                   STRING))

@@ -16,7 +16,9 @@ position) over [start, end); ``latency`` adds m seconds of latency over [start, 
 
 The covariance published with each message is the stationary variance white^2 + markov^2.
 
-Baro: h_baro(t_k) = h_true + b0 + b_gm(t_k) + white, at the IMU rate (``BaroConfig``).
+Baro: h_baro(t_k) = h_true + b0 + b_gm(t_k) + drift t_k + white, at the IMU rate
+(``BaroConfig``; the INS's own baro has no drift, the bag's height reference ``HEIGHT_REFERENCE``
+one of 1 m/h).
 """
 from __future__ import annotations
 
@@ -69,12 +71,31 @@ class GnssConfig:
 
 @dataclass(frozen=True)
 class BaroConfig:
-    """Barometric altimeter error (m): turn-on bias, Gauss-Markov, white."""
+    """Barometric altimeter error (m): turn-on bias, Gauss-Markov, white, and a slow linear
+    drift (m/s: the day's pressure changing; 0 for the INS's own baro by default)."""
 
     bias: float = 5.0
     instability: float = 2.0
     tau_s: float = 600.0
     white: float = 0.5
+    drift_mps: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, val in asdict(self).items():
+            if not isinstance(val, (int, float)) or isinstance(val, bool) \
+                    or not math.isfinite(val) or (val < 0 and name != "drift_mps"):
+                raise SimError(f"baro {name.replace('_', ' ')} must be a number"
+                               f"{'' if name == 'drift_mps' else ' >= 0'}, got {val!r}")
+        if self.tau_s <= 0:
+            raise SimError(f"baro tau s must be > 0, got {self.tau_s!r}")
+
+
+#: the height reference the bag may carry (``Sim3DConfig.height_reference``): a second
+#: barometer, independent of the INS's, richer than the analysis' model of it (white + one
+#: Markov error): a turn-on offset of 10 m (the datum "first" absorbs it), a Gauss-Markov error
+#: of 0.3 m over 20 s, white 0.1 m and a drift of 1 m/h
+HEIGHT_REFERENCE = BaroConfig(bias=10.0, instability=0.3, tau_s=20.0, white=0.1,
+                              drift_mps=1.0 / 3600.0)
 
 
 @dataclass
@@ -150,6 +171,8 @@ def simulate_baro(h_true: np.ndarray, dt: float, cfg: BaroConfig,
     err = (cfg.bias * rng.standard_normal()
            + gauss_markov(rng, n, cfg.instability, cfg.tau_s, dt, 1)[:, 0]
            + cfg.white * rng.standard_normal(n))
+    if cfg.drift_mps:
+        err = err + cfg.drift_mps * dt * np.arange(n)
     return h_true + err
 
 

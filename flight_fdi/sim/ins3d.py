@@ -13,11 +13,12 @@ it. Steps:
 5. ``strapdown.mechanize`` (second order) with the vertical channel ``baro`` (default: third-order
    loop on the barometric height, time constant ``tau_vertical_s``), ``reference`` (the same loop
    on the GNSS height, held between messages) or ``free`` (undamped).
-6. ``gnss.simulate_gnss``: the reference messages.
+6. ``gnss.simulate_gnss``: the reference messages; with ``height_reference`` a second,
+   independent barometer (``gnss.simulate_baro``), the bag's optional height topic.
 
 Random numbers: ``SeedSequence(seed)`` spawns independent streams for the gyros, the
-accelerometers, the alignment, the GNSS and the baro, so a faulty and a nominal flight with one
-seed differ by the fault's effect only.
+accelerometers, the alignment, the GNSS, the baro and the height reference, so a faulty and a
+nominal flight with one seed differ by the fault's effect only.
 """
 from __future__ import annotations
 
@@ -49,6 +50,9 @@ class Sim3DConfig:
     quantize: bool = False
     gnss: GnssConfig = field(default_factory=GnssConfig)
     baro: BaroConfig = field(default_factory=BaroConfig)
+    #: a second barometer, independent of the INS's, whose heights a bag may carry as its
+    #: height reference (``bag3d.write_bag3d``'s ``height_topic``; e.g. ``gnss.HEIGHT_REFERENCE``)
+    height_reference: BaroConfig | None = None
     vertical: str = "baro"
     tau_vertical_s: float = 100.0
     alignment: str = "consistent"
@@ -98,6 +102,7 @@ class Flight3D:
     ins: NavSolution              # the INS solution (N states)
     gnss: GnssOutput
     aid_h: np.ndarray | None      # (N,) height fed to the vertical loop (None: free)
+    height_ref: np.ndarray | None = None   # (N,) the height reference's heights (None: none)
 
     @property
     def t(self) -> np.ndarray:
@@ -128,6 +133,8 @@ class Flight3D:
                     "gyro_matrix": self.gyro.matrix.tolist(),
                     "accel_matrix": self.accel.matrix.tolist()},
             "gnss": vars(c.gnss).copy(), "baro": vars(c.baro).copy(),
+            **({} if c.height_reference is None else
+               {"height_reference": vars(c.height_reference).copy()}),
             "vertical": c.vertical, "tau_vertical_s": c.tau_vertical_s,
             "alignment": c.alignment, "phi0_rad": self.phi0.tolist(),
             "faults": [f.to_dict("x") for f in c.faults],
@@ -156,8 +163,9 @@ def simulate3d(cfg: Sim3DConfig) -> Flight3D:
     truth = generate(cfg.trajectory)
     dt = truth.dt
     dth, dv = inverse(truth.nav, dt)
-    rng_g, rng_a, rng_al, rng_gnss, rng_baro = (np.random.default_rng(s) for s in
-                                                 np.random.SeedSequence(cfg.seed).spawn(5))
+    # (the sixth stream, the height reference's, leaves the first five as they were)
+    rng_g, rng_a, rng_al, rng_gnss, rng_baro, rng_href = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(6))
     t_int = truth.t[:-1]
     d = cfg.trajectory.duration_s
     g = cfg.imu_grade
@@ -176,7 +184,9 @@ def simulate3d(cfg: Sim3DConfig) -> Flight3D:
     q0_ins = qmul_array(qexp_array(-phi0[None, :]), q0[None, :])[0]
     ins = mechanize(gyro.rate * dt, accel.rate * dt, dt, (lat0, lon0, h0, v0, q0_ins),
                     aid_h=aid_h, tau_vertical_s=None if aid_h is None else cfg.tau_vertical_s)
-    return Flight3D(cfg, truth, dth, dv, gyro, accel, phi0, ins, gnss, aid_h)
+    href = None if cfg.height_reference is None else \
+        simulate_baro(nav.h, dt, cfg.height_reference, rng_href)
+    return Flight3D(cfg, truth, dth, dv, gyro, accel, phi0, ins, gnss, aid_h, href)
 
 
 __all__ = ["ALIGNMENTS", "Flight3D", "GRADES", "Sim3DConfig", "VERTICAL_MODES", "simulate3d"]

@@ -272,6 +272,10 @@ def test_the_two_threads_of_the_sweep_equal_one(short):
     for k in ref:
         np.testing.assert_array_equal(one.joint[k], ref[k], err_msg=k)
         np.testing.assert_array_equal(two.joint[k], ref[k], err_msg=k)
+    # the states alone (a relinearisation's need: no fault information) are the same numbers
+    from flight_fdi.core.ins3d.postflight import smoothed_states
+    np.testing.assert_array_equal(smoothed_states(a.model, a.steps, a.refs, a.forward, 1e-9),
+                                  one.x_s)
 
 
 def test_merged_steps_carry_the_dt_weighted_means():

@@ -40,6 +40,29 @@ def test_the_third_row_measures_the_height_error(kw):
     assert np.array_equal(scaled_H(np.ones(v.n), a, *v.row_args()), v.H(a))
 
 
+def test_the_height_row_s_markov_state_has_its_own_time_constant():
+    """ref_markov (sigma_h, sigma_v, tau, tau_third): the third row's Markov state decays with
+    its own tau in F and gets q = 2 sigma^2 / tau from it; the horizontal ones keep tau; three
+    values give every row tau (as before); a fifth value or a non-positive one is refused."""
+    from flight_fdi.core.ins3d.dynamics import fill_F
+    m = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True,
+                              ref_markov=(0.02, 0.4, 30.0, 5.0))
+    F = np.empty((m.n, m.n))
+    fill_F(F, np.eye(3), np.array([0.0, 0.0, 9.8]), np.array([100.0, 0.0, 0.0]), 0.8, 1000.0,
+           m.kernel_params())
+    im = m.im
+    assert [F[im + i, im + i] for i in range(3)] == [-1 / 30.0, -1 / 30.0, -1 / 5.0]
+    assert np.allclose(m.qc()[im:im + 3], [2 * 0.02**2 / 30, 2 * 0.02**2 / 30, 2 * 0.4**2 / 5])
+    same = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True,
+                                 ref_markov=(0.02, 0.4, 30.0))
+    fill_F(F, np.eye(3), np.array([0.0, 0.0, 9.8]), np.array([100.0, 0.0, 0.0]), 0.8, 1000.0,
+           same.kernel_params())
+    assert [F[im + i, im + i] for i in range(3)] == [-1 / 30.0] * 3
+    for bad in ((0.02, 0.4, 30.0, 5.0, 1.0), (0.02, 0.4, 30.0, 0.0)):
+        with pytest.raises(CoreError, match="ref_markov"):
+            Ins3dModel.from_grade("tactical", rows=3, position=True, ref_markov=bad)
+
+
 @pytest.mark.parametrize("kw", [dict(rows=2, position=True), dict(rows=3)])
 def test_a_height_row_needs_three_rows_and_a_height_state(kw):
     with pytest.raises(CoreError, match="height reference row needs rows=3"):
@@ -108,3 +131,18 @@ def test_nominal_flight_with_a_height_row_names_nothing():
     assert an.isolation.isolation == "none"
     assert 0.3 < an.forward.beta2_row[:, 2].mean() < 1.5
     assert an.forward.x.shape[1] == an.model.n and an.model.names[IP + 2] == "dp_u"
+
+
+def test_the_initial_height_error_prior_of_a_datum():
+    """``h0_sigma`` (``bagio.height_input``'s datum "first") sets the height error's prior
+    variance and nothing else; it needs a height state."""
+    base = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True)
+    m = Ins3dModel.from_grade("tactical", rows=3, position=True, height_row=True, h0_sigma=0.4)
+    p, p_base = m.p0(), base.p0()
+    assert p[m.ih] == pytest.approx(0.16) and p_base[m.ih] == pytest.approx(25.0)
+    assert np.array_equal(np.delete(p, m.ih), np.delete(p_base, m.ih))
+    loop = Ins3dModel.from_grade("tactical", rows=3, vertical="loop", h0_sigma=0.4)
+    assert loop.p0()[loop.ih] == pytest.approx(0.16)
+    for bad in (dict(h0_sigma=0.0, position=True), dict(h0_sigma=1.0)):
+        with pytest.raises(CoreError, match="h0_sigma must be > 0, with a height state"):
+            Ins3dModel.from_grade("tactical", **bad)

@@ -8,6 +8,8 @@ tilt error and absorbs the linear model's misfit of the fault-free flight); comp
 relinearised, gyro x is named with its magnitude within 3 %."""
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from flight_fdi.bagio.ins3d_input import from_flight
@@ -105,3 +107,24 @@ def test_the_fits_are_all_refitted_not_the_best_as_recorded():
     assert pf["verdict"] != "failure" or pf["fault"]["sensor"] == "accelerometer"
     first = pf["fault"] or pf["candidates"][0]
     assert (first["sensor"], first["axis"]) == ("accelerometer", "x")
+
+
+def test_the_refit_search_finds_a_parabola_s_vertex_in_one_step():
+    """``nonlinear._parabola_min`` (the refit's magnitude search): a quadratic cost is minimised
+    exactly by the vertex through its first three points (4 costs); a smooth non-quadratic one
+    (cosh) within the tolerance in a few more; the search stays within 0.5 .. 2 times b0 and
+    never costs more than 3 + REFIT_STEPS points."""
+    calls = []
+
+    def quadratic(b):
+        calls.append(b)
+        return 3.0 * (b - 1.23) ** 2 + 5.0
+
+    b, c = nonlinear._parabola_min(quadratic, 1.0)
+    assert b == pytest.approx(1.23, rel=1e-9) and c == pytest.approx(5.0) and len(calls) == 4
+    calls.clear()
+    b, c = nonlinear._parabola_min(lambda x: calls.append(x) or math.cosh(4.0 * (x + 0.7)), -1.0)
+    assert b == pytest.approx(-0.7, abs=0.01) and len(calls) <= 3 + nonlinear.REFIT_STEPS
+    calls.clear()
+    b, _ = nonlinear._parabola_min(lambda x: calls.append(x) or (x - 50.0) ** 2, 1.0)
+    assert b == 2.0 and all(0.5 <= x <= 2.0 for x in calls)      # clipped to the bracket

@@ -57,3 +57,19 @@ def batch_input(msgs):
                        ts("ins_velocity"), col("ins_velocity", 0), ts("ins_fix"),
                        col("ins_fix", 0), col("ins_fix", 1), ts("ref_velocity"),
                        col("ref_velocity", 0), col("ref_velocity", 1))
+
+
+def assert_rows_are(events, refs) -> None:
+    """The assembler's rows among ``events`` are the bag reader's ``refs`` (boundary, stamp,
+    z, r bit for bit; the latency column: numpy.gradient's uniform-spacing branch may differ by
+    rounding), and every row follows its boundary and precedes the next one."""
+    from flight_fdi.core.ins3d.stream import Boundary, Row
+
+    rows = [e for e in events if isinstance(e, Row)]
+    np.testing.assert_array_equal([r.k for r in rows], refs.step)
+    np.testing.assert_array_equal([r.t for r in rows], refs.t)
+    np.testing.assert_array_equal(np.array([r.z for r in rows]), refs.z)
+    np.testing.assert_array_equal(np.array([r.r for r in rows]), refs.r)
+    np.testing.assert_allclose(np.array([r.a for r in rows]), refs.a, rtol=1e-12, atol=1e-15)
+    order = [(e.k, 0 if isinstance(e, Boundary) else 1) for e in events]
+    assert order == sorted(order)

@@ -128,3 +128,44 @@ def test_a_replay_never_ends_its_record_on_an_idle_pause():
     spec = next(s for s in INS3D_PARAMS if s.name == "ins3d_end_idle_s")
     assert spec.default > 0
     assert filter_parameters3d(names, "mems", 2, GateConfig())["ins3d_end_idle_s"] == 0.0
+
+
+def test_the_height_parameters_become_the_node_model_and_round_trip():
+    """``ins3d_height_topic`` (and its options, defaults setting (i)): 3 rows, the third the
+    height, the position states, v0 1 m/s, the velocity reference's Markov sigma with the
+    height's; ``height_parameters`` of the spec give it back; the recording carries the options
+    and the datum's prior (``model.height_row``, ``model.v0_sigma_up``, ``model.h0_sigma``)."""
+    from flight_fdi.bagio.height_input import HeightSpec
+    from flight_fdi.nodes.ins3d_mode import height_parameters, height_spec
+    d = _defaults()
+    values = {**d, "model": "ins3d", "ins3d_height_topic": "/baro"}
+    m = build_model(values, d)
+    assert (m.rows, m.height_row, m.position, m.v0_sigma_up) == (3, True, True, 1.0)
+    assert m.ref_markov == (0.02, 0.4, 30.0, 5.0) and m.h0_sigma is None   # each row its tau
+    spec = HeightSpec("/b", sigma=0.2, markov=None, datum="absolute", v0_sigma_up=0.3)
+    params = height_parameters(spec, "sensor_msgs/msg/NavSatFix")
+    for k, v in params.items():
+        assert check_value(spec_table_of()[k], v) is None, k
+    assert height_spec({**d, **params}) == spec
+    full = {**model_options(values), "h0_sigma": 0.35}
+    names, vals = option_params(full)
+    back = recorded_options({"rows": 3.0, **dict(zip(names, vals))})
+    assert back == {**full, "position": True, "height_row": True}
+    no_h0 = recorded_options(dict(zip(*option_params({**full, "h0_sigma": None}))))
+    assert no_h0["h0_sigma"] is None
+
+
+@pytest.mark.parametrize("params, needle", [
+    ({"ins3d_rows": 2}, "'ins3d_rows': got 2; allowed: 3 with ins3d_height_topic"),
+    ({"ins3d_height_markov": [0.4, 0.0]}, "'ins3d_height_markov'"),
+    ({"ins3d_height_markov": [0.4]}, "'ins3d_height_markov'"),
+    ({"ins3d_height_topic": "/ins/fix"}, "five distinct topics"),
+])
+def test_a_bad_height_parameter_is_refused_at_start(params, needle):
+    d = _defaults()
+    with pytest.raises(ParameterError, match=needle):
+        build_model({**d, "model": "ins3d", "ins3d_height_topic": "/baro", **params}, d)
+    t = spec_table_of()
+    assert check_value(t["ins3d_height_type"], "std_msgs/msg/Float64") is not None
+    assert check_value(t["ins3d_height_datum"], "geoid") is not None
+    assert check_value(t["ins3d_height_sigma"], 0.0) is not None

@@ -7,9 +7,9 @@ import pytest
 from flight_fdi.core.gate import GateConfig
 from flight_fdi.core.ins3d.filter import run_forward
 from flight_fdi.core.ins3d.model import Ins3dModel
-from flight_fdi.core.ins3d.stream import Boundary, Ins3dAssembler, Ins3dStream, Row
+from flight_fdi.core.ins3d.stream import Boundary, Ins3dAssembler, Ins3dStream
 
-from .streams import batch_input, flight, topic_messages
+from .streams import assert_rows_are, batch_input, flight, topic_messages
 
 
 def _model(rows=2):
@@ -37,7 +37,6 @@ def test_assembler_equals_the_bag_reader(data):
     msgs, inp = data
     asm, events = _stream_events(msgs)
     bounds = [e for e in events if isinstance(e, Boundary)]
-    rows = [e for e in events if isinstance(e, Row)]
     st = inp.steps
     assert [b.k for b in bounds] == list(range(len(st) + 1))
     np.testing.assert_array_equal([b.t for b in bounds], st.t)
@@ -45,15 +44,7 @@ def test_assembler_equals_the_bag_reader(data):
         got = np.concatenate([getattr(b.step, name) for b in bounds[1:]])
         np.testing.assert_array_equal(got, getattr(st, name), err_msg=name)
     refs = inp.refs
-    np.testing.assert_array_equal([r.k for r in rows], refs.step)
-    np.testing.assert_array_equal([r.t for r in rows], refs.t)
-    np.testing.assert_array_equal(np.array([r.z for r in rows]), refs.z)
-    np.testing.assert_array_equal(np.array([r.r for r in rows]), refs.r)
-    # the latency column: numpy.gradient's uniform-spacing branch may differ by rounding
-    np.testing.assert_allclose(np.array([r.a for r in rows]), refs.a, rtol=1e-12, atol=1e-15)
-    # every row follows its boundary and precedes the next one
-    order = [(e.k, 0 if isinstance(e, Boundary) else 1) for e in events]
-    assert order == sorted(order)
+    assert_rows_are(events, refs)
     n_ref = sum(1 for m in msgs if m[1] == "ref_velocity")
     assert asm.late == 0 and asm.outside == n_ref - refs.t.size == 1   # the one before the IMU
 

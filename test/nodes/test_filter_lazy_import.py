@@ -3,7 +3,8 @@
 
 The import checks run in a fresh interpreter (a subprocess: this one has the 3-D core loaded by
 other tests). The parameter set is the one filter_node declared before the ins3d mode's imports
-were made lazy (65 parameters, written out below by type).
+were made lazy (65 parameters, written out below by type), with the height reference's six
+added since (session 18).
 """
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ DECLARED = {
         "actuator_window_s", "actuator_zero_tolerance", "anomaly_variance", "attitude_m_c",
         "attitude_sigma_angle_urad", "attitude_sigma_md_walk_urad_s2",
         "attitude_sigma_rate_urad_s", "attitude_wait_s", "buffer_s", "diagnostics_period_s",
-        "gate_probability", "ins3d_end_idle_s", "ins3d_wait_s", "max_gap_s",
+        "gate_probability", "ins3d_end_idle_s", "ins3d_height_sigma", "ins3d_v0_sigma_up",
+        "ins3d_wait_s", "max_gap_s",
         "rate_sync_tolerance_s", "rate_window_s", "readmit_after_s", "reference_sync_tolerance_s",
         "reference_sync_wait_s", "reference_variance", "reset_after_gap_s", "reset_warn_s",
         "sigma_a", "sigma_tilt0", "sigma_v0", "sigma_w_deg_h", "stale_after_s", "tau_a", "tau_w",
@@ -38,13 +40,14 @@ DECLARED = {
     "integer": ("alarm_m", "alarm_n", "input_queue_depth", "ins3d_rows", "time_jump_confirm"),
     "string": (
         "angle_topic", "attitude_measure", "control_topic", "fix_topic", "frame_id", "gate_action",
-        "gate_rule", "imu_topic", "input_qos", "ins3d_grade", "ins3d_vertical", "ins_topic",
+        "gate_rule", "imu_topic", "input_qos", "ins3d_grade", "ins3d_height_datum",
+        "ins3d_height_topic", "ins3d_height_type", "ins3d_vertical", "ins_topic",
         "ins_type", "model", "odometry_twist_frame", "rate_topic", "reference_mode",
         "reference_topic", "reference_type"),
     "string_array": ("channels", "reference_topics"),
     "bool": ("ins3d_aligned_prior", "ins3d_latency", "start_type_description_service",
              "use_reference_covariance", "use_sim_time"),
-    "double_array": ("ins3d_reference_markov",),
+    "double_array": ("ins3d_height_markov", "ins3d_reference_markov"),
 }
 #: the ins3d parameters' defaults before the change
 INS3D_DEFAULTS = {

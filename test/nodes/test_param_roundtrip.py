@@ -99,6 +99,30 @@ def test_natural_spellings_and_the_dump_round_trip(tmp_path, bag):
     assert v["channels"] == ["x", "y"] and v["tau_a"] == 1800.0
 
 
+def test_the_ins3d_height_parameters_round_trip_through_the_dump(tmp_path):
+    """filter_node in its ins3d mode with a height reference (``ins3d_height_*``): the natural
+    spellings (an integer in the Markov pair) give the values meant, and the dump loads back to
+    the same values and the same model."""
+    from flight_fdi.nodes.filter_node import FilterNode
+
+    argv = ["-p", "model:=ins3d", "-p", "ins3d_height_topic:=/baro", "-p",
+            "ins3d_height_type:=sensor_msgs/msg/NavSatFix", "-p", "ins3d_height_markov:=[0.5, 8]",
+            "-p", "ins3d_height_datum:=absolute", "-p", "ins3d_height_sigma:=0.1",
+            "-p", "ins3d_v0_sigma_up:=2"]
+    node, ctx, first = _build(FilterNode, ["--ros-args", *argv])
+    model, dumped = node.model, _dump(node)
+    _close(node, ctx)
+    assert (first["ins3d_height_markov"], first["ins3d_v0_sigma_up"]) == ([0.5, 8.0], 2.0)
+    assert model.height_row and model.ref_markov == (0.02, 0.5, 30.0, 8.0) \
+        and model.v0_sigma_up == 2
+    path = tmp_path / "f.yaml"
+    path.write_text(dumped)
+    node, ctx, second = _build(FilterNode, ["--ros-args", "--params-file", str(path)])
+    again = node.model
+    _close(node, ctx)
+    assert second == first and again == model
+
+
 def test_the_dump_of_y_is_what_rcl_alone_cannot_read(tmp_path):
     """The root of the problem, shown with rcl alone: ros2 param dump writes ``- y`` plainly,
     rcl reads it as a boolean, a mixed list does not load; after the re-typing it does."""

@@ -8,7 +8,7 @@ and the per-message codecs 1-4 us. So the project keeps one hand-written codec, 
 
 * :mod:`.series` -- whole series with numpy: TwistStamped / TwistWithCovarianceStamped
   (decode and encode), any header-plus-doubles type (``encode_doubles`` / ``decode_doubles``:
-  sensor_msgs/Imu),
+  sensor_msgs/Imu, sensor_msgs/FluidPressure, geometry_msgs/PointStamped),
   NavSatFix (encode; ``decode_doubles`` reads it), :class:`Payloads` (messages stored back to
   back);
 * :mod:`.variable` -- the variable-layout messages read or written in series: std_msgs/String,
@@ -35,17 +35,19 @@ The wire rules (XCDR1 as ROS 2 / Fast DDS put it on the wire):
 Every codec is tested against rosbags' serializer (and the per-message ones against rclpy's)
 in ``test/bagio/test_bagio_cdr.py`` and ``test/nodes/test_wire.py``.
 """
-from .series import (IMU, NAVSATFIX, TWIST_COV_STAMPED, TWIST_STAMPED, Payloads, decode,
-                     decode_doubles, encode, encode_doubles, encode_navsatfix, rows, supported)
+from .series import (FLUID_PRESSURE, IMU, NAVSATFIX, POINT_STAMPED, TWIST_COV_STAMPED,
+                     TWIST_STAMPED, Payloads, decode, decode_doubles, decode_navsatfix_flags,
+                     encode, encode_doubles, encode_navsatfix, rows, supported)
 from .variable import (FILTER_STATE, FILTER_STATE_SEQUENCES, LINEAR_COV, ODOMETRY, STRING,
                        FilterStateColumns, FilterStateRecord, decode_filter_state_columns,
                        decode_filter_state_x, decode_filter_states, decode_odometry,
                        decode_string, encode_odometry)
 from .message import WireError, header_bytes, header_stamp_ns
 
-__all__ = ["FILTER_STATE", "FILTER_STATE_SEQUENCES", "IMU", "LINEAR_COV", "NAVSATFIX", "ODOMETRY",
-           "STRING", "TWIST_COV_STAMPED", "TWIST_STAMPED", "FilterStateColumns",
-           "FilterStateRecord", "Payloads", "WireError", "decode", "decode_doubles",
-           "decode_filter_state_columns", "decode_filter_state_x", "decode_filter_states",
-           "decode_odometry", "decode_string", "encode", "encode_doubles", "encode_navsatfix",
-           "encode_odometry", "header_bytes", "header_stamp_ns", "rows", "supported"]
+__all__ = ["FILTER_STATE", "FILTER_STATE_SEQUENCES", "FLUID_PRESSURE", "IMU", "LINEAR_COV",
+           "NAVSATFIX", "ODOMETRY", "POINT_STAMPED", "STRING", "TWIST_COV_STAMPED",
+           "TWIST_STAMPED", "FilterStateColumns", "FilterStateRecord", "Payloads", "WireError",
+           "decode", "decode_doubles", "decode_filter_state_columns", "decode_filter_state_x",
+           "decode_filter_states", "decode_navsatfix_flags", "decode_odometry", "decode_string",
+           "encode", "encode_doubles", "encode_navsatfix", "encode_odometry", "header_bytes",
+           "header_stamp_ns", "rows", "supported"]

@@ -20,10 +20,12 @@ Both encapsulations are decoded: CDR_LE (``00 01``) and CDR_BE (``00 00``). Enco
 The tests check both directions against rosbags' own serializer.
 
 The 3-D simulator's topics: ``encode_doubles`` / ``decode_doubles`` for any type that is a
-header followed by doubles (``sensor_msgs/Imu``: 37), ``encode_navsatfix`` for
+header followed by doubles (``sensor_msgs/Imu``: 37; the height references
+``sensor_msgs/FluidPressure``: 2 and ``geometry_msgs/PointStamped``: 3), ``encode_navsatfix`` for
 ``sensor_msgs/NavSatFix``, which ``decode_doubles`` also reads (its 12 doubles: latitude,
 longitude, altitude, position_covariance[9]; they follow ``status``: int8 status at ``12 + L``,
-uint16 service 2-aligned after it, then the doubles 8-aligned, then uint8 covariance_type).
+uint16 service 2-aligned after it, then the doubles 8-aligned, then uint8 covariance_type;
+``decode_navsatfix_flags`` reads status and covariance_type).
 """
 from __future__ import annotations
 
@@ -37,11 +39,15 @@ TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 TWIST_COV_STAMPED = "geometry_msgs/msg/TwistWithCovarianceStamped"
 IMU = "sensor_msgs/msg/Imu"
 NAVSATFIX = "sensor_msgs/msg/NavSatFix"
+FLUID_PRESSURE = "sensor_msgs/msg/FluidPressure"
+POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 
 #: number of doubles after the header for each supported type
 _DOUBLES = {TWIST_STAMPED: 6, TWIST_COV_STAMPED: 6 + 36}
 #: other types made of a header and doubles (encode_doubles / decode_doubles only)
-_HEADER_DOUBLES = {IMU: 4 + 9 + 3 + 9 + 3 + 9}
+_HEADER_DOUBLES = {IMU: 4 + 9 + 3 + 9 + 3 + 9,
+                   FLUID_PRESSURE: 2,           # fluid_pressure (Pa), variance (Pa^2; 0: unknown)
+                   POINT_STAMPED: 3}            # point x, y, z
 #: types whose doubles follow a sensor_msgs/NavSatStatus (decode_doubles only): number of doubles
 _AFTER_STATUS = {NAVSATFIX: 3 + 9}
 _NS = 1_000_000_000
@@ -296,3 +302,31 @@ def _decode_block(msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np
         raw[~little] = raw[~little][:, :, ::-1]
     values = np.ascontiguousarray(raw).view("<f8").reshape(n, len(cols))
     return sec * _NS + nsec, values
+
+
+def decode_navsatfix_flags(payloads: "Payloads | Sequence[bytes | memoryview]",
+                           what: str = "message") -> tuple[np.ndarray, np.ndarray]:
+    """(status.status int8 (N,), position_covariance_type uint8 (N,)) of sensor_msgs/NavSatFix
+    messages (each with its own frame_id, so its own offsets); BagError naming ``what`` for a
+    message too short to hold them (``decode_doubles`` checks the rest)."""
+    if not isinstance(payloads, Payloads):
+        payloads = Payloads.from_list(payloads)
+    n = len(payloads)
+    if n == 0:
+        return np.zeros(0, np.int8), np.zeros(0, np.uint8)
+    starts, lengths, buf = payloads.starts, payloads.lengths, payloads.buf
+    if lengths.min() < 16:
+        bad = int(np.argmin(lengths))
+        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {NAVSATFIX}")
+    raw = buf[starts[:, None] + np.arange(12, 16)]
+    little = buf[starts + 1] == 1
+    raw[~little] = raw[~little][:, ::-1]
+    strlen = np.ascontiguousarray(raw).view("<u4").reshape(n).astype(np.int64)
+    off, tail = _first_double(NAVSATFIX, strlen)
+    short = off + 96 + tail > lengths
+    if np.any(short):
+        bad = int(np.flatnonzero(short)[0])
+        raise BagError(f"{what} #{bad}: {lengths[bad]} bytes is too short for {NAVSATFIX} "
+                       f"with a frame_id of {strlen[bad]} bytes")
+    status = buf[starts + 16 + strlen].view(np.int8)
+    return status.copy(), buf[starts + off + 96].copy()

@@ -188,6 +188,7 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
                   signature_error: float | None = None,
                   height_row: bool = False,
                   v0_sigma_up: float | None = None,
+                  h0_sigma: float | None = None,
                   glitch_rounds: int = MAX_ROUNDS) -> Ins3dAnalysis:
     """The 3-D analysis of one flight (see ``bagio.ins3d_input`` for the inputs from a bag or a
     simulated flight). ``grade``: an ImuGrade, a preset name or a YAML grade file
@@ -202,7 +203,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     grade's: a grade file's ``signature_error_rad``, else its axis misalignment).
     ``height_row``: the third reference row is a height reference (``data.with_height``; needs
     ``rows=3`` and ``position=True``); ``v0_sigma_up``: the initial vertical velocity error's
-    sigma (m/s) of a free vertical channel (default: the horizontal ones').
+    sigma (m/s) of a free vertical channel (default: the horizontal ones'); ``h0_sigma``: the
+    initial height error's sigma (m; default the position's 5 m: ``bagio.height_input``'s datum).
     ``diagnosis``: the seed method's rules (default ``grade_file.diagnosis_config_of`` the
     grade: a grade file's ``seed_episode_probability``, else ``DiagnosisConfig()``).
     ``glitch_rounds``: when reference outliers are named, the rounds of removing their updates
@@ -213,7 +215,8 @@ def analyze_ins3d(steps: NavSteps, refs: RefRows, grade: str | ImuGrade = "navig
     model = Ins3dModel.from_grade(resolve_grade(grade), position=position, rows=rows,
                                   vertical=vertical,
                                   latency=latency, ref_markov=ref_markov, loop=loop,
-                                  height_row=height_row, v0_sigma_up=v0_sigma_up)
+                                  height_row=height_row, v0_sigma_up=v0_sigma_up,
+                                  h0_sigma=h0_sigma)
     if refs.t.size == 0:
         raise CoreError("ins3d analysis: no reference update inside the INS record")
     order = np.argsort(refs.step, kind="stable")
@@ -281,7 +284,7 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
                           [out.forward.neg2_log_likelihood()])
     x_s = out.backward.x_s
     for _ in range(MAX_PASSES):
-        steps, refs, w = relinearized_input(model, rel.steps, rel.refs, x_s)
+        steps, refs, _ = relinearized_input(model, rel.steps, rel.refs, x_s)
         P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]),
                                 aligned_prior)
         fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=True)
@@ -290,7 +293,6 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
             break
         bwd = run_backward(model, steps, refs, fwd, rank_tol)
         out.steps, out.refs, out.forward, out.backward = steps, refs, fwd, bwd
-        rel.response = w
         rel.attitude_max_rad.append(largest_attitude(bwd.x_s))
         rel.neg2_log_likelihood.append(nll)
         moved = float(np.abs(bwd.x_s[:, IPHI:IPHI + 3] - x_s[:, IPHI:IPHI + 3]).max())
@@ -322,8 +324,8 @@ def _post_flight(out: Ins3dAnalysis, cfg: DiagnosisConfig,
         out.nonlinear = confirm(model, steps, refs, fwd, out.decision_glr, out.isolation,
                                 signature_error_of(model.grade)
                                 if signature_error is None else signature_error,
-                                relinearized=None if out.relinearization is None else
-                                (cfg.rank_tol, out.relinearization, out.forward))
+                                rank_tol=None if out.relinearization is None else
+                                cfg.rank_tol)
     out.validity = _validity(out)
     iso = out.isolation            # beyond the (relinearised) model: no confident name
     if not out.validity.valid and iso.isolation == "single" and iso.rival is not None \

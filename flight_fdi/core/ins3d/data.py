@@ -104,11 +104,12 @@ def ref_rows(steps: NavSteps, t_ins: np.ndarray, v_ins: np.ndarray, t_ref: np.nd
     return RefRows(t_ref, v_i - v_ref, np.ascontiguousarray(r_ref), step.astype(np.int64), a_i)
 
 def with_height(refs: RefRows, t_ins: np.ndarray, h_ins: np.ndarray, v_up: np.ndarray,
-                h_ref: np.ndarray, r_h: float | np.ndarray) -> RefRows:
+                h_ref: np.ndarray, r_h: float | np.ndarray,
+                t_v: np.ndarray | None = None) -> RefRows:
     """``refs`` with the third row a height reference at the same stamps: z = h_INS(t) -
     ``h_ref`` (M,) m, its variance ``r_h`` (m^2), and as its latency column the INS vertical
     velocity ``v_up`` (a reference late by tau reports h(t - tau) ~ h(t) - v_U tau); INS values
-    linearly interpolated at the stamps."""
+    linearly interpolated at the stamps (``v_up`` sampled at ``t_v``, default ``t_ins``)."""
     h_ref = np.asarray(h_ref, dtype=float)
     r_h = np.broadcast_to(np.asarray(r_h, dtype=float), h_ref.shape)
     if h_ref.shape != refs.t.shape:
@@ -118,8 +119,28 @@ def with_height(refs: RefRows, t_ins: np.ndarray, h_ins: np.ndarray, v_up: np.nd
     z, r, a = refs.z.copy(), refs.r.copy(), refs.a.copy()
     z[:, 2] = np.interp(refs.t, t_ins, h_ins) - h_ref
     r[:, 2] = r_h
-    a[:, 2] = np.interp(refs.t, t_ins, v_up)
+    a[:, 2] = np.interp(refs.t, t_ins if t_v is None else t_v, v_up)
     return RefRows(refs.t, z, r, refs.step, a)
+
+
+def interpolate_height(t: np.ndarray, t_h: np.ndarray, h: np.ndarray, r: np.ndarray,
+                       max_gap: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(heights, variances, found) at stamps ``t`` from samples (``t_h`` increasing, h, r):
+    linear between the samples at or before and at or after each stamp when they are at most
+    ``max_gap`` apart (an exact stamp: that sample); ``found`` False elsewhere. The height
+    reference's row at the reference stamps (``bagio.height_input``, ``stream.Ins3dAssembler``:
+    one formula for both)."""
+    t_h = np.asarray(t_h, dtype=float)
+    j = np.searchsorted(t_h, t, side="left")          # first sample at or after t
+    exact = (j < t_h.size) & (t_h[np.minimum(j, t_h.size - 1)] == t)
+    inside = (j > 0) & (j < t_h.size)
+    a, b = np.maximum(j - 1, 0), np.minimum(j, t_h.size - 1)
+    found = exact | (inside & (t_h[b] - t_h[a] <= max_gap))
+    w = np.where(inside & ~exact, (t - t_h[a]) / np.where(t_h[b] > t_h[a], t_h[b] - t_h[a], 1.0),
+                 1.0)
+    hz = np.where(exact, h[b], (1.0 - w) * h[a] + w * h[b])
+    rz = np.where(exact, r[b], (1.0 - w) * r[a] + w * r[b])
+    return hz, rz, found
 
 
 @njit(cache=True)
@@ -168,4 +189,5 @@ def coarsen(steps: NavSteps, refs: RefRows, max_dt: float = 0.1) -> tuple[NavSte
     return coarse, RefRows(refs.t, refs.z, refs.r, step, refs.a)
 
 
-__all__ = ["NavSteps", "RefRows", "coarsen", "nav_steps", "ref_rows", "with_height"]
+__all__ = ["NavSteps", "RefRows", "coarsen", "interpolate_height", "nav_steps", "ref_rows",
+           "with_height"]

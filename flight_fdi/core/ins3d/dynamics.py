@@ -90,7 +90,7 @@ def fill_F(F, C, f_n, v, lat, h, bias):
         fill_loop(F, bias, IV + 2, -dgravity_dh(lat, h), pos)
     im = int(bias[5])
     for i in range(int(bias[6])):  # reference Markov noise states
-        F[im + i, im + i] = -bias[4]
+        F[im + i, im + i] = -bias[14] if i == 2 else -bias[4]
 
 
 @njit(cache=True)

@@ -97,7 +97,9 @@ class Ins3dModel:
     sigma_vertical: float = 0.2
     latency: bool = False
     latency_sigma_s: float = 0.05
-    ref_markov: tuple[float, float, float] | None = None   # (sigma_h, sigma_v m/s, tau s)
+    #: (sigma_h, sigma_v m/s, tau s[, tau of the third row s]): the third row's own tau when
+    #: it is a height reference (sigma_v then in m), else all rows' tau
+    ref_markov: tuple[float, ...] | None = None
     loop: VerticalLoop = VerticalLoop()      # the height loop of vertical="loop"
     #: the third row is a height reference (z = h_INS - h_ref, m: the height error ``ih``),
     #: not the vertical velocity
@@ -105,6 +107,10 @@ class Ins3dModel:
     #: the initial vertical velocity error's sigma (m/s) of a free or looped vertical channel
     #: (None: ``p0``'s v_sigma; a damped channel's is ``sigma_vertical``)
     v0_sigma_up: float | None = None
+    #: the initial height error's sigma (m; None: ``p0``'s position sigma, or the loop's): a
+    #: height reference offset to the INS height at its first sample (``bagio.height_input``,
+    #: datum "first") knows it to that reference's own error
+    h0_sigma: float | None = None
 
     def __post_init__(self) -> None:
         if self.rows not in (2, 3):
@@ -116,22 +122,27 @@ class Ins3dModel:
             raise CoreError(f"ins3d: vertical must be one of {', '.join(VERTICAL)}, "
                             f"got {self.vertical!r}")
         if self.ref_markov is not None and not (
-                len(self.ref_markov) == 3 and all(math.isfinite(v) and v > 0
-                                                  for v in self.ref_markov)):
-            raise CoreError("ins3d: ref_markov must be (sigma_h, sigma_v, tau), all > 0")
+                len(self.ref_markov) in (3, 4) and all(math.isfinite(v) and v > 0
+                                                       for v in self.ref_markov)):
+            raise CoreError("ins3d: ref_markov must be (sigma_h, sigma_v, tau[, tau_third]), "
+                            "all > 0")
         if not (math.isfinite(self.tau_vertical_s) and self.tau_vertical_s > 0
                 and math.isfinite(self.sigma_vertical) and self.sigma_vertical > 0):
             raise CoreError("ins3d: the vertical channel's tau and sigma must be > 0")
         if self.v0_sigma_up is not None and not (math.isfinite(self.v0_sigma_up)
                                                  and self.v0_sigma_up > 0):
             raise CoreError("ins3d: v0_sigma_up must be > 0")
+        if self.h0_sigma is not None and not (math.isfinite(self.h0_sigma) and self.h0_sigma > 0
+                                              and self.ih >= 0):
+            raise CoreError("ins3d: h0_sigma must be > 0, with a height state")
 
     @classmethod
     def from_grade(cls, name: str | ImuGrade, position: bool = False, rows: int = 2,
                    vertical: str = "damped", latency: bool = False,
                    ref_markov: tuple[float, float, float] | None = None,
                    loop: VerticalLoop | None = None, height_row: bool = False,
-                   v0_sigma_up: float | None = None) -> "Ins3dModel":
+                   v0_sigma_up: float | None = None,
+                   h0_sigma: float | None = None) -> "Ins3dModel":
         if isinstance(name, ImuGrade):
             grade = name
         elif name in GRADES:
@@ -140,7 +151,8 @@ class Ins3dModel:
             raise CoreError(f"ins3d: unknown IMU grade {name!r}; choose one of "
                             f"{', '.join(GRADES)}")
         return cls(grade, position, rows, vertical, latency=latency, ref_markov=ref_markov,
-                   loop=loop or VerticalLoop(), height_row=height_row, v0_sigma_up=v0_sigma_up)
+                   loop=loop or VerticalLoop(), height_row=height_row, v0_sigma_up=v0_sigma_up,
+                   h0_sigma=h0_sigma)
 
     @property
     def n(self) -> int:
@@ -201,6 +213,13 @@ class Ins3dModel:
             return np.zeros(self.rows)
         return np.array([self.ref_markov[0]] * 2 + [self.ref_markov[1]])[:self.rows]
 
+    def markov_tau(self) -> np.ndarray:
+        """(rows,) time constants of the reference Markov states (s; ones without them)."""
+        if self.ref_markov is None:
+            return np.ones(self.rows)
+        tau = self.ref_markov[2]
+        return np.array([tau, tau, self.ref_markov[-1]])[:self.rows]
+
     def bias_params(self) -> np.ndarray:
         """(4,) 1/tau_c and q of the accelerometer and the gyro biases."""
         g = self.grade
@@ -214,17 +233,17 @@ class Ins3dModel:
         return _tau_c(lp.bias, lp.instability, lp.aid_tau_s)
 
     def kernel_params(self) -> np.ndarray:
-        """(14,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases,
+        """(15,) what ``fill_F`` needs: 1/tau_c of the accelerometer and gyro biases,
         1/tau of the damped vertical velocity error (0: not damped), 1 when the position
-        states are present, 1/tau of the reference Markov states, their first index and their
-        count; the loop gains k1, k2, k3 (k1 = 0: no loop), 1/tau_c of the aiding error, the
-        indices of dh, s and b."""
+        states are present, 1/tau of the horizontal reference Markov states, their first index
+        and their count; the loop gains k1, k2, k3 (k1 = 0: no loop), 1/tau_c of the aiding
+        error, the indices of dh, s and b; 1/tau of the third row's Markov state."""
         ia, ig, _, _ = self.bias_params()
-        kp = np.zeros(14)
+        kp = np.zeros(15)
+        inv = 1.0 / self.markov_tau() if self.ref_markov else np.zeros(3)
         kp[:7] = [ia, ig, 1.0 / self.tau_vertical_s if self.vertical == "damped" else 0.0,
-                  1.0 if self.position else 0.0,
-                  1.0 / self.ref_markov[2] if self.ref_markov else 0.0,
-                  float(self.im), float(self.n_markov)]
+                  1.0 if self.position else 0.0, inv[0], float(self.im), float(self.n_markov)]
+        kp[14] = inv[-1]
         if self.vertical == "loop":
             i0 = self.im - self.n_loop
             kp[7:10] = self.loop.gains()
@@ -251,7 +270,7 @@ class Ins3dModel:
             q[self.im - 2] = nw
             q[self.im - 1] = self.aid_params()[1]
         if self.ref_markov:
-            q[self.im:self.im + self.n_markov] = 2.0 * self.markov_sigma()**2 / self.ref_markov[2]
+            q[self.im:self.im + self.n_markov] = 2.0 * self.markov_sigma()**2 / self.markov_tau()
         return q
 
     def p0(self, phi_sigma: tuple[float, float, float] | None = None,
@@ -259,7 +278,7 @@ class Ins3dModel:
         """(n,) initial variances: velocity v_sigma, attitude phi_sigma (default: levelling
         tilt from the accelerometer bias, heading from the grade: gyrocompassing or external),
         biases from the grade (sigma0^2 + sigma^2; body z accelerometer: + (scale g)^2),
-        position p_sigma."""
+        position p_sigma (the height: ``h0_sigma`` when given)."""
         g = self.grade
         sa = math.hypot(g.accel_bias, g.accel_instability)
         sg = math.hypot(g.gyro_bias, g.gyro_instability)
@@ -287,6 +306,8 @@ class Ins3dModel:
             p[self.ih] = min(p_sigma, 1.0) ** 2 if not self.position else p[self.ih]
             p[self.im - 2] = 1.0
             p[self.im - 1] = max(lp.bias**2 + lp.instability**2, 1e-6)
+        if self.h0_sigma is not None:
+            p[self.ih] = self.h0_sigma**2
         if self.ref_markov:
             p[self.im:self.im + self.n_markov] = self.markov_sigma()**2
         if self.latency:

@@ -49,12 +49,16 @@ the fault-free flight itself; a yaw fault of thousands of deg/h, rotating the IN
 error, absorbs that misfit and beat the true horizontal gyro step (2 of 4 gyro x steps of
 200 deg/h on 5-min MEMS flights were named gyro z at ~4000 deg/h). So the fits are refitted
 (``refit``: the magnitude at the fit's onset) and compared -- with the no-fault cost0 -- by
-``relinearized_cost``: the corrected flight relinearised about its own smoothed errors, on the
-window started from the analysis' kept pass's prior as the total error
-(``Relinearization.total_prior``). All of them (``REFITTED``), not the best few as recorded:
+``relinearized_cost``: the corrected flight relinearised about its own smoothed errors, **on
+the whole flight from its first update** (the analysis' prior; session 18). Started at the
+check's window from the prior of the analysis' relinearised pass, the refits inherited that
+pass's linearisation point -- the smoothed errors of the *faulty* flight, which the fault moved
+before its own onset: on a real straight leg a gyro y step of 3000 deg/h was named its tilt
+twin, the accelerometer x ramp, by a gap of 29 (the two within 2.3 as linear fits; the gyro's
+refit 30 worse than its own linear fit) -- docs/ins3d_relinearize.md, "Session 18". All of them (``REFITTED``), not the best few as recorded:
 that ranking is the biased one (a 20-mg accelerometer x step, the truth, ranked last of four
-and a 27 500-deg/h yaw step was named). About 5 x 12 relinearised evaluations (3 forward
-passes and 2 backward sweeps of the window each) more. On such a flight every confident (``single``)
+and a 27 500-deg/h yaw step was named). About 5 x 5 relinearised evaluations (3 forward
+passes and 2 backward sweeps of the flight each; the magnitude by ``_parabola_min``) more. On such a flight every confident (``single``)
 decision whose best or rival is a gyro is checked (``analysis``: limit 0), not only those
 turning by ``SMALL_ANGLE_RAD``: the linear signatures were taken about an estimate the fault
 itself moved (a gyro step of 200 deg/h 75 s before the end of a 5-min flight, 4 deg, was named
@@ -66,7 +70,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -75,7 +79,7 @@ from ..threads import usable_threads
 from .data import NavSteps, RefRows
 from .filter import run_forward
 from .glr3d import AMBIGUITY_MARGIN, GlrCurve, Isolation
-from .postflight import run_backward
+from .postflight import smoothed_states
 from .relinearize import MAX_PASSES, relinearized
 from ..rotation import qdcm, qexp
 from .model import IV, Ins3dModel
@@ -94,6 +98,11 @@ MAX_ONSETS = 16
 #: every tested fit (``tested``: at most 5): ranked as recorded, the true accelerometer x step
 #: of a 5-min MEMS flight was the worst of four and was not refitted (docs/ins3d_relinearize.md)
 REFITTED = 5
+#: a refit (``_parabola_min``): the first three magnitudes b0 (1 -+ spread), at most this many
+#: parabola vertices after them, none closer than ``REFIT_TOL`` b0 to a point already costed
+REFIT_SPREAD = 0.1
+REFIT_STEPS = 3
+REFIT_TOL = 1e-3
 
 
 @njit(cache=True, nogil=True)
@@ -304,7 +313,7 @@ def relinearized_cost(model: Ins3dModel, steps: NavSteps, refs: RefRows, x0: np.
     fwd = run_forward(model, steps, refs, x0=x0, P0=P0, keep_prior=True, threads=1)
     best, cur = fwd.neg2_log_likelihood(), (steps, refs, fwd)
     for _ in range(MAX_PASSES):
-        x_s = run_backward(model, *cur, rank_tol, threads=1).x_s
+        x_s = smoothed_states(model, *cur, rank_tol)
         s2, r2 = relinearized(model, steps, refs, x_s)
         f2 = run_forward(model, s2, r2, x0=x0, P0=P0, keep_prior=True, threads=1)
         cost = f2.neg2_log_likelihood()
@@ -319,31 +328,49 @@ def refit(model: Ins3dModel, win: Window, f: Fit, rank_tol: float) -> Fit:
     flight: on a flight whose no-fault errors leave small angles the fits must be compared with
     the model the analysis uses there -- linear about zero, the fault-free MEMS flight's own
     5-10 deg of attitude error leave a misfit that a large yaw fault absorbs
-    (docs/ins3d_relinearize.md)."""
-    from scipy.optimize import minimize_scalar
+    (docs/ins3d_relinearize.md). The cost is close to quadratic in the magnitude (exactly so
+    for a linear model): three points around the fit's magnitude, then the vertex of the
+    parabola through the best three, at most ``REFIT_STEPS`` times (``_parabola_min``)."""
     k = int(np.searchsorted(win.steps.t, f.onset))
 
     def cost(b: float) -> float:
         return relinearized_cost(model, *corrected(model, win.steps, win.refs, f.sensor, f.axis,
                                                    f.kind, k, b), win.x0, win.P0, rank_tol)
 
-    lo, hi = sorted((0.5 * f.magnitude, 2.0 * f.magnitude))
-    r = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
-                        options={"xatol": 1e-2 * abs(f.magnitude) + 1e-15})
-    b, c = (float(r.x), float(r.fun))
+    b, c = _parabola_min(cost, f.magnitude)
     return Fit(f.name, f.sensor, f.axis, f.kind, f.onset, b, c)
+
+
+def _parabola_min(cost, b0: float) -> tuple[float, float]:
+    """(b, cost(b)): the least of ``cost`` near ``b0`` (within 0.5 .. 2 times it): ``cost`` at
+    b0 and b0 (1 -+ REFIT_SPREAD), then at the vertex of the parabola through the three least
+    points while it is a minimum, moves by more than ``REFIT_TOL`` of b0 and the steps last."""
+    lo, hi = sorted((0.5 * b0, 2.0 * b0))
+    pts = {b: cost(b) for b in (b0 * (1.0 - REFIT_SPREAD), b0, b0 * (1.0 + REFIT_SPREAD))}
+    for _ in range(REFIT_STEPS):
+        (x1, y1), (x2, y2), (x3, y3) = sorted(sorted(pts.items(), key=lambda p: p[1])[:3])
+        den = (x2 - x1) * (y2 - y3) - (x2 - x3) * (y2 - y1)
+        num = (x2 - x1) ** 2 * (y2 - y3) - (x2 - x3) ** 2 * (y2 - y1)
+        if den == 0.0 or (y3 - y2) / (x3 - x2) <= (y2 - y1) / (x2 - x1):
+            break                                   # not convex: no vertex to go to
+        x = float(np.clip(x2 - 0.5 * num / den, lo, hi))
+        if min(abs(x - p) for p in pts) <= REFIT_TOL * abs(b0):
+            break
+        pts[x] = cost(x)
+    b = min(pts, key=pts.get)
+    return float(b), float(pts[b])
 
 
 def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
             cv: dict[str, GlrCurve], iso: Isolation, eps: float,
             margin: float = AMBIGUITY_MARGIN,
-            relinearized: tuple | None = None) -> NonlinearCheck:
+            rank_tol: float | None = None) -> NonlinearCheck:
     """The nonlinear check (module docstring); ``fwd`` the flight's forward pass (with the
     priors: ``run_forward(keep_prior=True)``), ``eps`` the model's relative signature error
-    (``glr3d.settle``). When the analysis relinearised the flight, ``relinearized`` =
-    (the backward sweep's rank_tol, the ``Relinearization``, the kept pass's forward filter):
-    the best ``REFITTED`` fits are then refitted and compared relinearised (``refit``), on the
-    window started from the kept pass's prior (the total error). Changes ``iso`` in place."""
+    (``glr3d.settle``). When the analysis relinearised the flight, ``rank_tol`` = the backward
+    sweep's (None: not relinearised): the best ``REFITTED`` fits are then refitted and compared
+    relinearised (``refit``), on the whole flight from the analysis' prior. Changes ``iso`` in
+    place."""
     j_of = {float(t): j for j, t in enumerate(refs.t)}
     own = [j_of.get(float(cv[n].t[cv[n].best]), 0) for n in (iso.best, iso.rival) if n]
     j0, j1 = max(min(own) - 2, 0), min(max(own) + 1, refs.t.size - 1)
@@ -355,9 +382,8 @@ def confirm(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd,
     with ThreadPoolExecutor(max_workers=max(1, min(2, usable_threads()))) as pool:
         check.fits = list(pool.map(lambda n: fit(model, win, cv[n], k_range, t_first),
                                    tested(cv, iso)))
-        if relinearized is not None and REFITTED > 0:
-            rank_tol, rel, rel_fwd = relinearized
-            rwin = replace(win, **dict(zip(("x0", "P0"), rel.total_prior(rel_fwd, j0))))
+        if rank_tol is not None and REFITTED > 0:
+            rwin = Window.of(steps, refs, fwd, 0)
             top = sorted(check.fits, key=lambda f: f.cost)[:REFITTED]
             check.refits = list(pool.map(lambda f: refit(model, rwin, f, rank_tol), top))
             check.cost0 = relinearized_cost(model, rwin.steps, rwin.refs, rwin.x0, rwin.P0,

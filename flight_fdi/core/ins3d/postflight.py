@@ -121,10 +121,23 @@ def run_backward(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dFo
         bad = backward_sweep(*sweep, len(steps), m, 3, *_kept(0, n))[3]
         on = slice(None) if first.size == m else first      # (no copy when all are)
         stats = joint(eta[on], I3[on], rows)
-    if bad >= 0:
-        raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
-                        f"t = {steps.t[bad]:.3f} s")
+    _positive_definite(steps, bad)
     return Ins3dBackward(refs.t, *out[:7], eta, I3, *out[7:], sB, first, stats)
+
+
+def smoothed_states(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
+                    rank_tol: float) -> np.ndarray:
+    """The smoothed state x_s (M, n) of ``run_backward`` alone: the sweep without the fault
+    information and its statistics (``backward_sweep`` part 1, one thread) -- what a
+    relinearisation needs (``nonlinear.relinearized_cost``), bit-identical to
+    ``run_backward(...).x_s``."""
+    if fwd.Ps_prior is None:
+        raise CoreError("ins3d backward: the forward pass must keep its priors (keep_prior)")
+    fwd = fused_forward(model, steps, refs, fwd)
+    sweep, _, out, _, _ = _sweep_args(model, steps, refs, fwd, rank_tol, fwd.nu)
+    bad = backward_sweep(*sweep, len(steps), refs.t.size, 1, *_kept(0, model.n))[3]
+    _positive_definite(steps, bad)
+    return out[0]
 
 
 def _sweep_args(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward,
@@ -158,10 +171,16 @@ def fault_information(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: In
     the fault blocks only)."""
     sweep, _, _, eta, _ = _sweep_args(model, steps, refs, fwd, 0.0, nu)
     bad = backward_sweep(*sweep, len(steps), refs.t.size, 2, *_kept(0, model.n))[3]
+    _positive_definite(steps, bad)
+    return eta
+
+
+def _positive_definite(steps: NavSteps, bad: int) -> None:
+    """The sweep's failure (``bad``: the boundary where P_f is not positive definite, -1:
+    none) as one CoreError line."""
     if bad >= 0:
         raise CoreError(f"ins3d backward: the forward covariance is not positive definite at "
                         f"t = {steps.t[bad]:.3f} s")
-    return eta
 
 
 def _kept(size: int, n: int) -> tuple:
@@ -299,4 +318,4 @@ def resolve(model: Ins3dModel, steps: NavSteps, refs: RefRows, fwd: Ins3dForward
 
 __all__ = ["Ins3dBackward", "data_up_to", "direction", "fault_information", "fault_scales",
            "fused_forward", "glr_curves", "kernel_args", "resolve", "run_backward", "seed_method",
-           "signature"]
+           "signature", "smoothed_states"]

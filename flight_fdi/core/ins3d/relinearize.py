@@ -147,16 +147,6 @@ class Relinearization:
     forward: object
     attitude_max_rad: list[float] = field(default_factory=list)
     neg2_log_likelihood: list[float] = field(default_factory=list)
-    #: the kept pass's known-input response w (K+1, n; ``relinearized_input``), None: no pass
-    response: np.ndarray | None = None
-
-    def total_prior(self, fwd, j: int) -> tuple[np.ndarray, np.ndarray]:
-        """(x, P) before update ``j`` of the kept pass's forward filter ``fwd``, x as the total
-        error (the filter's state plus w at the update's boundary)."""
-        x, P = fwd.prior(j)
-        if self.response is not None:
-            x = x + self.response[int(self.refs.step[j])]
-        return x, P
 
     @property
     def passes(self) -> int:

@@ -25,6 +25,7 @@ Two parts, both pure logic (no rclpy):
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -32,7 +33,7 @@ import numpy as np
 from numba import njit
 
 from ..gate import AlarmLogic, GateConfig
-from .data import NavSteps, nav_steps
+from .data import NavSteps, interpolate_height, nav_steps
 from .filter import _update, propagate, scale_factors, white_variance
 from .model import Ins3dModel
 
@@ -183,6 +184,20 @@ class _Series:
 
 
 TOPIC_KEYS = ("ins_imu", "ins_velocity", "ins_fix", "ref_velocity")
+#: the optional height reference's key (``Ins3dAssembler(height=HeightRule(...))``)
+HEIGHT = "height"
+
+
+@dataclass(frozen=True)
+class HeightRule:
+    """A height reference as the third row (``bagio.height_input.HeightSpec``'s numbers): the
+    widest interpolation gap (s), the datum ``first`` (True: offset to the INS height at the
+    first sample inside the IMU record, the prior ``h0_sigma`` its sigma) or absolute, and the
+    variance of a sample without a usable one (m^2)."""
+
+    max_gap_s: float
+    first: bool
+    variance: float
 
 
 class Ins3dAssembler:
@@ -192,8 +207,16 @@ class Ins3dAssembler:
     ``non_finite``, ``invalid_covariance``); ``late`` counts reference rows that arrived after
     their boundary had been passed (only after a ``wait_s`` time-out)."""
 
-    def __init__(self, wait_s: float = 1.0) -> None:
+    def __init__(self, wait_s: float = 1.0, height: HeightRule | None = None) -> None:
         self.wait_s = float(wait_s)
+        self.height = height
+        self.hgt = _Series()                      # (t, [h, variance]) inside the IMU record
+        self._hgt_held: list = []                 # height messages before t0
+        self.offset: float | None = None if height is not None and height.first else 0.0
+        self.h0_sigma: float | None = None        # the datum's prior (``Ins3dModel.h0_sigma``)
+        self.no_height = 0                        # reference rows without a height
+        self.height_outside = 0                   # heights outside the IMU record
+        self.height_from_message = 0              # heights whose variance was the message's
         self.t0_ns: int | None = None
         self._held: dict[str, list] = {k: [] for k in TOPIC_KEYS}
         self._last_ns: dict[str, int] = {}
@@ -219,22 +242,24 @@ class Ins3dAssembler:
         return None
 
     def add(self, key: str, ns: int, *values: np.ndarray) -> list | str:
-        """One message of topic ``key`` (TOPIC_KEYS) with its stamp in ns: ins_imu (q (w, x, y,
-        z), f, w), ins_velocity (v), ins_fix (lat rad, h), ref_velocity (v, r)."""
-        flat = np.concatenate([np.atleast_1d(np.asarray(v, dtype=float)) for v in values])
+        """One message of topic ``key`` (TOPIC_KEYS, or HEIGHT) with its stamp in ns: ins_imu
+        (q (w, x, y, z), f, w), ins_velocity (v), ins_fix (lat rad, h), ref_velocity (v, r),
+        height (h m, its variance m^2 or NaN: unknown)."""
+        flat = np.concatenate([np.atleast_1d(np.asarray(v, dtype=float))
+                               for v in (values[:1] if key == HEIGHT else values)])
         why = self._accept(key, int(ns), flat)
         if why is not None:
             return why
         if key == "ref_velocity" and np.any(np.asarray(values[1]) <= 0):
             return "invalid_covariance"
-        if self.t0_ns is None:
-            self._held[key].append((int(ns), values))
+        if self.t0_ns is None:                    # t0: the contract topics' (as the bag reader)
+            (self._hgt_held if key == HEIGHT else self._held[key]).append((int(ns), values))
             if all(self._held.values()):
                 self.t0_ns = min(h[0][0] for h in self._held.values())
-                for k, held in self._held.items():
+                for k, held in [*self._held.items(), (HEIGHT, self._hgt_held)]:
                     for ns_, vals in held:
                         self._store(k, ns_, vals)
-                self._held = {}
+                self._held, self._hgt_held = {}, []
                 return self._drain()
             return []
         self._store(key, int(ns), values)
@@ -251,6 +276,15 @@ class Ins3dAssembler:
             self.vel.add(t, np.asarray(values[0], dtype=float))
         elif key == "ins_fix":
             self.fix.add(t, np.array([float(values[0]), float(values[1])]))
+        elif key == HEIGHT:
+            if t < self.imu.t[0]:
+                self.height_outside += 1
+                return
+            var = float(values[1])
+            known = math.isfinite(var) and var > 0
+            self.height_from_message += known
+            self.hgt.add(t, np.array([float(values[0]), var if known else self.height.variance,
+                                      float(known)]))
         else:
             self.refs.append((t, ns, np.asarray(values[0], dtype=float),
                               np.asarray(values[1], dtype=float)))
@@ -264,6 +298,10 @@ class Ins3dAssembler:
         events = self._drain()
         self.outside += len(self.refs)            # after the last IMU stamp
         self.refs.clear()
+        if self.height is not None and self.imu.t:
+            after = len(self.hgt.t) - bisect.bisect_right(self.hgt.t, self.imu.t[-1])
+            self.height_outside += after
+            self.height_from_message -= int(sum(y[2] for y in self.hgt.y[len(self.hgt.t) - after:]))
         return events
 
     # -- events
@@ -294,8 +332,49 @@ class Ins3dAssembler:
         return t is not None and self.vel.covers(t, self.finished) and \
             self.fix.covers(t, self.finished)
 
-    def _row(self) -> Row | None:
-        """The first waiting reference as a row when it can be computed, else None."""
+    def _datum(self) -> bool:
+        """Whether the height's datum is known (``HeightRule.first``: the first sample inside
+        the IMU record and the fix around it have come; ``offset``, ``h0_sigma``)."""
+        if self.offset is not None:
+            return True
+        if not self.hgt.t or not self.fix.covers(self.hgt.t[0], self.finished):
+            return False
+        h0, var0, _ = self.hgt.y[0]
+        self.offset = float(self.fix.interp(self.hgt.t[0])[1] - h0)
+        self.h0_sigma = math.sqrt(float(var0))
+        return True
+
+    def _height_at(self, t: float) -> tuple[float, float] | str | None:
+        """(height + datum offset, its variance) at a reference stamp t (``interpolate_height``
+        between the samples around it, as the bag reader), ``"wait"`` while a sample it needs
+        may still come, None when there is none within the rule's gap (the row is dropped:
+        ``no_height``). A sample is used once the IMU record reaches it (the bag reader drops
+        the heights after the IMU record's end); a row gives up waiting for a sample after it
+        when the IMU is ``max_gap_s`` + ``wait_s`` past its stamp (a sample that could pair
+        would have come by then)."""
+        s, rule = self.hgt, self.height
+        if self.offset is None:
+            return None                           # the record ended without a height
+        i = bisect.bisect_left(s.t, t)
+        if i < len(s.t) and s.t[i] == t:
+            j = [i]
+        elif i < len(s.t) and (self.finished or self.imu.t[-1] >= s.t[i]):
+            if (self.finished and s.t[i] > self.imu.t[-1]) or i == 0 \
+                    or s.t[i] - s.t[i - 1] > rule.max_gap_s:
+                return None
+            j = [i - 1, i]
+        elif self.finished or self.imu.t[-1] - t > rule.max_gap_s + self.wait_s:
+            return None                           # a sample after t within the gap came by now
+        else:
+            return "wait"
+        y = np.stack([s.y[k] for k in j])
+        hz, rz, _ = interpolate_height(np.array([t]), np.array([s.t[k] for k in j]),
+                                       y[:, 0] + self.offset, y[:, 1], rule.max_gap_s)
+        return float(hz[0]), float(rz[0])
+
+    def _row(self) -> Row | str | None:
+        """The first waiting reference as a row when it can be computed, else None (or
+        ``"no_height"``: it has no height sample)."""
         t, ns, v_ref, r = self.refs[0]
         vel = self.vel
         i = bisect.bisect_right(vel.t, t)         # first sample after t
@@ -310,7 +389,15 @@ class Ins3dAssembler:
             g0, g1 = vel.gradient(i - 1), vel.gradient(i)
             tw = [vel.t[i - 1], vel.t[i]]
             a_i = np.array([np.interp(t, tw, [g0[c], g1[c]]) for c in range(3)])
-        return Row(-1, t, ns, v_i - v_ref, r, a_i)
+        z = v_i - v_ref
+        if self.height is not None:               # the third row: the height (data.with_height)
+            got = self._height_at(t)
+            if got is None or got == "wait":
+                return "no_height" if got is None else None
+            z, r, a_i = z.copy(), np.asarray(r, dtype=float).copy(), a_i.copy()
+            z[2] = self.fix.interp(t)[1] - got[0]
+            r[2], a_i[2] = got[1], v_i[2]
+        return Row(-1, t, ns, z, r, a_i)
 
     def _updates(self, events: list) -> None:
         """Rows of the current boundary ``self.k``."""
@@ -330,8 +417,11 @@ class Ins3dAssembler:
             row = self._row()
             if row is None:
                 return
-            row.k = k
             self.refs.popleft()
+            if isinstance(row, str):
+                self.no_height += 1
+                continue
+            row.k = k
             events.append(row)
 
     def _can_advance(self) -> bool:
@@ -348,6 +438,8 @@ class Ins3dAssembler:
 
     def _drain(self) -> list:
         events: list = []
+        if self.height is not None and not self._datum() and not self.finished:
+            return events                         # the prior of the first step needs it
         if self.k < 0:
             if not self.imu.t:
                 return events
@@ -380,6 +472,9 @@ class Ins3dAssembler:
             del self._imu_fw[:cut], self._imu_ns[:cut]
         self.vel.prune(t - self.wait_s)
         self.fix.prune(t)
+        if self.height is not None and self.offset is not None:
+            self.hgt.prune(t - self.wait_s - self.height.max_gap_s)
 
 
-__all__ = ["Boundary", "Ins3dAssembler", "Ins3dStream", "Ins3dUpdate", "Row", "TOPIC_KEYS"]
+__all__ = ["Boundary", "HEIGHT", "HeightRule", "Ins3dAssembler", "Ins3dStream", "Ins3dUpdate",
+           "Row", "TOPIC_KEYS"]
