@@ -2,7 +2,7 @@
 """The 3-D post-flight isolator (ins3d) on the real Xsens DOT recordings: the tables of
 docs/ins3d_real.md (markdown on stdout or --out), seeded.
 
-    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcde]
+    .venv/bin/python tools/ins3d_real_eval.py [--data DIR] [--seed 1] [--settings abcdefghij]
                                               [--out F]
 
 For each setting (SETTINGS: process noise, accelerometer prior, reference correction, the
@@ -248,7 +248,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--units", default="1,2,3,4")
     p.add_argument("--settings", default="abcdefghij",
-                   help="which SETTINGS (letters a-h, default all)")
+                   help="which SETTINGS (letters a-j, default all)")
     p.add_argument("--no-faults", action="store_true")
     p.add_argument("--out", type=Path)
     p.add_argument("--records", type=Path,

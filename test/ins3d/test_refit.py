@@ -113,7 +113,8 @@ def test_the_refit_search_finds_a_parabola_s_vertex_in_one_step():
     """``nonlinear._parabola_min`` (the refit's magnitude search): a quadratic cost is minimised
     exactly by the vertex through its first three points (4 costs); a smooth non-quadratic one
     (cosh) within the tolerance in a few more; the search stays within 0.5 .. 2 times b0 and
-    never costs more than 3 + REFIT_STEPS points."""
+    never costs more than 3 + REFIT_STEPS points; a fit of magnitude 0 (the linear fit's grid
+    holds 0; real vertical/path_14 in setting (j)) is costed once, not a 1-point "parabola"."""
     calls = []
 
     def quadratic(b):
@@ -128,3 +129,6 @@ def test_the_refit_search_finds_a_parabola_s_vertex_in_one_step():
     calls.clear()
     b, _ = nonlinear._parabola_min(lambda x: calls.append(x) or (x - 50.0) ** 2, 1.0)
     assert b == 2.0 and all(0.5 <= x <= 2.0 for x in calls)      # clipped to the bracket
+    calls.clear()
+    b, c = nonlinear._parabola_min(lambda x: calls.append(x) or (x - 0.3) ** 2 + 7.0, 0.0)
+    assert (b, c, calls) == (0.0, 7.09, [0.0])    # a fit of magnitude 0: its cost, no search

@@ -344,7 +344,11 @@ def refit(model: Ins3dModel, win: Window, f: Fit, rank_tol: float) -> Fit:
 def _parabola_min(cost, b0: float) -> tuple[float, float]:
     """(b, cost(b)): the least of ``cost`` near ``b0`` (within 0.5 .. 2 times it): ``cost`` at
     b0 and b0 (1 -+ REFIT_SPREAD), then at the vertex of the parabola through the three least
-    points while it is a minimum, moves by more than ``REFIT_TOL`` of b0 and the steps last."""
+    points while it is a minimum, moves by more than ``REFIT_TOL`` of b0 and the steps last.
+    A fit of magnitude 0 (its hypothesis explains nothing: the linear fit's grid holds 0) is
+    the no-fault flight's cost, with no bracket to search."""
+    if b0 == 0.0:
+        return 0.0, float(cost(0.0))
     lo, hi = sorted((0.5 * b0, 2.0 * b0))
     pts = {b: cost(b) for b in (b0 * (1.0 - REFIT_SPREAD), b0, b0 * (1.0 + REFIT_SPREAD))}
     for _ in range(REFIT_STEPS):
