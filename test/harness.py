@@ -18,11 +18,12 @@ os.environ.pop("ROS_STATIC_PEERS", None)
 # Fast DDS's writers heartbeat every 3 s by default, and a reliable writer's last samples are
 # acknowledged only at the next heartbeat: a replay across processes waited 2-4 s for it at its
 # end (the drain), ~25 s of test_graph.py's ten replays. The tests (and their subprocesses) run
-# with a 100-ms heartbeat (test/fastdds_test_profile.xml): the same reliability and QoS, the
-# acknowledgements sooner. A developer's own profile file wins.
+# with a 100-ms heartbeat (config/fastdds_fast_heartbeat.xml, shipped for users' own multi-process
+# graphs): the same reliability and QoS, the acknowledgements sooner. A developer's own profile
+# file wins.
 os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE",
-                      os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                                   "fastdds_test_profile.xml"))
+                      os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                   "config", "fastdds_fast_heartbeat.xml"))
 #: a second private domain, for a test that runs two ROS graphs side by side (test_graph.py);
 #: outside 100-199, so no test process's own domain
 SECOND_DOMAIN_ID = 200 + os.getpid() % 32
