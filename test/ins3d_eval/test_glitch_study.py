@@ -3,23 +3,10 @@ simulator"): the IMU fault named, the glitch on its row near the spikes, the spi
 and what counts as a confident wrong answer."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+from repo_scripts import load_script
 
-REPO = Path(__file__).resolve().parents[2]
-
-
-def _tool():
-    spec = importlib.util.spec_from_file_location("ins3d_glitch_study",
-                                                  REPO / "tools" / "ins3d_glitch_study.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-T = _tool()
+T = load_script("tools/ins3d_glitch_study.py")
 SPIKES = np.array([300.2, 301.0, 312.5])
 
 

@@ -4,19 +4,16 @@ relinearised (``post_flight.relinearization``) and whether the model stayed vali
 them. Before: neither was in a record."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import sys
-from pathlib import Path
 
 import pytest
 
 from flight_fdi.eval import real3d as R
+from repo_scripts import load_script
 
 from .conftest import EXCERPT
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 def consistent(out: dict, analysis) -> None:
@@ -51,11 +48,7 @@ def test_records_say_relinearised_and_valid_as_the_result(rec, cal):
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("ins3d_real_eval",
-                                                  REPO / "tools" / "ins3d_real_eval.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("tools/ins3d_real_eval.py")
 
 
 def test_validity_line_counts_the_records():
