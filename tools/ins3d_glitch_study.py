@@ -116,9 +116,9 @@ def run(config: M.Study3DConfig) -> list[dict]:
 
 
 def table(rows: list[dict]) -> list[str]:
-    out = ["| flights | n | IMU fault right: alone → with the glitch | confident wrong: alone → "
-           "with | ambiguous: alone → with | glitch reported (flights with ≥ 1 spike) | spikes "
-           "found of drawn |",
+    out = ["| flights | n | IMU fault right: alone → with the glitch | confident wrong: "
+           "alone → with | ambiguous: alone → with | glitch reported (flights with ≥ 1 spike) "
+           "| spikes found of drawn |",
            "|---|---|---|---|---|---|---|"]
     for name in ("nominal", "accel_step", "gyro_step"):
         rs = [r for r in rows if r["scenario"] == name]

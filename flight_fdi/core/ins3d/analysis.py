@@ -27,7 +27,7 @@ from .grades import ImuGrade
 from .model import IBA, IBG, IPHI, Ins3dModel
 from .nonlinear import SMALL_ANGLE_RAD, NonlinearCheck, confirm, corrected, needs_check
 from .relinearize import (MAX_PASSES, RELINEARIZE_MPS2, RELINEARIZE_RAD, TOLERANCE_RAD,
-                          Relinearization, Validity, largest_attitude, relinearized_input,
+                          Relinearization, Validity, largest_attitude, relinearized,
                           velocity_remainder)
 from .observability import ObservabilityReport, manoeuvres, observability
 from .postflight import Ins3dBackward, glr_curves, resolve, run_backward, seed_method
@@ -284,7 +284,7 @@ def _relinearize(out: Ins3dAnalysis, gate: GateConfig, aligned_prior: bool,
                           [out.forward.neg2_log_likelihood()])
     x_s = out.backward.x_s
     for _ in range(MAX_PASSES):
-        steps, refs, _ = relinearized_input(model, rel.steps, rel.refs, x_s)
+        steps, refs = relinearized(model, rel.steps, rel.refs, x_s)
         P0 = initial_covariance(model, steps.C[0], steps.f_n[0], float(steps.lat[0]),
                                 aligned_prior)
         fwd = run_forward(model, steps, refs, gate=gate, P0=P0, keep_prior=True)

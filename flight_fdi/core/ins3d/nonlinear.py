@@ -55,10 +55,11 @@ check's window from the prior of the analysis' relinearised pass, the refits inh
 pass's linearisation point -- the smoothed errors of the *faulty* flight, which the fault moved
 before its own onset: on a real straight leg a gyro y step of 3000 deg/h was named its tilt
 twin, the accelerometer x ramp, by a gap of 29 (the two within 2.3 as linear fits; the gyro's
-refit 30 worse than its own linear fit) -- docs/ins3d_relinearize.md, "Session 18". All of them (``REFITTED``), not the best few as recorded:
-that ranking is the biased one (a 20-mg accelerometer x step, the truth, ranked last of four
-and a 27 500-deg/h yaw step was named). About 5 x 5 relinearised evaluations (3 forward
-passes and 2 backward sweeps of the flight each; the magnitude by ``_parabola_min``) more. On such a flight every confident (``single``)
+refit 30 worse than its own linear fit) -- docs/ins3d_relinearize.md, "Session 18". All of
+them (``REFITTED``), not the best few as recorded: that ranking is the biased one (a 20-mg
+accelerometer x step, the truth, ranked last of four and a 27 500-deg/h yaw step was named).
+About 5 x 5 relinearised evaluations (3 forward passes and 2 backward sweeps of the flight
+each; the magnitude by ``_parabola_min``) more. On such a flight every confident (``single``)
 decision whose best or rival is a gyro is checked (``analysis``: limit 0), not only those
 turning by ``SMALL_ANGLE_RAD``: the linear signatures were taken about an estimate the fault
 itself moved (a gyro step of 200 deg/h 75 s before the end of a 5-min flight, 4 deg, was named

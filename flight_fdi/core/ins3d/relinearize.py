@@ -103,14 +103,8 @@ def relinearized(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                  x_updates: np.ndarray) -> tuple[NavSteps, RefRows]:
     """The flight (``steps``, ``refs`` sorted by step) as the model linearised about the
     estimated errors ``x_updates`` (M, n) at the updates (their attitude and velocity errors)
-    sees it (module docstring)."""
-    return relinearized_input(model, steps, refs, x_updates)[:2]
-
-
-def relinearized_input(model: Ins3dModel, steps: NavSteps, refs: RefRows,
-                       x_updates: np.ndarray) -> tuple[NavSteps, RefRows, np.ndarray]:
-    """``relinearized`` and the known input's response w (K+1, n) at the boundaries: the
-    relinearised filter's state is the total error less w."""
+    sees it (module docstring): the measurements less the known input's response w at the
+    boundaries (the relinearised filter's state is the total error less w)."""
     K = len(steps)
     x = at_steps(refs, np.asarray(x_updates)[:, :IPHI + 3], K)
     Cc, fc = np.empty_like(steps.C), np.empty_like(steps.f_n)
@@ -120,7 +114,7 @@ def relinearized_input(model: Ins3dModel, steps: NavSteps, refs: RefRows,
                  model.kernel_params(), Cc, fc, w)
     out = NavSteps(steps.t, steps.dt, Cc, fc, steps.w_b, steps.v, steps.lat, steps.h)
     z = refs.z - w[refs.step][:, model.row_states]
-    return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a), w
+    return out, RefRows(refs.t, np.ascontiguousarray(z), refs.r, refs.step, refs.a)
 
 
 def largest_attitude(x_s: np.ndarray) -> float:
@@ -184,4 +178,4 @@ class Validity:
 
 __all__ = ["MAX_PASSES", "RELINEARIZE_MPS2", "RELINEARIZE_RAD", "Relinearization", "TOLERANCE_RAD",
            "VALID_RAD", "Validity", "at_steps", "largest_attitude", "relinearized",
-           "relinearized_input", "remainder"]
+           "remainder"]
